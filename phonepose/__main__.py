@@ -1,0 +1,3 @@
+from phonepose.cli import main
+
+main()

@@ -1,0 +1,3 @@
+"""``phonepose record``: not built yet (see the issues)."""
+
+from __future__ import annotations

@@ -1,0 +1,3 @@
+"""``phonepose recover``: not built yet (see the issues)."""
+
+from __future__ import annotations

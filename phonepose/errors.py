@@ -1,0 +1,43 @@
+"""phonepose's error types. Each carries the exit code the CLI uses for it.
+
+Errors a user can cause end in one line on stderr and this exit code, never a traceback
+(see docs/reliability.md for the table).
+"""
+
+from __future__ import annotations
+
+
+class PhoneposeError(Exception):
+    """Base class: a problem with the user's input or environment, reported in one line."""
+
+    exit_code = 1
+
+
+class InputFileError(PhoneposeError):
+    """Missing, unreadable, empty, or non-MCAP file."""
+
+    exit_code = 2
+
+
+class DamagedFileError(PhoneposeError):
+    """An MCAP file that is truncated or corrupt (use `phonepose recover`)."""
+
+    exit_code = 3
+
+
+class SessionContentError(PhoneposeError):
+    """A readable session that lacks what the command needs (camera, VIO, ...), or bad data in it."""
+
+    exit_code = 4
+
+
+class ConfigError(PhoneposeError):
+    """Bad option, config file or value (names the key and the allowed values)."""
+
+    exit_code = 5
+
+
+class OutputError(PhoneposeError):
+    """Output cannot be written (directory not writable, disk full)."""
+
+    exit_code = 6

@@ -1,0 +1,88 @@
+"""Every topic and frame name of a phonepose session, and the message type on each topic.
+
+This is the only module that spells topic and frame names; everything else imports them.
+See docs/format.md for what each topic carries.
+"""
+
+from __future__ import annotations
+
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+from phonepose.schemas import phonepose_pb2 as pb
+
+
+class Frame:
+    """Coordinate frame ids (``frame_id`` fields, Rerun frame names)."""
+
+    WORLD = "world"                    # motion capture
+    DISPLAY_VIO = "display_vio"        # the display device's VIO world; trackers report here
+    CONTROLLER_VIO = "controller_vio"  # the controller's own VIO world
+    DISPLAY = "display"                # display device body
+    DISPLAY_CAMERA = "display_camera"  # OpenCV optical: x right, y down, z forward
+    CONTROLLER = "controller"          # phone body of the controller
+    MARKER = "marker"                  # the ArUco marker on the controller's screen
+    ANCHOR = "anchor"                  # the shared (cloud) anchor
+
+
+class Topic:
+    """Topic names. ``TRACKER_POSE`` is a template: use :func:`tracker_pose_topic`."""
+
+    CAMERA_IMAGE = "/display/camera/image"
+    CAMERA_CALIBRATION = "/display/camera/calibration"
+    CAMERA_EXTRINSICS = "/display/camera/extrinsics"   # display -> display_camera (static)
+    DISPLAY_VIO_POSE = "/display/vio/pose"
+    DISPLAY_ANCHOR = "/display/anchor"
+    CONTROLLER_VIO_POSE = "/controller/vio/pose"
+    CONTROLLER_ANCHOR = "/controller/anchor"
+    CONTROLLER_IMU = "/controller/imu"
+    CONTROLLER_MARKER = "/controller/marker"
+    GT_CONTROLLER_POSE = "/gt/controller/pose"
+    GT_DISPLAY_POSE = "/gt/display/pose"
+    GT_CALIBRATION = "/gt/calibration"                 # world -> display_vio
+    CALIBRATION_EVENTS = "/events/calibration"
+    EXPERIMENT_TARGETS = "/experiment/targets"
+    EXPERIMENT_PATH = "/experiment/path"
+    SESSION_INFO = "/session/info"
+    LOG = "/log"
+    # playback output
+    PIPELINE_MARKERS = "/pipeline/markers"
+    TRACKER_POSE = "/trackers/{name}/pose"
+
+
+def tracker_pose_topic(name: str) -> str:
+    return Topic.TRACKER_POSE.format(name=name)
+
+
+# Message type of every fixed topic. Tracker pose topics are PoseInFrame.
+TOPIC_TYPES: dict[str, type] = {
+    Topic.CAMERA_IMAGE: CompressedImage,
+    Topic.CAMERA_CALIBRATION: CameraCalibration,
+    Topic.CAMERA_EXTRINSICS: FrameTransform,
+    Topic.DISPLAY_VIO_POSE: PoseInFrame,
+    Topic.DISPLAY_ANCHOR: PoseInFrame,
+    Topic.CONTROLLER_VIO_POSE: PoseInFrame,
+    Topic.CONTROLLER_ANCHOR: PoseInFrame,
+    Topic.CONTROLLER_IMU: pb.Imu,
+    Topic.CONTROLLER_MARKER: pb.MarkerSpec,
+    Topic.GT_CONTROLLER_POSE: PoseInFrame,
+    Topic.GT_DISPLAY_POSE: PoseInFrame,
+    Topic.GT_CALIBRATION: FrameTransform,
+    Topic.CALIBRATION_EVENTS: pb.CalibrationEvent,
+    Topic.EXPERIMENT_TARGETS: pb.Targets,
+    Topic.EXPERIMENT_PATH: pb.PathSpec,
+    Topic.SESSION_INFO: pb.SessionInfo,
+    Topic.LOG: Log,
+    Topic.PIPELINE_MARKERS: pb.MarkerDetections,
+}
+
+
+def message_type_for(topic: str) -> type:
+    if topic in TOPIC_TYPES:
+        return TOPIC_TYPES[topic]
+    if topic.startswith("/trackers/") and topic.endswith("/pose"):
+        return PoseInFrame
+    raise KeyError(topic)

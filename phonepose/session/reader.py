@@ -1,0 +1,184 @@
+"""SessionReader: typed, decoded messages of a session in a deterministic order.
+
+Messages come in (log_time, channel id, sequence) order, streamed chunk by chunk (nothing
+loads the whole file), optionally filtered by topic and by a log-time range.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+from google.protobuf.message import DecodeError
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader, make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from phonepose.errors import DamagedFileError, InputFileError, SessionContentError
+from phonepose.schemas.topics import TOPIC_TYPES
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+# protobuf schema name -> generated class, for every type a phonepose session uses
+_KNOWN_TYPES = {cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}
+
+
+@dataclass(frozen=True)
+class Message:
+    topic: str
+    log_time_ns: int
+    publish_time_ns: int
+    channel_id: int
+    sequence: int
+    msg: object  # the decoded protobuf message
+
+
+@dataclass
+class ChannelSummary:
+    topic: str
+    schema: str
+    encoding: str
+    count: int
+
+
+@dataclass
+class SessionSummary:
+    path: str
+    channels: list[ChannelSummary] = field(default_factory=list)
+    start_ns: int = 0
+    end_ns: int = 0
+    message_count: int = 0
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) / 1e9
+
+    def has(self, topic: str) -> bool:
+        return any(c.topic == topic and c.count > 0 for c in self.channels)
+
+
+def check_mcap_file(path: str | os.PathLike) -> str:
+    """Raise InputFileError unless ``path`` is an existing, readable, non-empty MCAP file."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputFileError(f"{path}: no such file")
+    if os.path.isdir(path):
+        raise InputFileError(f"{path}: is a directory, not an MCAP file")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(head) == 0:
+        raise InputFileError(f"{path}: empty file")
+    if head != MCAP_MAGIC:
+        raise InputFileError(f"{path}: not an MCAP file")
+    return path
+
+
+class SessionReader:
+    """Open a session for reading. Raises InputFileError / DamagedFileError with one clear line."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = check_mcap_file(path)
+        self._file = open(self.path, "rb")
+        try:
+            self._reader: SeekingReader = make_reader(self._file)
+            self._summary_record = self._reader.get_summary()
+        except (McapError, EOFError, ValueError, MemoryError, OSError, KeyError, IndexError) as exc:
+            self._file.close()
+            raise DamagedFileError(
+                f"{self.path}: damaged MCAP file ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
+            ) from None
+        if self._summary_record is None:
+            self._file.close()
+            raise DamagedFileError(f"{self.path}: MCAP file has no summary (truncated?); run `phonepose recover`")
+        self._decoders: dict[int, object] = {}
+        self._fallback = DecoderFactory()
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> SessionSummary:
+        s = self._summary_record
+        stats = s.statistics
+        counts = dict(stats.channel_message_counts) if stats else {}
+        channels = []
+        for cid, ch in sorted(s.channels.items()):
+            schema = s.schemas.get(ch.schema_id)
+            channels.append(ChannelSummary(ch.topic, schema.name if schema else "", ch.message_encoding,
+                                           counts.get(cid, 0)))
+        return SessionSummary(
+            path=self.path, channels=channels,
+            start_ns=stats.message_start_time if stats else 0,
+            end_ns=stats.message_end_time if stats else 0,
+            message_count=stats.message_count if stats else 0,
+        )
+
+    def topics(self) -> set[str]:
+        return {ch.topic for ch in self._summary_record.channels.values()}
+
+    # ------------------------------------------------------------------ messages
+    def _decode(self, schema, channel, data: bytes):
+        decoder = self._decoders.get(channel.id)
+        if decoder is None:
+            if channel.message_encoding != "protobuf" or schema is None:
+                raise SessionContentError(
+                    f"{self.path}: topic {channel.topic} has encoding {channel.message_encoding!r}, "
+                    "phonepose reads protobuf only")
+            cls = _KNOWN_TYPES.get(schema.name)
+            if cls is not None:
+                decoder = cls.FromString
+            else:
+                decoder = self._fallback.decoder_for(channel.message_encoding, schema)
+                if decoder is None:
+                    raise SessionContentError(f"{self.path}: unknown schema {schema.name!r} on {channel.topic}")
+            self._decoders[channel.id] = decoder
+        try:
+            return decoder(data)
+        except DecodeError:
+            raise SessionContentError(f"{self.path}: undecodable {schema.name} message on {channel.topic}") from None
+
+    def raw_messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
+                     end_ns: int | None = None) -> Iterator[tuple]:
+        """(schema, channel, mcap message) tuples in (log_time, channel id, sequence) order."""
+        topics = list(topics) if topics is not None else None
+        pending: list[tuple] = []
+        try:
+            it = self._reader.iter_messages(topics=topics, starting_at=start_ns, ending_before=end_ns,
+                                            log_time_order=True)
+            for item in it:
+                if pending and item[2].log_time != pending[0][2].log_time:
+                    if len(pending) > 1:
+                        pending.sort(key=lambda x: (x[1].id, x[2].sequence))
+                    yield from pending
+                    pending.clear()
+                pending.append(item)
+        except (McapError, EOFError, ValueError, OSError) as exc:
+            raise DamagedFileError(
+                f"{self.path}: damaged MCAP data ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
+            ) from None
+        if len(pending) > 1:
+            pending.sort(key=lambda x: (x[1].id, x[2].sequence))
+        yield from pending
+
+    def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[Message]:
+        """Decoded messages; ``end_ns`` is exclusive."""
+        for schema, channel, m in self.raw_messages(topics, start_ns, end_ns):
+            yield Message(channel.topic, m.log_time, m.publish_time, channel.id, m.sequence,
+                          self._decode(schema, channel, m.data))
+
+    def first(self, topic: str):
+        """The first decoded message on ``topic``, or None."""
+        for m in self.messages([topic]):
+            return m.msg
+        return None
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "SessionReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

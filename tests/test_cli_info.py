@@ -1,0 +1,57 @@
+"""``phonepose info`` from the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from phonepose.session.sample import sample_messages, write_sample
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
+
+
+def test_version():
+    from phonepose import __version__
+
+    r = run("--version")
+    assert r.returncode == 0 and r.stdout.strip() == f"phonepose {__version__}"
+
+
+def test_info_json(tmp_path):
+    path = tmp_path / "s.mcap"
+    write_sample(path)
+    r = run("info", str(path), "--json")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert data["messages"] == len(sample_messages())
+    topics = {c["topic"]: c for c in data["channels"]}
+    assert topics["/display/camera/image"]["schema"] == "foxglove.CompressedImage"
+    assert topics["/controller/imu"]["schema"] == "phonepose.Imu"
+    assert data["duration_s"] == pytest.approx((len(sample_messages()) - 1) * 1e-6)
+
+
+@pytest.mark.parametrize("content,message", [(None, "no such file"), (b"", "empty file"),
+                                             (b"not mcap at all", "not an MCAP file")])
+def test_info_bad_file_is_one_line_and_nonzero(tmp_path, content, message):
+    path = tmp_path / "bad.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    r = run("info", str(path))
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0
+    assert message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_info_truncated_file_points_to_recover(tmp_path):
+    path = tmp_path / "s.mcap"
+    write_sample(path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    r = run("info", str(path))
+    assert r.returncode == 3
+    assert "recover" in r.stderr and "Traceback" not in r.stderr
