@@ -99,18 +99,18 @@ class CalibrationEvent(_message.Message):
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., kind: _Optional[_Union[CalibrationEvent.Kind, str]] = ..., frame_id: _Optional[str] = ..., pose_fix_vio: _Optional[_Union[_Pose_pb2.Pose, _Mapping]] = ..., pose_align_vio: _Optional[_Union[_Pose_pb2.Pose, _Mapping]] = ..., fix_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
 
 class Target(_message.Message):
-    __slots__ = ("index", "pose", "inside_view", "hold_start_s", "hold_end_s")
+    __slots__ = ("index", "pose", "inside_view", "hold_start", "hold_end")
     INDEX_FIELD_NUMBER: _ClassVar[int]
     POSE_FIELD_NUMBER: _ClassVar[int]
     INSIDE_VIEW_FIELD_NUMBER: _ClassVar[int]
-    HOLD_START_S_FIELD_NUMBER: _ClassVar[int]
-    HOLD_END_S_FIELD_NUMBER: _ClassVar[int]
+    HOLD_START_FIELD_NUMBER: _ClassVar[int]
+    HOLD_END_FIELD_NUMBER: _ClassVar[int]
     index: int
     pose: _Pose_pb2.Pose
     inside_view: bool
-    hold_start_s: float
-    hold_end_s: float
-    def __init__(self, index: _Optional[int] = ..., pose: _Optional[_Union[_Pose_pb2.Pose, _Mapping]] = ..., inside_view: _Optional[bool] = ..., hold_start_s: _Optional[float] = ..., hold_end_s: _Optional[float] = ...) -> None: ...
+    hold_start: _timestamp_pb2.Timestamp
+    hold_end: _timestamp_pb2.Timestamp
+    def __init__(self, index: _Optional[int] = ..., pose: _Optional[_Union[_Pose_pb2.Pose, _Mapping]] = ..., inside_view: _Optional[bool] = ..., hold_start: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., hold_end: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
 
 class Targets(_message.Message):
     __slots__ = ("timestamp", "frame_id", "cube_size_m", "select_radius_m", "targets")
@@ -143,7 +143,7 @@ class PathSpec(_message.Message):
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., name: _Optional[str] = ..., trial: _Optional[int] = ..., waypoints: _Optional[_Iterable[_Union[_Vector3_pb2.Vector3, _Mapping]]] = ..., closed: _Optional[bool] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("timestamp", "source", "scenario", "path", "trial", "seed", "phonepose_version", "config_toml", "description")
+    __slots__ = ("timestamp", "source", "scenario", "path", "trial", "seed", "phonepose_version", "config_toml", "description", "task_start", "task_end")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     SCENARIO_FIELD_NUMBER: _ClassVar[int]
@@ -153,6 +153,8 @@ class SessionInfo(_message.Message):
     PHONEPOSE_VERSION_FIELD_NUMBER: _ClassVar[int]
     CONFIG_TOML_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTION_FIELD_NUMBER: _ClassVar[int]
+    TASK_START_FIELD_NUMBER: _ClassVar[int]
+    TASK_END_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     source: str
     scenario: str
@@ -162,4 +164,6 @@ class SessionInfo(_message.Message):
     phonepose_version: str
     config_toml: str
     description: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., source: _Optional[str] = ..., scenario: _Optional[str] = ..., path: _Optional[str] = ..., trial: _Optional[int] = ..., seed: _Optional[int] = ..., phonepose_version: _Optional[str] = ..., config_toml: _Optional[str] = ..., description: _Optional[str] = ...) -> None: ...
+    task_start: _timestamp_pb2.Timestamp
+    task_end: _timestamp_pb2.Timestamp
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., source: _Optional[str] = ..., scenario: _Optional[str] = ..., path: _Optional[str] = ..., trial: _Optional[int] = ..., seed: _Optional[int] = ..., phonepose_version: _Optional[str] = ..., config_toml: _Optional[str] = ..., description: _Optional[str] = ..., task_start: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., task_end: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
