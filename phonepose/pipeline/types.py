@@ -74,7 +74,7 @@ class MarkerObservation:
 
     corners_px: np.ndarray                    # (4, 2) TL TR BR BL, bias-corrected
     T_camera_marker: Pose
-    T_dvio_controller: Pose                   # controller body in display_vio, from the marker
+    T_dvio_controller: Pose | None            # controller body in display_vio, from the marker (None: display pose unknown)
     reprojection_error_px: float
     chosen_solution: int
     ambiguity_ratio: float

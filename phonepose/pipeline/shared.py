@@ -1,0 +1,86 @@
+"""The stages every tracker shares, run once per tick: image decode, marker recognition,
+anchor mapping. Their output, one :class:`Observation`, is what every tracker steps on.
+
+Image reuse: the paper recognises the marker per camera frame. When a tick carries the same
+frame as the previous tick (``image_is_new`` False and the same ``image_t_ns``), the previous
+frame's recognition is reused instead of decoding and detecting again, so a frame counts as
+"in view" for every tick that carries it.
+
+A recognised marker needs the display pose to be placed in display_vio; while the display
+pose is unknown the marker is reported as not in view (``Observation.marker`` None).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from phonepose.pipeline.anchors import controller_in_display_vio
+from phonepose.pipeline.markers import MarkerRecognizer
+from phonepose.pipeline.types import MarkerObservation, Observation, SessionContext, Tick
+from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.schemas.topics import Frame
+
+
+def decode_gray(image) -> np.ndarray | None:
+    """Grayscale pixels of a foxglove CompressedImage (JPEG/PNG), decoded once; None if undecodable."""
+    data = np.frombuffer(image.data, dtype=np.uint8)
+    if data.size == 0:
+        return None
+    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+
+
+class SharedStages:
+    """``process(tick) -> Observation``, once per tick, in tick order (causal)."""
+
+    def __init__(self, context: SessionContext):
+        self.context = context
+        self.recognizer = MarkerRecognizer(context.camera, context.marker)
+        self.reset()
+
+    def reset(self) -> None:
+        self.recognizer.reset()
+        self._last_image_t_ns: int | None = None
+        self._last_marker: MarkerObservation | None = None
+        self.frames_decoded = 0
+
+    def _recognize(self, tick: Tick) -> MarkerObservation | None:
+        if tick.image is None:
+            return None
+        same_frame = (not tick.image_is_new and tick.image_t_ns is not None
+                      and tick.image_t_ns == self._last_image_t_ns)
+        if same_frame:
+            return self._last_marker
+        gray = decode_gray(tick.image)
+        self.frames_decoded += 1
+        marker = None
+        if gray is not None:
+            t_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
+            marker = self.recognizer.recognize(gray, tick.T_dvio_display, t_ns)
+        self._last_image_t_ns = tick.image_t_ns
+        self._last_marker = marker
+        return marker
+
+    def process(self, tick: Tick) -> Observation:
+        marker = self._recognize(tick)
+        if marker is not None and marker.T_dvio_controller is None:
+            marker = None  # cannot be placed in display_vio without the display pose
+        vio = controller_in_display_vio(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)
+        return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio)
+
+
+def detections_message(obs: Observation) -> pb.MarkerDetections:
+    """The /pipeline/markers message for this tick's frame (empty when nothing was recognised)."""
+    msg = pb.MarkerDetections(frame_id=Frame.DISPLAY_CAMERA)
+    stamp = obs.tick.image_t_ns if obs.tick.image_t_ns is not None else obs.tick.t_ns
+    msg.timestamp.FromNanoseconds(int(stamp))
+    m = obs.marker
+    if m is not None:
+        det = msg.detections.add(id=m.id, reprojection_error_px=m.reprojection_error_px,
+                                 chosen_solution=m.chosen_solution,
+                                 ambiguity_ratio=m.ambiguity_ratio if np.isfinite(m.ambiguity_ratio) else 0.0)
+        det.corners_px.extend(float(v) for v in np.asarray(m.corners_px).reshape(-1))
+        m.T_camera_marker.to_foxglove(det.pose_in_camera)
+        if m.T_dvio_controller is not None:
+            m.T_dvio_controller.to_foxglove(det.controller_in_display_vio)
+    return msg

@@ -1,0 +1,222 @@
+"""The tracking algorithms T1-T7 of the paper's Table 1, as one registry.
+
+Each tracker is a row of the table: (method inside the camera's FoV, method outside it,
+correction). "Inside the FoV" is decided as the paper does in practice: the marker was
+recognised in this frame (``Observation.in_view``). Wherever a row's method is VIO, that VIO
+pose is the anchor-mapped one with the row's correction applied (once the correction exists).
+
+    name  inside   outside  correction
+    T1    VIO      VIO      none
+    T2    VIO      VIO      CM1   (manual alignment event)
+    T3    VIO      VIO      CM2   (one offset at the calibration moment)
+    T4    marker   VIO      none
+    T5    marker   VIO      CM1
+    T6    marker   VIO      CM2
+    T7    marker   VIO      CM3   (offset renewed on every sighting)
+
+Behaviour before a correction exists (decided here, documented in docs/pipeline.md): the
+tracker reports the *uncorrected* anchor-mapped VIO pose, so T2/T3 equal T1 and T5/T6/T7 equal
+T4 until their first CM1 event / CM2 capture / marker sighting. A CM2 event is captured on the
+first tick at or after the event on which both the marker and VIO are available (the paper holds
+the marker in view in advance). A later event of the same kind replaces the offset.
+When the pose a row needs is missing (no VIO yet, anchors not resolved), ``step`` returns None:
+the tracker has no estimate at that tick; it never invents one.
+
+Trackers are causal streaming objects: ``reset()`` then ``step(obs)`` once per tick, in order.
+More rows ("better trackers of our own") are added with :func:`register`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+from typing import Callable, Iterable
+
+from phonepose.errors import ConfigError
+from phonepose.geometry import Pose
+from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
+                                            marker_correction)
+from phonepose.pipeline.types import Observation, Tracker
+from phonepose.schemas import phonepose_pb2 as pb
+
+
+class Method(str, Enum):
+    VIO = "VIO"
+    MARKER = "marker"
+
+
+class CorrectionKind(str, Enum):
+    NONE = "none"
+    CM1 = "CM1"
+    CM2 = "CM2"
+    CM3 = "CM3"
+
+
+# ----------------------------------------------------------------------------- correction sources
+class CorrectionSource:
+    """Keeps the current offset of one correction method up to date, causally, tick by tick."""
+
+    def __init__(self, math: CorrectionMath, cm1_reading: CM1Reading = CM1Reading.CONSISTENT):
+        self.math = math
+        self.cm1_reading = cm1_reading
+        self.current: Correction | None = None
+
+    def reset(self) -> None:
+        self.current = None
+
+    def update(self, obs: Observation) -> None:
+        """Look at this tick's events / marker and renew ``current`` if the method says so."""
+
+
+class NoCorrection(CorrectionSource):
+    pass
+
+
+class CM1Source(CorrectionSource):
+    """CM1: the offset comes with the manual-alignment event (both poses are in the event)."""
+
+    def update(self, obs: Observation) -> None:
+        for event in obs.tick.events:
+            if event.kind == pb.CalibrationEvent.CM1:
+                self.current = cm1_correction(Pose.from_foxglove(event.pose_fix_vio),
+                                              Pose.from_foxglove(event.pose_align_vio),
+                                              self.math, self.cm1_reading)
+
+
+class CM2Source(CorrectionSource):
+    """CM2: at the calibration moment, one offset between the marker and VIO poses (eqs. 3-4)."""
+
+    def reset(self) -> None:
+        super().reset()
+        self.pending = False
+
+    def __init__(self, math: CorrectionMath, cm1_reading: CM1Reading = CM1Reading.CONSISTENT):
+        super().__init__(math, cm1_reading)
+        self.pending = False
+
+    def update(self, obs: Observation) -> None:
+        if any(event.kind == pb.CalibrationEvent.CM2 for event in obs.tick.events):
+            self.pending = True
+        # The marker must be recognised at the moment; if it is not on the event's tick, the
+        # first tick after it on which it is (with VIO) is the calibration moment.
+        if self.pending and obs.marker is not None and obs.T_dvio_controller_vio is not None:
+            self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
+            self.pending = False
+
+
+class CM3Source(CorrectionSource):
+    """CM3: the CM2 offset, renewed on every tick where the marker is recognised."""
+
+    def update(self, obs: Observation) -> None:
+        if obs.marker is not None and obs.T_dvio_controller_vio is not None:
+            self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
+
+
+CORRECTION_SOURCES: dict[CorrectionKind, type[CorrectionSource]] = {
+    CorrectionKind.NONE: NoCorrection,
+    CorrectionKind.CM1: CM1Source,
+    CorrectionKind.CM2: CM2Source,
+    CorrectionKind.CM3: CM3Source,
+}
+
+
+# ----------------------------------------------------------------------------- the table
+@dataclass(frozen=True)
+class TrackerSpec:
+    """One row of Table 1. ``factory`` builds trackers that are not a plain composition."""
+
+    name: str
+    inside: Method
+    outside: Method
+    correction: CorrectionKind
+    description: str = ""
+    factory: Callable[["TrackerSpec", CorrectionMath, CM1Reading], Tracker] | None = None
+
+
+class CompositeTracker:
+    """A tracker that is exactly a row of Table 1: pick the method by FoV, correct VIO."""
+
+    def __init__(self, spec: TrackerSpec, correction_math: CorrectionMath = CorrectionMath.PAPER,
+                 cm1_reading: CM1Reading = CM1Reading.CONSISTENT):
+        self.spec = spec
+        self.name = spec.name
+        self.correction_math = correction_math
+        self.correction = CORRECTION_SOURCES[spec.correction](correction_math, cm1_reading)
+
+    def reset(self) -> None:
+        self.correction.reset()
+
+    def step(self, obs: Observation) -> Pose | None:
+        # Renew the offset first: CM3 takes it on this very sighting (it is only *applied* outside).
+        self.correction.update(obs)
+        method = self.spec.inside if obs.in_view else self.spec.outside
+        if method is Method.MARKER:
+            return obs.marker.T_dvio_controller
+        vio = obs.T_dvio_controller_vio
+        if vio is None:
+            return None
+        offset = self.correction.current
+        return vio if offset is None else offset.apply(vio)
+
+    def __repr__(self) -> str:
+        s = self.spec
+        return f"{s.name}({s.inside.value}/{s.outside.value}/{s.correction.value}, {self.correction_math.value})"
+
+
+def _row(name: str, inside: Method, outside: Method, correction: CorrectionKind, description: str) -> TrackerSpec:
+    return TrackerSpec(name, inside, outside, correction, description)
+
+
+VIO, MARKER = Method.VIO, Method.MARKER
+TRACKERS: dict[str, TrackerSpec] = {
+    spec.name: spec for spec in [
+        _row("T1", VIO, VIO, CorrectionKind.NONE, "anchor-mapped VIO everywhere"),
+        _row("T2", VIO, VIO, CorrectionKind.CM1, "VIO corrected by the manual alignment (CM1)"),
+        _row("T3", VIO, VIO, CorrectionKind.CM2, "VIO corrected once at the calibration moment (CM2)"),
+        _row("T4", MARKER, VIO, CorrectionKind.NONE, "marker in view, else VIO"),
+        _row("T5", MARKER, VIO, CorrectionKind.CM1, "marker in view, else VIO + CM1"),
+        _row("T6", MARKER, VIO, CorrectionKind.CM2, "marker in view, else VIO + CM2"),
+        _row("T7", MARKER, VIO, CorrectionKind.CM3, "marker in view, else VIO + CM3 from the last sighting"),
+    ]
+}
+PAPER_TRACKERS = ("T1", "T2", "T3", "T4", "T5", "T6", "T7")
+
+
+def register(spec: TrackerSpec) -> None:
+    """Add a tracker of our own to the registry (names must be new)."""
+    if spec.name in TRACKERS:
+        raise ValueError(f"tracker {spec.name!r} already registered")
+    TRACKERS[spec.name] = spec
+
+
+def tracker_names() -> list[str]:
+    """Every registered tracker: T1..T7 first, in the table's order, then our own."""
+    return list(TRACKERS)
+
+
+def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
+                 cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Tracker:
+    spec = TRACKERS.get(name) or TRACKERS.get(str(name).upper())
+    if spec is None:
+        raise ConfigError(f"unknown tracker {name!r}; valid: {', '.join(tracker_names())}, all")
+    math = CorrectionMath.parse(correction_math)
+    reading = CM1Reading.parse(cm1_reading)
+    if spec.factory is not None:
+        return spec.factory(spec, math, reading)
+    return CompositeTracker(spec, math, reading)
+
+
+def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "CorrectionMath | str" = "paper",
+                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
+    """Trackers by name; ``"all"`` (alone or in the list) means every registered one.
+
+    Accepts a list or a comma-separated string (``"T1,T7"``).
+    """
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    names = list(names)
+    if any(n.lower() == "all" for n in names):
+        names = tracker_names()
+    if not names:
+        raise ConfigError(f"no tracker given; valid: {', '.join(tracker_names())}, all")
+    return [make_tracker(n, correction_math, cm1_reading) for n in names]
