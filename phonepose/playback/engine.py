@@ -1,0 +1,281 @@
+"""The playback engine: ticks → shared stages (once) → every tracker → outputs.
+
+    result = run_playback("s.mcap", trackers=["all"], out_dir="out", rerun_path="out/s.rrd")
+
+Per tick the shared stages run once (decode, marker recognition, anchor mapping) and every
+tracker steps on the same Observation. The engine records per tracker ``(t, pose or None,
+in_view)`` and the associated ground truth, then writes (docs/playback.md):
+
+* ``DIR/trajectories/<tracker>.tum``: ticks inside the task window where the tracker has a pose,
+  display_vio frame, TUM format;
+* ``DIR/groundtruth.tum``: the associated GT at the task-window ticks (display_vio);
+* ``DIR/metrics.json``: per tracker p_ATE / r_ATE / p_RE inside / outside the FoV and total
+  (``null`` where not computable, e.g. no GT);
+* ``DIR/trackers.mcap``: ``/pipeline/markers`` (per new camera frame) and ``/trackers/<name>/pose``.
+
+Nothing depends on the wall clock unless ``realtime`` paces the ticks.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from phonepose.errors import ConfigError, OutputError
+from phonepose.geometry import Pose
+from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
+from phonepose.playback.context import read_context
+from phonepose.playback.outputs import paper_metrics, write_metrics, write_tum
+from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
+from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
+from phonepose.session import SessionReader, SessionWriter
+from phonepose.session.sample import pose_in_frame
+
+
+@dataclass
+class TrackerTrajectory:
+    """One tracker's output over the task window (only the ticks where it had a pose)."""
+
+    name: str
+    stamps_ns: np.ndarray                 # (N,) int64
+    poses: Pose | None                    # N poses in display_vio (None when N == 0)
+    inside: np.ndarray                    # (N,) bool: marker recognised at that tick
+    ticks_without_pose: int = 0           # task-window ticks where step() returned None
+
+
+@dataclass
+class PlaybackResult:
+    session: str
+    out_dir: Path | None
+    rate_hz: float
+    n_ticks: int                          # ticks played
+    n_task_ticks: int                     # of which inside the task window
+    frames_decoded: int                   # camera frames the shared stages decoded
+    trajectories: dict[str, TrackerTrajectory]
+    gt_stamps_ns: np.ndarray              # task-window ticks with associated GT
+    gt: Pose | None                       # GT controller pose in display_vio at those ticks
+    metrics: dict                         # the metrics.json document
+    rerun_path: str | None = None
+    wall_s: float = 0.0
+    files: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def has_gt(self) -> bool:
+        return self.gt is not None and len(self.gt_stamps_ns) > 0
+
+
+class _Collector:
+    """Per-tick arrays of one tracker (or of the GT)."""
+
+    def __init__(self) -> None:
+        self.t: list[int] = []
+        self.rot: list[np.ndarray] = []
+        self.trans: list[np.ndarray] = []
+        self.inside: list[bool] = []
+        self.none = 0
+
+    def add(self, t_ns: int, pose: Pose | None, inside: bool) -> None:
+        if pose is None:
+            self.none += 1
+            return
+        self.t.append(t_ns)
+        self.rot.append(pose.rotation.as_quat(canonical=False))
+        self.trans.append(np.asarray(pose.translation, dtype=float))
+        self.inside.append(bool(inside))
+
+    def stamps(self) -> np.ndarray:
+        return np.asarray(self.t, dtype=np.int64)
+
+    def poses(self) -> Pose | None:
+        if not self.t:
+            return None
+        return Pose.from_xyzw(np.vstack(self.trans), np.vstack(self.rot))
+
+
+def _default_stages(context: SessionContext):
+    from phonepose.pipeline.shared import SharedStages
+    return SharedStages(context)
+
+
+def _default_trackers(names: list[str], correction_math: str) -> list[Tracker]:
+    from phonepose.pipeline.trackers import make_trackers
+    return make_trackers(names, correction_math)
+
+
+def _detections_message(stages, obs: Observation):
+    fn = getattr(stages, "detections_message", None)
+    if fn is None:
+        from phonepose.pipeline.shared import detections_message as fn
+    return fn(obs)
+
+
+def default_out_dir(session: str | os.PathLike) -> Path:
+    return Path(f"playback-{Path(session).stem}")
+
+
+def _prepare_out_dir(out_dir: Path) -> None:
+    try:
+        (out_dir / "trajectories").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output directory {out_dir}: {exc.strerror or exc}") from None
+    if not os.access(out_dir, os.W_OK) or not os.access(out_dir / "trajectories", os.W_OK):
+        raise OutputError(f"output directory {out_dir} is not writable")
+
+
+class PlaybackEngine:
+    """Drive one session through the shared stages and trackers, tick by tick."""
+
+    def __init__(self, context: SessionContext, stages, trackers: list[Tracker], *, writer: SessionWriter | None = None,
+                 rerun_logger=None):
+        names = [t.name for t in trackers]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"tracker given twice: {', '.join(names)}")
+        self.context = context
+        self.stages = stages
+        self.trackers = trackers
+        self.writer = writer
+        self.rerun_logger = rerun_logger
+        self.collectors = {t.name: _Collector() for t in trackers}
+        self.gt = _Collector()
+        self.n_ticks = 0
+        self.n_task_ticks = 0
+        for t in trackers:
+            t.reset()
+
+    def step(self, tick: Tick) -> tuple[Observation, dict[str, Pose | None]]:
+        obs = self.stages.process(tick)
+        poses = {tr.name: tr.step(obs) for tr in self.trackers}
+        self.n_ticks += 1
+        if tick.in_task:
+            self.n_task_ticks += 1
+            inside = obs.in_view
+            for name, pose in poses.items():
+                self.collectors[name].add(tick.t_ns, pose, inside)
+            self.gt.add(tick.t_ns, tick.gt_T_dvio_controller, inside)
+        if self.writer is not None:
+            if tick.image is not None and tick.image_is_new:
+                self.writer.write(Topic.PIPELINE_MARKERS, _detections_message(self.stages, obs), tick.t_ns)
+            for name, pose in poses.items():
+                if pose is not None:
+                    self.writer.write(tracker_pose_topic(name), pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns),
+                                      tick.t_ns)
+        if self.rerun_logger is not None:
+            self.rerun_logger.log_tick(tick, obs, poses)
+        return obs, poses
+
+    def trajectories(self) -> dict[str, TrackerTrajectory]:
+        out = {}
+        for name, c in self.collectors.items():
+            out[name] = TrackerTrajectory(name, c.stamps(), c.poses(), np.asarray(c.inside, dtype=bool), c.none)
+        return out
+
+    def metrics(self) -> dict[str, dict]:
+        """Per tracker, over the task-window ticks where both the tracker and the GT have a pose."""
+        gt_t = self.gt.stamps()
+        gt_poses = self.gt.poses()
+        out = {}
+        for name, traj in self.trajectories().items():
+            if gt_poses is None or traj.poses is None:
+                out[name] = paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))
+                continue
+            common, i_est, i_gt = np.intersect1d(traj.stamps_ns, gt_t, assume_unique=True, return_indices=True)
+            if common.size == 0:
+                out[name] = paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))
+                continue
+            stamps_s = common / 1e9
+            out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+        return out
+
+
+def _tracker_list(trackers: Iterable[str] | str) -> list[str]:
+    if isinstance(trackers, str):
+        trackers = [n.strip() for n in trackers.split(",") if n.strip()]
+    return list(trackers)
+
+
+def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("all",), out_dir: str | os.PathLike | None = None,
+                 rate_hz: float = DEFAULT_RATE_HZ, correction_math: str = "paper", rerun_path: str | os.PathLike | None = None,
+                 spawn: bool = False, start_s: float | None = None, end_s: float | None = None, realtime: bool = False,
+                 progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
+                 stages_factory: Callable[[SessionContext], object] | None = None,
+                 tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None) -> PlaybackResult:
+    """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
+
+    ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
+    default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
+    everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
+    replace the pipeline's SharedStages / make_trackers (tests, experiments).
+    """
+    wall0 = time.perf_counter()
+    names = _tracker_list(trackers)
+    from phonepose.pipeline.corrections import CorrectionMath
+    math = CorrectionMath.parse(correction_math).value
+    tracker_objs = (tracker_factory or _default_trackers)(names, math)
+    session = os.fspath(session)
+    out = None
+    if write_outputs:
+        out = Path(out_dir) if out_dir is not None else default_out_dir(session)
+        _prepare_out_dir(out)
+    files: dict[str, str] = {}
+    with SessionReader(session) as reader:
+        context = read_context(reader)
+        scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s)
+        stages = (stages_factory or _default_stages)(context)
+        writer = None
+        if out is not None:
+            files["trackers.mcap"] = str(out / "trackers.mcap")
+            writer = SessionWriter(out / "trackers.mcap")
+        logger = None
+        if rerun_path is not None or spawn:
+            from phonepose.playback.rerun_log import PlaybackRerunLogger
+            logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session_name=Path(session).stem,
+                                         rrd_path=rerun_path, spawn=spawn)
+        engine = PlaybackEngine(context, stages, tracker_objs, writer=writer, rerun_logger=logger)
+        total = len(scheduler)
+        try:
+            pace0 = None
+            for tick in scheduler:
+                if realtime:
+                    if pace0 is None:
+                        pace0 = (time.monotonic(), tick.t_ns)
+                    delay = pace0[0] + (tick.t_ns - pace0[1]) / 1e9 - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                engine.step(tick)
+                if progress is not None:
+                    progress(engine.n_ticks, total)
+        finally:
+            if writer is not None:
+                writer.finish()
+            if logger is not None:
+                logger.close()
+    trajs = engine.trajectories()
+    per_tracker = engine.metrics()
+    gt_stamps = engine.gt.stamps()
+    gt = engine.gt.poses()
+    session_name = Path(session).name
+    metrics_doc = {"session": session_name, "rate_hz": rate_hz, "trackers": per_tracker}
+    if out is not None:
+        for name, traj in trajs.items():
+            p = out / "trajectories" / f"{name}.tum"
+            write_tum(p, traj.stamps_ns, traj.poses)
+            files[f"trajectories/{name}.tum"] = str(p)
+        if gt is not None:
+            write_tum(out / "groundtruth.tum", gt_stamps, gt)
+            files["groundtruth.tum"] = str(out / "groundtruth.tum")
+        metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker)
+        files["metrics.json"] = str(out / "metrics.json")
+    else:
+        from phonepose.playback.outputs import normalise_metrics
+        metrics_doc["trackers"] = {k: normalise_metrics(v) for k, v in per_tracker.items()}
+    return PlaybackResult(
+        session=session, out_dir=out, rate_hz=rate_hz, n_ticks=engine.n_ticks, n_task_ticks=engine.n_task_ticks,
+        frames_decoded=int(getattr(stages, "frames_decoded", 0)), trajectories=trajs, gt_stamps_ns=gt_stamps, gt=gt,
+        metrics=metrics_doc, rerun_path=os.fspath(rerun_path) if rerun_path is not None else None,
+        wall_s=time.perf_counter() - wall0, files=files,
+    )

@@ -1,0 +1,257 @@
+"""Rerun logging of a playback: one logger per stage, each owning its entity paths.
+
+The engine owns the clock: :class:`PlaybackRerunLogger` sets the timelines ``tick`` (sequence)
+and ``time`` (timestamp, display clock) once per tick, then every stage logger logs its part.
+A stage with nothing to show clears its path (``rr.Clear``) so the viewer never shows a stale
+marker or pose.
+
+Entity paths (``/world`` is display_vio):
+
+    /world                                  view coordinates (static)
+    /world/display                          display body pose (Transform3D), axes
+    /world/display/camera                   T_display_camera (static)
+    /world/display/camera/image             Pinhole (static), EncodedImage (the recorded JPEG bytes)
+    /world/display/camera/image/markers     LineStrips2D of the recognised marker, id as label
+    /world/gt/pose                          GT controller pose (Transform3D + axes)
+    /world/gt/trajectory                    GT so far (LineStrips3D, every N ticks)
+    /world/trackers/<name>/pose             tracker estimate (Transform3D + axes)
+    /world/trackers/<name>/trajectory       its trajectory so far (LineStrips3D, every N ticks)
+    /world/task/targets | /world/task/path  experiment targets (Boxes3D) or path (LineStrips3D), static
+    /errors/<name>/position_m, rotation_deg per-tracker error against GT (Scalars)
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from phonepose.geometry import Pose
+from phonepose.pipeline.types import Observation, SessionContext, Tick
+
+TRAJECTORY_EVERY_TICKS = 10
+AXIS_LENGTH_M = 0.05
+# one colour per tracker (T1..T7, then cycling)
+PALETTE = [(230, 25, 75), (245, 130, 48), (255, 225, 25), (60, 180, 75), (70, 240, 240), (0, 130, 200),
+           (145, 30, 180), (240, 50, 230), (128, 128, 0), (170, 110, 40)]
+GT_COLOR = (255, 255, 255)
+
+WORLD = "/world"
+DISPLAY = "/world/display"
+CAMERA = "/world/display/camera"
+IMAGE = "/world/display/camera/image"
+MARKERS = "/world/display/camera/image/markers"
+GT_POSE = "/world/gt/pose"
+GT_TRAJECTORY = "/world/gt/trajectory"
+TASK = "/world/task"
+ERRORS = "/errors"
+
+
+def tracker_pose_path(name: str) -> str:
+    return f"/world/trackers/{name}/pose"
+
+
+def tracker_trajectory_path(name: str) -> str:
+    return f"/world/trackers/{name}/trajectory"
+
+
+def _transform(pose: Pose) -> rr.Transform3D:
+    return rr.Transform3D(translation=np.asarray(pose.translation, dtype=np.float32),
+                          quaternion=rr.Quaternion(xyzw=np.asarray(pose.quat_xyzw, dtype=np.float32)))
+
+
+def default_blueprint(tracker_names: list[str]) -> rrb.Blueprint:
+    """3D scene | camera view over the error time series."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="3D (display_vio)", origin=WORLD),
+            rrb.Vertical(
+                rrb.Spatial2DView(name="display camera", origin=IMAGE),
+                rrb.TimeSeriesView(name="position error (m)", origin=ERRORS,
+                                   contents=[f"{ERRORS}/*/position_m"]),
+                rrb.TimeSeriesView(name="rotation error (deg)", origin=ERRORS,
+                                   contents=[f"{ERRORS}/*/rotation_deg"]),
+                row_shares=[3, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="time"),
+        collapse_panels=False,
+    )
+
+
+class CameraLogger:
+    """Display pose, camera (static Pinhole), the recorded JPEG bytes."""
+
+    def __init__(self, rec: rr.RecordingStream, context: SessionContext):
+        self.rec = rec
+        cam = context.camera
+        self.enabled = cam.width > 0
+        if self.enabled:
+            rec.log(CAMERA, _transform(cam.T_display_camera), static=True)
+            rec.log(IMAGE, rr.Pinhole(image_from_camera=np.asarray(cam.K, dtype=np.float32),
+                                      resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
+                                      image_plane_distance=0.1), static=True)
+        rec.log(DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
+
+    def log(self, tick: Tick) -> None:
+        if tick.T_dvio_display is not None:
+            self.rec.log(DISPLAY, _transform(tick.T_dvio_display))
+        if self.enabled and tick.image is not None and tick.image_is_new:
+            fmt = (tick.image.format or "jpeg").lower()
+            media = "image/png" if "png" in fmt else "image/jpeg"
+            self.rec.log(IMAGE, rr.EncodedImage(contents=tick.image.data, media_type=media))
+
+
+class MarkerLogger:
+    """The recognised marker's corners as a closed 2D strip labelled with its id."""
+
+    def __init__(self, rec: rr.RecordingStream):
+        self.rec = rec
+        self.shown = False
+
+    def log(self, obs: Observation) -> None:
+        m = obs.marker
+        if m is None:
+            if self.shown:
+                self.rec.log(MARKERS, rr.Clear(recursive=True))
+                self.shown = False
+            return
+        c = np.asarray(m.corners_px, dtype=np.float32).reshape(4, 2)
+        strip = np.vstack([c, c[:1]])
+        self.rec.log(MARKERS, rr.LineStrips2D([strip], labels=[f"id {m.id}"], colors=[(0, 255, 0)], radii=1.5))
+        self.shown = True
+
+
+class _PoseTrackLogger:
+    """A pose with axes and its trajectory so far (one tracker, or the GT)."""
+
+    def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str,
+                 every: int = TRAJECTORY_EVERY_TICKS):
+        self.rec = rec
+        self.pose_path = pose_path
+        self.trajectory_path = trajectory_path
+        self.color = color
+        self.label = label
+        self.every = max(1, int(every))
+        self.points: list[np.ndarray] = []
+        self.segments: list[list[np.ndarray]] = [[]]
+        self.shown = False
+        self.dirty = 0
+
+    def log(self, pose: Pose | None) -> None:
+        if pose is None:
+            if self.shown:
+                self.rec.log(self.pose_path, rr.Clear(recursive=True))
+                self.shown = False
+            if self.segments[-1]:
+                self.segments.append([])
+            return
+        self.rec.log(self.pose_path, _transform(pose), rr.TransformAxes3D(AXIS_LENGTH_M))
+        self.shown = True
+        self.segments[-1].append(np.asarray(pose.translation, dtype=np.float32))
+        self.dirty += 1
+        if self.dirty >= self.every:
+            self.flush_trajectory()
+
+    def flush_trajectory(self) -> None:
+        strips = [np.vstack(s) for s in self.segments if len(s) >= 2]
+        if strips:
+            self.rec.log(self.trajectory_path, rr.LineStrips3D(strips, colors=[self.color], radii=0.002,
+                                                               labels=[self.label] if len(strips) == 1 else None))
+        self.dirty = 0
+
+
+class TaskLogger:
+    """The experiment's targets (cubes) or path (closed line), static, in display_vio."""
+
+    def __init__(self, rec: rr.RecordingStream, context: SessionContext):
+        targets = context.targets
+        if targets is not None and len(targets.targets):
+            centers = np.array([[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in targets.targets],
+                               dtype=np.float32)
+            quats = [rr.Quaternion(xyzw=[t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z,
+                                         t.pose.orientation.w]) for t in targets.targets]
+            half = float(targets.cube_size_m or 0.02) / 2
+            rec.log(f"{TASK}/targets", rr.Boxes3D(centers=centers, half_sizes=[[half, half, half]] * len(centers),
+                                                 quaternions=quats, labels=[str(t.index) for t in targets.targets],
+                                                 colors=[(200, 200, 200)]), static=True)
+        path = context.path
+        if path is not None and len(path.waypoints):
+            pts = np.array([[w.x, w.y, w.z] for w in path.waypoints], dtype=np.float32)
+            if path.closed:
+                pts = np.vstack([pts, pts[:1]])
+            rec.log(f"{TASK}/path", rr.LineStrips3D([pts], colors=[(200, 200, 200)], radii=0.001,
+                                                     labels=[path.name or "path"]), static=True)
+
+
+class ErrorLogger:
+    """Per-tracker position (m) and rotation (deg) error against GT, as scalars."""
+
+    def __init__(self, rec: rr.RecordingStream, names: list[str]):
+        self.rec = rec
+        for i, name in enumerate(names):
+            color = PALETTE[i % len(PALETTE)]
+            rec.log(f"{ERRORS}/{name}/position_m", rr.SeriesLines(colors=[color], names=[name]), static=True)
+            rec.log(f"{ERRORS}/{name}/rotation_deg", rr.SeriesLines(colors=[color], names=[name]), static=True)
+
+    def log(self, gt: Pose | None, poses: dict[str, Pose | None]) -> None:
+        if gt is None:
+            return
+        for name, pose in poses.items():
+            if pose is None:
+                continue
+            self.rec.log(f"{ERRORS}/{name}/position_m", rr.Scalars([float(gt.distance_to(pose))]))
+            self.rec.log(f"{ERRORS}/{name}/rotation_deg", rr.Scalars([float(np.degrees(gt.angle_to(pose)))]))
+
+
+class PlaybackRerunLogger:
+    """Owns the RecordingStream and the clock; wires the stage loggers."""
+
+    def __init__(self, context: SessionContext, tracker_names: list[str], *, session_name: str = "session",
+                 rrd_path: str | os.PathLike | None = None, spawn: bool = False,
+                 trajectory_every: int = TRAJECTORY_EVERY_TICKS, recording: rr.RecordingStream | None = None):
+        self.blueprint = default_blueprint(tracker_names)
+        if recording is not None:
+            self.rec = recording
+        else:
+            self.rec = rr.RecordingStream("phonepose_playback", recording_id=f"playback-{session_name}")
+            if spawn:
+                self.rec.spawn(default_blueprint=self.blueprint)
+            elif rrd_path is not None:
+                Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
+                self.rec.save(os.fspath(rrd_path), default_blueprint=self.blueprint)
+        rec = self.rec
+        rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+        self.camera = CameraLogger(rec, context)
+        self.markers = MarkerLogger(rec)
+        self.task = TaskLogger(rec, context)
+        self.gt = _PoseTrackLogger(rec, GT_POSE, GT_TRAJECTORY, GT_COLOR, "GT", trajectory_every)
+        self.trackers = {
+            name: _PoseTrackLogger(rec, tracker_pose_path(name), tracker_trajectory_path(name),
+                                   PALETTE[i % len(PALETTE)], name, trajectory_every)
+            for i, name in enumerate(tracker_names)
+        }
+        self.errors = ErrorLogger(rec, tracker_names)
+
+    def set_time(self, tick: Tick) -> None:
+        self.rec.set_time("tick", sequence=tick.index)
+        self.rec.set_time("time", timestamp=np.datetime64(int(tick.t_ns), "ns"))
+
+    def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
+        self.set_time(tick)
+        self.camera.log(tick)
+        self.markers.log(obs)
+        self.gt.log(tick.gt_T_dvio_controller)
+        for name, pose in poses.items():
+            self.trackers[name].log(pose)
+        self.errors.log(tick.gt_T_dvio_controller, poses)
+
+    def close(self) -> None:
+        for t in [self.gt, *self.trackers.values()]:
+            if t.dirty:
+                t.flush_trajectory()
+        self.rec.flush()

@@ -1,0 +1,302 @@
+"""The tick scheduler: one streaming pass over a session, a :class:`Tick` every 1/rate s.
+
+The tick rule (docs/playback.md):
+
+* Ticks lie on a grid ``t_k = t0 + k / rate`` where ``t0`` is the first camera frame (or the
+  first controller VIO sample when the session has no camera). ``--start/--end`` select the
+  grid ticks inside ``[start, end]`` (seconds after the session's first message).
+* A tick at ``t`` carries every message with ``log_time <= t`` and nothing later: the newest
+  camera frame at or before ``t`` (``image_is_new`` if the previous tick did not carry it), the
+  display VIO pose interpolated at that frame's stamp, the controller VIO pose interpolated at
+  ``t``, the latest anchors, the IMU rows and calibration events with ``t_prev < log_time <= t``,
+  and the ground truth associated as the TUM benchmark does: interpolated at ``t`` from the two
+  mocap samples around it when both lie within ``gt_tolerance_s`` (0.02 s) of ``t``, else None.
+* Interpolating at ``t`` needs the first sample *after* ``t``. So the scheduler reads slightly
+  past a tick before emitting it: the tick at ``t`` is emitted once every interpolated stream
+  has shown a sample with ``log_time > t``, or the file has been read ``max_gap_s`` past ``t``
+  (``gt_tolerance_s`` for GT), or the file ended. Trackers still see nothing from the future:
+  the only later sample used is the one that bounds the interpolation interval around ``t``.
+* When a VIO stream has a gap longer than ``max_gap_s`` around ``t``, the last sample at or
+  before ``t`` is held if it is at most ``max_gap_s`` old; otherwise the pose is None.
+
+Memory stays small: per pose stream only the samples from the last one at or before the
+oldest pending query onwards, and the messages between the last emitted tick and the read
+position (at most ``max_gap_s`` of data).
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from phonepose.geometry import Pose, interpolate
+from phonepose.pipeline.types import SessionContext, Tick
+from phonepose.schemas.topics import Topic
+from phonepose.session import SessionReader
+
+DEFAULT_RATE_HZ = 20.0
+GT_TOLERANCE_S = 0.02
+MAX_GAP_S = 0.5
+
+SCHEDULED_TOPICS = (
+    Topic.CAMERA_IMAGE, Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Topic.DISPLAY_ANCHOR,
+    Topic.CONTROLLER_ANCHOR, Topic.CONTROLLER_IMU, Topic.CALIBRATION_EVENTS, Topic.GT_CONTROLLER_POSE,
+)
+
+
+class PoseStream:
+    """Stamped poses of one stream, kept from the last sample at or before the oldest query on."""
+
+    def __init__(self) -> None:
+        self.times: deque[int] = deque()
+        self.poses: deque[Pose] = deque()
+
+    def add(self, t_ns: int, pose: Pose) -> None:
+        if self.times and t_ns < self.times[-1]:
+            return  # out of order on this stream: drop (the reader orders by log_time, so never here)
+        self.times.append(t_ns)
+        self.poses.append(pose)
+
+    @property
+    def last_ns(self) -> int | None:
+        return self.times[-1] if self.times else None
+
+    def has_after(self, t_ns: int) -> bool:
+        return bool(self.times) and self.times[-1] > t_ns
+
+    def prune(self, t_ns: int) -> None:
+        """Forget samples that no query at or after ``t_ns`` can use."""
+        while len(self.times) >= 2 and self.times[1] <= t_ns:
+            self.times.popleft()
+            self.poses.popleft()
+
+    def at(self, t_ns: int, max_gap_ns: int) -> Pose | None:
+        """Interpolated at ``t`` between the samples around it; hold the last one across gaps."""
+        times = self.times
+        if not times or times[0] > t_ns:
+            return None
+        i = bisect.bisect_right(times, t_ns) - 1          # last sample at or before t
+        t0 = times[i]
+        if t0 == t_ns:
+            return self.poses[i]
+        if i + 1 < len(times):
+            t1 = times[i + 1]
+            if t1 - t0 <= max_gap_ns:
+                return interpolate(t0, self.poses[i], t1, self.poses[i + 1], t_ns)
+        if t_ns - t0 <= max_gap_ns:
+            return self.poses[i]
+        return None
+
+    def associate(self, t_ns: int, tol_ns: int) -> Pose | None:
+        """TUM-style association: interpolate only if samples lie within ``tol`` on both sides."""
+        times = self.times
+        if not times:
+            return None
+        i = bisect.bisect_right(times, t_ns) - 1
+        if i < 0:
+            return None
+        t0 = times[i]
+        if t0 == t_ns:
+            return self.poses[i]
+        if i + 1 >= len(times):
+            return None
+        t1 = times[i + 1]
+        if t_ns - t0 > tol_ns or t1 - t_ns > tol_ns:
+            return None
+        return interpolate(t0, self.poses[i], t1, self.poses[i + 1], t_ns)
+
+
+@dataclass
+class ScheduleInfo:
+    t0_ns: int              # grid origin (first camera frame or first controller VIO)
+    first_tick_ns: int
+    last_tick_ns: int
+    period_ns: int
+    session_start_ns: int
+
+    @property
+    def n_ticks(self) -> int:
+        if self.last_tick_ns < self.first_tick_ns:
+            return 0
+        return (self.last_tick_ns - self.first_tick_ns) // self.period_ns + 1
+
+
+def _pose_msg(msg) -> Pose:
+    return Pose.from_foxglove(msg.pose)
+
+
+def _stamp_s(msg, log_time_ns: int) -> float:
+    ns = msg.timestamp.ToNanoseconds()
+    return (ns if ns else log_time_ns) / 1e9
+
+
+class TickScheduler:
+    """Iterate ``Tick`` objects over one pass of ``reader`` (see the module docstring)."""
+
+    def __init__(self, reader: SessionReader, context: SessionContext, *, rate_hz: float = DEFAULT_RATE_HZ,
+                 start_s: float | None = None, end_s: float | None = None,
+                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S):
+        if not rate_hz > 0:
+            from phonepose.errors import ConfigError
+            raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
+        self.reader = reader
+        self.context = context
+        self.rate_hz = float(rate_hz)
+        self.period_ns = int(round(1e9 / self.rate_hz))
+        self.gt_tol_ns = int(round(gt_tolerance_s * 1e9))
+        self.max_gap_ns = int(round(max_gap_s * 1e9))
+        summary = reader.summary()
+        self.has_camera = summary.has(Topic.CAMERA_IMAGE)
+        self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
+        self._T_dvio_world = context.T_world_display_vio.inv() if context.T_world_display_vio is not None else None
+        origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
+        t0 = None
+        for schema, channel, m in reader.raw_messages([origin_topic]):
+            t0 = m.log_time
+            break
+        if t0 is None:
+            from phonepose.errors import SessionContentError
+            raise SessionContentError(f"{reader.path}: {origin_topic} has no messages")
+        start_ns = summary.start_ns
+        end_ns = summary.end_ns
+        first = t0
+        if start_s is not None:
+            lo = start_ns + int(round(start_s * 1e9))
+            if lo > first:
+                first = t0 + -(-(lo - t0) // self.period_ns) * self.period_ns
+        last_limit = end_ns
+        if end_s is not None:
+            last_limit = min(last_limit, start_ns + int(round(end_s * 1e9)))
+        last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
+        self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
+                                 session_start_ns=start_ns)
+
+    def __len__(self) -> int:
+        return self.info.n_ticks
+
+    # ------------------------------------------------------------------ the pass
+    def __iter__(self) -> Iterator[Tick]:
+        info = self.info
+        if info.n_ticks == 0:
+            return
+        display = PoseStream()
+        controller = PoseStream()
+        gt = PoseStream()
+        images: deque = deque()            # (log_time, CompressedImage), newest at or before next tick kept
+        d_anchor: deque = deque()           # (log_time, Pose)
+        c_anchor: deque = deque()
+        imu: list = []                      # (log_time, row)
+        events: list = []                   # (log_time, CalibrationEvent)
+        state = {"image": None, "image_t": None, "display_cache": (None, None), "d_anchor": None, "c_anchor": None}
+        next_t = info.first_tick_ns
+        index = 0
+        # Nothing after this is needed: the last tick plus the look-ahead.
+        read_end = info.last_tick_ns + max(self.max_gap_ns, self.gt_tol_ns) + 1
+        need_display = self.has_camera
+
+        def ready(t: int, now: int) -> bool:
+            if not controller.has_after(t) and now - t <= self.max_gap_ns:
+                return False
+            if need_display and not display.has_after(t) and now - t <= self.max_gap_ns:
+                return False
+            if self.has_gt and not gt.has_after(t) and now - t <= self.gt_tol_ns:
+                return False
+            return True
+
+        def build(t: int, idx: int, prev_t: int | None) -> Tick:
+            # newest image at or before t
+            new_image = False
+            while images and images[0][0] <= t:
+                lt, img = images.popleft()
+                state["image"], state["image_t"] = img, lt
+                new_image = True
+            while d_anchor and d_anchor[0][0] <= t:
+                state["d_anchor"] = d_anchor.popleft()[1]
+            while c_anchor and c_anchor[0][0] <= t:
+                state["c_anchor"] = c_anchor.popleft()[1]
+            k = 0
+            while k < len(imu) and imu[k][0] <= t:
+                k += 1
+            rows = np.array([r for _, r in imu[:k]], dtype=float).reshape(-1, 7)
+            del imu[:k]
+            k = 0
+            while k < len(events) and events[k][0] <= t:
+                k += 1
+            evs = [e for _, e in events[:k]]
+            del events[:k]
+            image_t = state["image_t"]
+            T_dvio_display = None
+            if need_display:
+                q = image_t if image_t is not None else t
+                cached_t, cached = state["display_cache"]
+                if cached_t == q and cached is not None:
+                    T_dvio_display = cached
+                else:
+                    T_dvio_display = display.at(q, self.max_gap_ns)
+                    state["display_cache"] = (q, T_dvio_display)
+            else:
+                T_dvio_display = display.at(t, self.max_gap_ns)
+            gt_pose = None
+            if self.has_gt:
+                T_world_ctrl = gt.associate(t, self.gt_tol_ns)
+                if T_world_ctrl is not None:
+                    gt_pose = self._T_dvio_world @ T_world_ctrl
+            ctx = self.context
+            in_task = True
+            if ctx.task_start_ns is not None and t < ctx.task_start_ns:
+                in_task = False
+            if ctx.task_end_ns is not None and t > ctx.task_end_ns:
+                in_task = False
+            tick = Tick(
+                index=idx, t_ns=t, image=state["image"], image_t_ns=image_t, image_is_new=new_image,
+                T_dvio_display=T_dvio_display, T_cvio_controller=controller.at(t, self.max_gap_ns),
+                T_dvio_anchor=state["d_anchor"], T_cvio_anchor=state["c_anchor"], imu=rows, events=evs,
+                gt_T_dvio_controller=gt_pose, in_task=in_task,
+            )
+            # forget what no later tick can use
+            controller.prune(t)
+            gt.prune(t)
+            display.prune(image_t if (need_display and image_t is not None) else t)
+            return tick
+
+        prev_t = None
+        for m in self.reader.messages(SCHEDULED_TOPICS, end_ns=read_end):
+            now = m.log_time_ns
+            while next_t <= info.last_tick_ns and next_t < now and ready(next_t, now):
+                yield build(next_t, index, prev_t)
+                prev_t = next_t
+                next_t += self.period_ns
+                index += 1
+            topic, msg = m.topic, m.msg
+            if topic == Topic.CAMERA_IMAGE:
+                images.append((now, msg))
+            elif topic == Topic.DISPLAY_VIO_POSE:
+                display.add(now, _pose_msg(msg))
+            elif topic == Topic.CONTROLLER_VIO_POSE:
+                controller.add(now, _pose_msg(msg))
+            elif topic == Topic.GT_CONTROLLER_POSE:
+                if self.has_gt:
+                    gt.add(now, _pose_msg(msg))
+            elif topic == Topic.DISPLAY_ANCHOR:
+                d_anchor.append((now, _pose_msg(msg)))
+            elif topic == Topic.CONTROLLER_ANCHOR:
+                c_anchor.append((now, _pose_msg(msg)))
+            elif topic == Topic.CONTROLLER_IMU:
+                if now <= info.first_tick_ns - self.period_ns:
+                    continue  # before the first tick's interval (--start): nobody will read it
+                imu.append((now, (_stamp_s(msg, now), msg.gyro_x, msg.gyro_y, msg.gyro_z,
+                                  msg.accel_x, msg.accel_y, msg.accel_z)))
+            elif topic == Topic.CALIBRATION_EVENTS:
+                events.append((now, msg))
+            # bound the image queue: only the newest frame at or before the next tick matters
+            while len(images) >= 2 and images[1][0] <= next_t:
+                images.popleft()
+        while next_t <= info.last_tick_ns:
+            yield build(next_t, index, prev_t)
+            prev_t = next_t
+            next_t += self.period_ns
+            index += 1
