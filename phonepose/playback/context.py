@@ -23,7 +23,18 @@ _NO_MARKER = MarkerModel(dictionary="", id=-1, size_m=0.0, T_body_marker=Pose.id
 def transform_to_pose(msg) -> Pose:
     """A foxglove FrameTransform as the pose of its child in its parent."""
     t, q = msg.translation, msg.rotation
+    if q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0:
+        return Pose.from_xyzw([t.x, t.y, t.z], [0.0, 0.0, 0.0, 1.0])
     return Pose.from_xyzw([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
+
+
+def fg_pose(pose) -> Pose:
+    """A foxglove Pose; an unset orientation (all zeros, the protobuf default) reads as identity."""
+    q = pose.orientation
+    if q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0:
+        p = pose.position
+        return Pose.from_xyzw([p.x, p.y, p.z], [0.0, 0.0, 0.0, 1.0])
+    return Pose.from_foxglove(pose)
 
 
 def _stamp_ns(ts) -> int | None:
@@ -58,12 +69,12 @@ def read_context(reader: SessionReader) -> SessionContext:
         if spec is None:
             raise SessionContentError(f"{path}: camera images but no marker spec ({Topic.CONTROLLER_MARKER})")
         marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
-                             T_body_marker=Pose.from_foxglove(spec.pose_in_body))
+                             T_body_marker=fg_pose(spec.pose_in_body))
     else:
         spec = reader.first(Topic.CONTROLLER_MARKER)
         if spec is not None:
             marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
-                                 T_body_marker=Pose.from_foxglove(spec.pose_in_body))
+                                 T_body_marker=fg_pose(spec.pose_in_body))
 
     gt_calib = reader.first(Topic.GT_CALIBRATION) if summary.has(Topic.GT_CALIBRATION) else None
     info = reader.first(Topic.SESSION_INFO) if summary.has(Topic.SESSION_INFO) else None

@@ -35,6 +35,7 @@ import numpy as np
 
 from phonepose.geometry import Pose, interpolate
 from phonepose.pipeline.types import SessionContext, Tick
+from phonepose.playback.context import fg_pose
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
 
@@ -126,7 +127,7 @@ class ScheduleInfo:
 
 
 def _pose_msg(msg) -> Pose:
-    return Pose.from_foxglove(msg.pose)
+    return fg_pose(msg.pose)
 
 
 def _stamp_s(msg, log_time_ns: int) -> float:
