@@ -1,0 +1,197 @@
+"""``phonepose playback`` end to end: outputs, determinism, CLI names and errors, Rerun read-back."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from phonepose.cli import main
+from phonepose.errors import ConfigError, OutputError
+from phonepose.pipeline.trackers import tracker_names
+from phonepose.playback import rerun_log as paths
+from phonepose.playback.engine import run_playback
+from phonepose.playback.testdata import write_test_session
+from phonepose.schemas.topics import Topic, tracker_pose_topic
+from phonepose.session import SessionReader
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    p = tmp_path_factory.mktemp("pb") / "s.mcap"
+    write_test_session(p, duration_s=2.5)
+    return p
+
+
+def cli(capsys, *args) -> tuple[int, str, str]:
+    try:
+        main(["playback", *map(str, args), "--quiet"])
+        code = 0
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_outputs_and_metrics_layout(session, tmp_path):
+    out = tmp_path / "out"
+    r = run_playback(session, trackers=["all"], out_dir=out)
+    names = tracker_names()
+    assert sorted(os.listdir(out / "trajectories")) == sorted(f"{n}.tum" for n in names)
+    doc = json.loads((out / "metrics.json").read_text())
+    assert list(doc) == ["session", "rate_hz", "trackers"]
+    assert doc["session"] == "s.mcap" and doc["rate_hz"] == 20
+    assert list(doc["trackers"]) == names
+    for name, m in doc["trackers"].items():
+        assert list(m) == ["inside", "outside", "total"]
+        for scope in m.values():
+            assert list(scope) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m"]
+        assert m["inside"]["frames"] > 5 and m["outside"]["frames"] > 5
+        assert m["inside"]["frames"] + m["outside"]["frames"] == m["total"]["frames"]
+        assert all(m["total"][k] is not None and m["total"][k] >= 0 for k in ("p_ate_m", "r_ate_deg", "p_re_m"))
+    # T1 carries the test session's anchor error (3.7 cm, 2 deg) outside; T4 uses the marker inside
+    t1, t4 = doc["trackers"]["T1"], doc["trackers"]["T4"]
+    assert t1["outside"]["r_ate_deg"] == pytest.approx(2.0, abs=0.05)
+    assert t4["inside"]["p_ate_m"] < t1["inside"]["p_ate_m"]
+    # TUM: one line per task-window tick with a pose, display_vio, ns stamps
+    rows = np.loadtxt(out / "trajectories" / "T1.tum")
+    assert rows.shape == (r.trajectories["T1"].stamps_ns.size, 8)
+    first = (out / "trajectories" / "T1.tum").read_text().splitlines()[1]
+    assert first.split()[0] == "1700000000.300000000"
+    gt = np.loadtxt(out / "groundtruth.tum")
+    assert gt.shape[0] == r.gt_stamps_ns.size == r.n_task_ticks
+    # trackers.mcap: markers per new frame, one pose topic per tracker
+    with SessionReader(out / "trackers.mcap") as rd:
+        s = rd.summary()
+        counts = {c.topic: c.count for c in s.channels}
+    assert counts[Topic.PIPELINE_MARKERS] > 0
+    for n in names:
+        assert counts[tracker_pose_topic(n)] >= r.trajectories[n].stamps_ns.size
+
+
+def test_determinism_byte_identical(session, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    run_playback(session, trackers=["T1", "T4", "T7"], out_dir=a, correction_math="se3")
+    run_playback(session, trackers=["T1", "T4", "T7"], out_dir=b, correction_math="se3")
+    for rel in ["metrics.json", "groundtruth.tum", *(f"trajectories/T{i}.tum" for i in (1, 4, 7))]:
+        assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+
+
+@pytest.mark.parametrize("name", tracker_names())
+def test_every_tracker_from_the_cli(session, tmp_path, capsys, name):
+    code, out, err = cli(capsys, session, "--tracker", name, "--out", tmp_path / "o")
+    assert code == 0, err
+    assert name in out
+    assert (tmp_path / "o" / "trajectories" / f"{name}.tum").exists()
+    assert list(json.loads((tmp_path / "o" / "metrics.json").read_text())["trackers"]) == [name]
+
+
+def test_all_and_repeated_trackers_from_the_cli(session, tmp_path, capsys):
+    code, out, err = cli(capsys, session, "--tracker", "all", "--out", tmp_path / "all")
+    assert code == 0, err
+    assert sorted(os.listdir(tmp_path / "all" / "trajectories")) == sorted(f"{n}.tum" for n in tracker_names())
+    code, out, err = cli(capsys, session, "-t", "T1", "-t", "T7", "--out", tmp_path / "two", "--rate", "10",
+                         "--start", "0.5", "--end", "2")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "two" / "metrics.json").read_text())
+    assert list(doc["trackers"]) == ["T1", "T7"] and doc["rate_hz"] == 10
+
+
+def test_unknown_tracker_is_one_line_listing_valid_names(session, tmp_path, capsys):
+    code, out, err = cli(capsys, session, "--tracker", "T99", "--out", tmp_path / "x")
+    assert code == ConfigError.exit_code
+    line = err.strip()
+    assert "\n" not in line and "T99" in line
+    assert all(n in line for n in tracker_names()) and "all" in line
+    assert not (tmp_path / "x").exists()
+
+
+def test_output_not_writable_is_output_error(session, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, out, err = cli(capsys, session, "--tracker", "T1", "--out", blocker / "sub")
+    assert code == OutputError.exit_code and "cannot" in err and "\n" not in err.strip()
+
+
+def test_missing_session_and_bad_options(tmp_path, capsys, session):
+    code, _, err = cli(capsys, tmp_path / "nope.mcap", "--out", tmp_path / "o")
+    assert code == 2 and "no such file" in err
+    code, _, err = cli(capsys, session, "--rate", "0", "--out", tmp_path / "o")
+    assert code == ConfigError.exit_code
+    code, _, err = cli(capsys, session, "--correction-math", "bogus", "--out", tmp_path / "o")
+    assert code == ConfigError.exit_code
+
+
+@pytest.mark.parametrize("kind", ["no_gt", "no_imu", "no_marker"])
+def test_sessions_missing_a_stream_play_back(tmp_path, kind):
+    p = tmp_path / f"{kind}.mcap"
+    write_test_session(p, duration_s=1.5, gt=kind != "no_gt", imu=kind != "no_imu", marker=kind != "no_marker")
+    r = run_playback(p, trackers=["all"], out_dir=tmp_path / "out")
+    doc = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    for name in tracker_names():
+        assert r.trajectories[name].stamps_ns.size > 0
+        m = doc["trackers"][name]
+        if kind == "no_gt":
+            for scope in m.values():
+                assert scope["p_ate_m"] is None and scope["r_ate_deg"] is None and scope["p_re_m"] is None
+        elif kind == "no_marker":
+            assert m["inside"]["frames"] == 0 and m["inside"]["p_ate_m"] is None
+            assert m["outside"]["p_ate_m"] is not None and m["outside"]["p_ate_m"] > 0
+        else:
+            assert m["total"]["p_ate_m"] is not None
+    assert (tmp_path / "out" / "groundtruth.tum").exists() == (kind != "no_gt")
+    assert not r.has_gt if kind == "no_gt" else r.has_gt
+
+
+def test_no_gt_cli_says_unavailable(tmp_path, capsys):
+    p = tmp_path / "nogt.mcap"
+    write_test_session(p, duration_s=1.0, gt=False)
+    code, out, err = cli(capsys, p, "-t", "T1", "--out", tmp_path / "o")
+    assert code == 0, err
+    assert "n/a" in out and "unavailable" in out
+
+
+def _rrd_columns(path):
+    import rerun.chunk as rc
+
+    found: dict[str, dict] = {}
+    for chunk in rc.RrdReader(str(path)).stream().to_chunks():
+        entry = found.setdefault(chunk.entity_path, {"columns": set(), "timelines": set(), "rows": 0, "batches": []})
+        batch = chunk.to_record_batch()
+        entry["columns"].update(batch.schema.names)
+        entry["timelines"].update(chunk.timeline_names)
+        entry["rows"] += chunk.num_rows
+        entry["batches"].append(batch)
+    return found
+
+
+def test_rrd_read_back(session, tmp_path):
+    rrd = tmp_path / "s.rrd"
+    r = run_playback(session, trackers=["T1", "T7"], out_dir=tmp_path / "o", rerun_path=rrd)
+    assert rrd.exists() and r.rerun_path == str(rrd)
+    found = _rrd_columns(rrd)
+    image = found[paths.IMAGE]
+    assert "EncodedImage:blob" in image["columns"] and "tick" in image["timelines"] and "time" in image["timelines"]
+    assert "Pinhole:image_from_camera" in image["columns"]
+    # the recorded JPEG bytes, untouched
+    with SessionReader(session) as rd:
+        first_jpeg = next(iter(rd.messages([Topic.CAMERA_IMAGE]))).msg.data
+    blobs = [b for batch in image["batches"] if "EncodedImage:blob" in batch.schema.names
+             for b in batch.column("EncodedImage:blob").to_pylist() if b is not None]
+    flat = [bytes(b[0] if isinstance(b, list) and b and not isinstance(b[0], int) else b) for b in blobs]
+    assert first_jpeg in flat
+    markers = found[paths.MARKERS]
+    assert "LineStrips2D:strips" in markers["columns"] and "tick" in markers["timelines"]
+    assert "LineStrips2D:labels" in markers["columns"]
+    assert "Clear:is_recursive" in markers["columns"]            # cleared when the marker left the view
+    for p in (paths.GT_POSE, paths.tracker_pose_path("T1"), paths.tracker_pose_path("T7")):
+        assert "Transform3D:translation" in found[p]["columns"] and "tick" in found[p]["timelines"], p
+    for p in (paths.GT_TRAJECTORY, paths.tracker_trajectory_path("T7")):
+        assert "LineStrips3D:strips" in found[p]["columns"], p
+    assert "Scalars:scalars" in found["/errors/T7/position_m"]["columns"]
+    assert "Scalars:scalars" in found["/errors/T1/rotation_deg"]["columns"]
+    import rerun.chunk as rc
+
+    assert len(rc.RrdReader(str(rrd)).blueprints()) == 1
