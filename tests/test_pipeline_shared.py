@@ -1,0 +1,81 @@
+"""SharedStages: one decode + recognition per camera frame, anchor mapping, /pipeline/markers."""
+
+from __future__ import annotations
+
+import numpy as np
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+from phonepose.geometry import Pose
+from phonepose.pipeline.anchors import controller_in_display_vio
+from phonepose.pipeline.shared import SharedStages, detections_message
+from phonepose.pipeline.synthetic import encode_jpeg, looking_at, pinhole_camera, render_marker
+from phonepose.pipeline.trackers import make_trackers
+from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
+from phonepose.schemas.topics import Frame
+
+T_DISPLAY_CAMERA = Pose.from_rotvec([0.0, 0.0, 0.0], [0.0, 0.07, 0.0])
+CAMERA = pinhole_camera(T_display_camera=T_DISPLAY_CAMERA)
+MARKER = MarkerModel("DICT_4X4_50", 7, 0.05, Pose.from_rotvec([0.0, 0.0, 0.0], [0.0, 0.02, 0.004]))
+T_CAMERA_MARKER = looking_at(0.3, 30, 40, roll_deg=15)
+T_DVIO_DISPLAY = Pose.from_rotvec([0.1, -0.2, 0.05], [0.5, 1.4, -0.2])
+ANCHORS = dict(T_dvio_anchor=Pose.from_rotvec([0, 0, 0.5], [1.0, 0.0, 0.0]),
+               T_cvio_anchor=Pose.from_rotvec([0, 0, -0.3], [0.0, 2.0, 0.0]),
+               T_cvio_controller=Pose.from_rotvec([0.2, 0.1, 0.0], [0.3, 0.2, 0.1]))
+
+
+def jpeg(pose: Pose | None) -> CompressedImage:
+    gray = (render_marker(CAMERA, MARKER, pose, blur_sigma=0.5) if pose is not None
+            else np.full((480, 640), 110, np.uint8))
+    return CompressedImage(data=encode_jpeg(gray, 92), format="jpeg", frame_id=Frame.DISPLAY_CAMERA)
+
+
+def tick(i, image=None, image_t_ns=None, new=False, display=T_DVIO_DISPLAY, **kw) -> Tick:
+    return Tick(index=i, t_ns=i * 50_000_000, image=image, image_t_ns=image_t_ns, image_is_new=new,
+                T_dvio_display=display, **{**ANCHORS, **kw})
+
+
+def test_process_detects_reuses_and_maps():
+    stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    frame = jpeg(T_CAMERA_MARKER)
+    obs0 = stages.process(tick(0, frame, 1_000, new=True))
+    assert obs0.in_view
+    truth = T_DVIO_DISPLAY @ T_DISPLAY_CAMERA @ T_CAMERA_MARKER @ MARKER.T_body_marker.inv()
+    assert obs0.marker.T_dvio_controller.distance_to(truth) < 0.001
+    assert np.degrees(obs0.marker.T_dvio_controller.angle_to(truth)) < 0.5
+    assert obs0.T_dvio_controller_vio.allclose(controller_in_display_vio(**ANCHORS), atol=1e-12)
+    # the next tick carries the same frame: reused, not decoded again
+    obs1 = stages.process(tick(1, frame, 1_000, new=False))
+    assert stages.frames_decoded == 1 and obs1.marker is obs0.marker
+    # an empty frame: out of view; VIO still mapped
+    obs2 = stages.process(tick(2, jpeg(None), 100_000_000, new=True))
+    assert not obs2.in_view and stages.frames_decoded == 2 and obs2.T_dvio_controller_vio is not None
+    # no image at all, and no anchors: nothing
+    obs3 = stages.process(Tick(index=3, t_ns=150_000_000))
+    assert not obs3.in_view and obs3.T_dvio_controller_vio is None
+    # a marker without a display pose cannot be placed in display_vio
+    obs4 = stages.process(tick(4, frame, 200_000_000, new=True, display=None))
+    assert not obs4.in_view
+
+
+def test_detections_message():
+    stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    obs = stages.process(tick(0, jpeg(T_CAMERA_MARKER), 123_456_789, new=True))
+    msg = detections_message(obs)
+    assert msg.frame_id == Frame.DISPLAY_CAMERA and msg.timestamp.ToNanoseconds() == 123_456_789
+    (det,) = msg.detections
+    assert det.id == 7 and len(det.corners_px) == 8
+    np.testing.assert_allclose(np.reshape(det.corners_px, (4, 2)), obs.marker.corners_px)
+    assert Pose.from_foxglove(det.pose_in_camera).allclose(obs.marker.T_camera_marker, atol=1e-9)
+    assert Pose.from_foxglove(det.controller_in_display_vio).allclose(obs.marker.T_dvio_controller, atol=1e-9)
+    empty = detections_message(stages.process(tick(1, jpeg(None), 200, new=True)))
+    assert len(empty.detections) == 0
+
+
+def test_all_trackers_step_on_one_observation():
+    stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    trackers = make_trackers("all")
+    obs = stages.process(tick(0, jpeg(T_CAMERA_MARKER), 1, new=True))
+    poses = {t.name: t.step(obs) for t in trackers}
+    assert poses["T1"].allclose(obs.T_dvio_controller_vio)
+    for name in ("T4", "T5", "T6", "T7"):
+        assert poses[name] is obs.marker.T_dvio_controller
