@@ -36,9 +36,11 @@ AMBIGUITY_RATIO = 4.0
 # The previous rotation is only a useful tie-breaker if it is recent.
 CONTINUITY_MAX_GAP_NS = 500_000_000
 # Crop margin (fraction of the marker's bounding-box side) around a fresh full-frame detection,
-# and the larger one around last frame's position (the marker may have moved since).
+# and the larger one around last frame's position (the marker may have moved since; if it moved
+# out of the crop the full-frame pass runs). Measured on a 20 Hz sequence: margin 0.8 -> 5.6 ms,
+# 0.5 -> 2.0 ms, 0.35 -> 1.8 ms median per frame (APRILTAG cost grows with the crop area).
 DETECTION_MARGIN = 0.35
-TRACKING_MARGIN = 0.8
+TRACKING_MARGIN = 0.5
 MIN_MARGIN_PX = 12
 # AprilTag convention leaks a +0.5 px shift; CONTOUR edges sit 0.5 px inside the true edge.
 APRILTAG_SHIFT_PX = 0.5
