@@ -27,15 +27,17 @@ position (at most ``max_gap_s`` of data).
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
 
-from phonepose.geometry import Pose, interpolate
+from scipy.spatial.transform import Rotation
+
+from phonepose.geometry import Pose
 from phonepose.pipeline.types import SessionContext, Tick
-from phonepose.playback.context import fg_pose
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
 
@@ -49,14 +51,89 @@ SCHEDULED_TOPICS = (
 )
 
 
+# ----------------------------------------------------------------------------- raw pose math
+# Samples are kept as plain tuples (qx, qy, qz, qw, x, y, z): scipy Rotation objects cost tens of
+# microseconds each, and a session has thousands of samples. A Pose is built only for what a
+# tick carries.
+def _slerp(q0, q1, a: float):
+    dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3]
+    if dot < 0.0:
+        q1 = (-q1[0], -q1[1], -q1[2], -q1[3])
+        dot = -dot
+    if dot > 0.9999995:
+        w0, w1 = 1.0 - a, a
+    else:
+        theta = math.acos(min(1.0, dot))
+        s = math.sin(theta)
+        w0 = math.sin((1.0 - a) * theta) / s
+        w1 = math.sin(a * theta) / s
+    q = (w0 * q0[0] + w1 * q1[0], w0 * q0[1] + w1 * q1[1], w0 * q0[2] + w1 * q1[2], w0 * q0[3] + w1 * q1[3])
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def _interp(s0, s1, a: float):
+    q = _slerp(s0[:4], s1[:4], a)
+    b = 1.0 - a
+    return q + (b * s0[4] + a * s1[4], b * s0[5] + a * s1[5], b * s0[6] + a * s1[6])
+
+
+def _qmul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def _qrot(q, v):
+    x, y, z, w = q
+    # v + 2w (q_v x v) + 2 q_v x (q_v x v)
+    cx, cy, cz = y * v[2] - z * v[1], z * v[0] - x * v[2], x * v[1] - y * v[0]
+    ccx, ccy, ccz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
+    return (v[0] + 2 * (w * cx + ccx), v[1] + 2 * (w * cy + ccy), v[2] + 2 * (w * cz + ccz))
+
+
+def compose(a, b):
+    """Raw ``a · b`` of two (qx, qy, qz, qw, x, y, z) tuples."""
+    t = _qrot(a[:4], b[4:])
+    q = _qmul(a[:4], b[:4])
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n, t[0] + a[4], t[1] + a[5], t[2] + a[6])
+
+
+def raw_pose(msg_pose):
+    q, p = msg_pose.orientation, msg_pose.position
+    qx, qy, qz, qw = q.x, q.y, q.z, q.w
+    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    if n == 0.0:
+        return (0.0, 0.0, 0.0, 1.0, p.x, p.y, p.z)   # unset orientation reads as identity
+    return (qx / n, qy / n, qz / n, qw / n, p.x, p.y, p.z)
+
+
+def raw_of(pose: Pose):
+    q = pose.quat_xyzw
+    t = pose.translation
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]), float(t[0]), float(t[1]), float(t[2]))
+
+
+def to_pose(raw) -> Pose | None:
+    if raw is None:
+        return None
+    return Pose(Rotation.from_quat(raw[:4]), np.array(raw[4:], dtype=float))
+
+
 class PoseStream:
-    """Stamped poses of one stream, kept from the last sample at or before the oldest query on."""
+    """Stamped raw poses of one stream, kept from the last sample at or before the oldest query on."""
 
     def __init__(self) -> None:
         self.times: deque[int] = deque()
-        self.poses: deque[Pose] = deque()
+        self.poses: deque = deque()
 
-    def add(self, t_ns: int, pose: Pose) -> None:
+    def add(self, t_ns: int, pose) -> None:
+        if isinstance(pose, Pose):
+            pose = raw_of(pose)
         if self.times and t_ns < self.times[-1]:
             return  # out of order on this stream: drop (the reader orders by log_time, so never here)
         self.times.append(t_ns)
@@ -75,7 +152,7 @@ class PoseStream:
             self.times.popleft()
             self.poses.popleft()
 
-    def at(self, t_ns: int, max_gap_ns: int) -> Pose | None:
+    def raw_at(self, t_ns: int, max_gap_ns: int):
         """Interpolated at ``t`` between the samples around it; hold the last one across gaps."""
         times = self.times
         if not times or times[0] > t_ns:
@@ -87,12 +164,12 @@ class PoseStream:
         if i + 1 < len(times):
             t1 = times[i + 1]
             if t1 - t0 <= max_gap_ns:
-                return interpolate(t0, self.poses[i], t1, self.poses[i + 1], t_ns)
+                return _interp(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
         if t_ns - t0 <= max_gap_ns:
             return self.poses[i]
         return None
 
-    def associate(self, t_ns: int, tol_ns: int) -> Pose | None:
+    def raw_associate(self, t_ns: int, tol_ns: int):
         """TUM-style association: interpolate only if samples lie within ``tol`` on both sides."""
         times = self.times
         if not times:
@@ -108,7 +185,13 @@ class PoseStream:
         t1 = times[i + 1]
         if t_ns - t0 > tol_ns or t1 - t_ns > tol_ns:
             return None
-        return interpolate(t0, self.poses[i], t1, self.poses[i + 1], t_ns)
+        return _interp(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
+
+    def at(self, t_ns: int, max_gap_ns: int) -> Pose | None:
+        return to_pose(self.raw_at(t_ns, max_gap_ns))
+
+    def associate(self, t_ns: int, tol_ns: int) -> Pose | None:
+        return to_pose(self.raw_associate(t_ns, tol_ns))
 
 
 @dataclass
@@ -126,8 +209,8 @@ class ScheduleInfo:
         return (self.last_tick_ns - self.first_tick_ns) // self.period_ns + 1
 
 
-def _pose_msg(msg) -> Pose:
-    return fg_pose(msg.pose)
+def _pose_msg(msg):
+    return raw_pose(msg.pose)
 
 
 def _stamp_s(msg, log_time_ns: int) -> float:
@@ -153,7 +236,7 @@ class TickScheduler:
         summary = reader.summary()
         self.has_camera = summary.has(Topic.CAMERA_IMAGE)
         self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
-        self._T_dvio_world = context.T_world_display_vio.inv() if context.T_world_display_vio is not None else None
+        self._T_dvio_world = raw_of(context.T_world_display_vio.inv()) if context.T_world_display_vio is not None else None
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
         t0 = None
         for schema, channel, m in reader.raw_messages([origin_topic]):
@@ -243,9 +326,9 @@ class TickScheduler:
                 T_dvio_display = display.at(t, self.max_gap_ns)
             gt_pose = None
             if self.has_gt:
-                T_world_ctrl = gt.associate(t, self.gt_tol_ns)
+                T_world_ctrl = gt.raw_associate(t, self.gt_tol_ns)
                 if T_world_ctrl is not None:
-                    gt_pose = self._T_dvio_world @ T_world_ctrl
+                    gt_pose = to_pose(compose(self._T_dvio_world, T_world_ctrl))
             ctx = self.context
             in_task = True
             if ctx.task_start_ns is not None and t < ctx.task_start_ns:
@@ -283,9 +366,9 @@ class TickScheduler:
                 if self.has_gt:
                     gt.add(now, _pose_msg(msg))
             elif topic == Topic.DISPLAY_ANCHOR:
-                d_anchor.append((now, _pose_msg(msg)))
+                d_anchor.append((now, to_pose(_pose_msg(msg))))
             elif topic == Topic.CONTROLLER_ANCHOR:
-                c_anchor.append((now, _pose_msg(msg)))
+                c_anchor.append((now, to_pose(_pose_msg(msg))))
             elif topic == Topic.CONTROLLER_IMU:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it

@@ -1,0 +1,124 @@
+"""Playback throughput: ``--tracker all`` without and with Rerun, next to the floor.
+
+The floor is what no playback can avoid: JPEG decode + marker recognition of the same camera
+frames the engine decodes (the frames the ticks carry as new). Playback adds the file pass, the
+tick scheduling, seven trackers, the output files and (optionally) Rerun logging. Reported as
+frames/s and as ratios to the floor, measured side by side in one run (best of ``ROUNDS``).
+Targets: <= 1.3x the floor without Rerun, <= 1.6x with.
+
+Session: a simulator session (``phonepose record sim --scenario exp2 ...``) when the simulator
+is available, else the hand-made playback test session at 640x480 (said so in the output).
+
+    python -m bench playback         or         python bench/bench_playback.py
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROUNDS = 3
+TARGET_NO_RERUN = 1.3
+TARGET_RERUN = 1.6
+
+
+def _make_session(tmp: Path) -> tuple[Path, str]:
+    out = tmp / "sim.mcap"
+    try:
+        r = subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", "--scenario", "exp2", "--path", "TRI2",
+                            "--trial", "1", "--seed", "0", "--out", str(out)], capture_output=True, text=True,
+                           timeout=900)
+        if r.returncode == 0 and out.exists():
+            return out, "simulator exp2 TRI2 trial 1 seed 0"
+        why = (r.stderr.strip().splitlines() or ["?"])[-1]
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        why = str(exc)
+    print(f"simulator not available ({why}); using the hand-made playback test session (640x480, 20 s)")
+    from phonepose.playback.testdata import write_test_session
+
+    hand = tmp / "hand.mcap"
+    write_test_session(hand, duration_s=20.0, width=640, height=480, in_view_fraction=0.5)
+    return hand, "hand-made test session 640x480 20 s (simulator not available)"
+
+
+def _new_frames(session: Path) -> list:
+    """The camera frames the ticks carry as new (what the shared stages decode), with their tick."""
+    from phonepose.playback.context import read_context
+    from phonepose.playback.scheduler import TickScheduler
+    from phonepose.session import SessionReader
+
+    frames = []
+    with SessionReader(session) as r:
+        ctx = read_context(r)
+        for tick in TickScheduler(r, ctx):
+            if tick.image is not None and tick.image_is_new:
+                frames.append((tick.image, tick.image_t_ns, tick.T_dvio_display))
+    return frames, ctx
+
+
+def _floor(frames, ctx) -> float:
+    from phonepose.pipeline.markers import MarkerRecognizer
+    from phonepose.pipeline.shared import decode_gray
+
+    rec = MarkerRecognizer(ctx.camera, ctx.marker)
+    t0 = time.perf_counter()
+    for image, t_ns, T in frames:
+        gray = decode_gray(image)
+        rec.recognize(gray, T, t_ns)
+    return time.perf_counter() - t0
+
+
+def _playback(session: Path, out: Path, rrd: Path | None) -> tuple[float, object]:
+    from phonepose.playback.engine import run_playback
+
+    t0 = time.perf_counter()
+    res = run_playback(session, trackers=["all"], out_dir=out, rerun_path=rrd)
+    return time.perf_counter() - t0, res
+
+
+def main() -> dict:
+    with tempfile.TemporaryDirectory(prefix="bench-playback-") as d:
+        tmp = Path(d)
+        session, source = _make_session(tmp)
+        frames, ctx = _new_frames(session)
+        n = len(frames)
+        if n == 0:
+            print("the session has no camera frames: nothing to measure")
+            return {"skipped": "no camera frames", "session": source}
+        best = {"floor": float("inf"), "no_rerun": float("inf"), "rerun": float("inf")}
+        ticks = 0
+        for k in range(ROUNDS):
+            best["floor"] = min(best["floor"], _floor(frames, ctx))
+            s, res = _playback(session, tmp / f"o{k}", None)
+            best["no_rerun"] = min(best["no_rerun"], s)
+            ticks = res.n_ticks
+            s, _ = _playback(session, tmp / f"r{k}", tmp / f"r{k}.rrd")
+            best["rerun"] = min(best["rerun"], s)
+        rrd_mb = (tmp / f"r{ROUNDS - 1}.rrd").stat().st_size / 1e6
+    result = {
+        "session": source,
+        "frames": n,
+        "ticks": ticks,
+        "floor_fps": n / best["floor"],
+        "playback_all_fps": n / best["no_rerun"],
+        "playback_all_rerun_fps": n / best["rerun"],
+        "ratio_no_rerun": best["no_rerun"] / best["floor"],
+        "ratio_rerun": best["rerun"] / best["floor"],
+        "target_no_rerun": TARGET_NO_RERUN,
+        "target_rerun": TARGET_RERUN,
+        "rrd_mb": rrd_mb,
+    }
+    print(f"session: {source}; {n} decoded frames over {ticks} ticks (best of {ROUNDS})")
+    print(f"  floor (decode + detect)         {result['floor_fps']:8.1f} frames/s   1.00x")
+    print(f"  playback --tracker all          {result['playback_all_fps']:8.1f} frames/s   "
+          f"{result['ratio_no_rerun']:.2f}x  (target <= {TARGET_NO_RERUN}x)")
+    print(f"  playback --tracker all --rerun  {result['playback_all_rerun_fps']:8.1f} frames/s   "
+          f"{result['ratio_rerun']:.2f}x  (target <= {TARGET_RERUN}x; .rrd {rrd_mb:.1f} MB)")
+    return result
+
+
+if __name__ == "__main__":
+    main()
