@@ -1,0 +1,480 @@
+"""Salvage a truncated or partly corrupted session into a valid, indexed MCAP file.
+
+The damaged file is scanned record by record (no summary, no index needed, memory-mapped so
+nothing loads the whole file). Every chunk whose compressed data decompresses to the size and
+CRC its header promises is kept; a record that does not parse (truncated tail, flipped bits,
+overwritten bytes) is skipped by scanning forward for the next chunk record (opcode 0x06) that
+validates, so damage in the middle loses only the chunks it touches. Schemas and channels come
+from the chunks and, when the file was finished, from its summary section too (so a lost first
+chunk does not make the channels of later chunks unknown).
+
+Messages are written again with the SessionWriter's settings (zstd, 1 MiB chunks), keeping
+their topic, schema, log_time, publish_time and sequence, into a temporary file renamed over
+``out`` only when complete.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zstandard
+from mcap.writer import CompressionType, Writer
+
+from phonepose import __version__
+from phonepose.errors import DamagedFileError, InputFileError, OutputError
+from phonepose.session.reader import MCAP_MAGIC
+from phonepose.session.writer import CHUNK_SIZE
+
+# opcodes (MCAP spec)
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_METADATA, OP_DATA_END = 0x0C, 0x0F
+_MAX_OPCODE = 0x0F
+_MAX_UNCOMPRESSED = 1 << 31  # a chunk claiming more than 2 GiB is corrupt, not real
+_COMPRESSIONS = (b"", b"zstd", b"lz4")
+
+
+class _Bad(Exception):
+    """A record that does not parse or validate."""
+
+
+@dataclass
+class LostSpan:
+    """Log-time range of data that could not be recovered (``end_ns`` None: unknown, at the tail)."""
+
+    start_ns: int | None
+    end_ns: int | None
+    bytes: int
+
+    @property
+    def duration_s(self) -> float | None:
+        if self.start_ns is None or self.end_ns is None:
+            return None
+        return max(0, self.end_ns - self.start_ns) / 1e9
+
+
+@dataclass
+class RecoveryReport:
+    path: str
+    out: str
+    file_size: int = 0
+    messages_per_topic: dict[str, int] = field(default_factory=dict)
+    chunks_recovered: int = 0
+    chunks_skipped: int = 0
+    bytes_unreadable: int = 0
+    lost: list[LostSpan] = field(default_factory=list)
+    orphan_messages: int = 0      # messages whose channel definition was lost
+    start_ns: int | None = None   # of what was recovered
+    end_ns: int | None = None
+    had_summary: bool = False     # the input was a finished file (only damage inside, if any)
+    metadata_records: int = 0
+
+    @property
+    def messages(self) -> int:
+        return sum(self.messages_per_topic.values())
+
+    @property
+    def time_lost_s(self) -> float:
+        """Approximate log time lost: the spans of skipped chunks (known where their header survived)."""
+        return sum(s.duration_s or 0.0 for s in self.lost)
+
+    @property
+    def damaged(self) -> bool:
+        return bool(self.chunks_skipped or self.bytes_unreadable or self.orphan_messages or not self.had_summary)
+
+
+# ---------------------------------------------------------------------------- parsing
+_U8 = struct.Struct("<Q")
+_U4 = struct.Struct("<I")
+
+
+def _u8(b, off: int) -> int:
+    return _U8.unpack_from(b, off)[0]
+
+
+def _u4(b, off: int) -> int:
+    return _U4.unpack_from(b, off)[0]
+
+
+def _string(b, off: int, end: int) -> tuple[str, int]:
+    if off + 4 > end:
+        raise _Bad("string length")
+    n = _u4(b, off)
+    off += 4
+    if off + n > end:
+        raise _Bad("string")
+    try:
+        return bytes(b[off:off + n]).decode("utf-8"), off + n
+    except UnicodeDecodeError:
+        raise _Bad("utf-8") from None
+
+
+def _string_map(b, off: int, end: int) -> tuple[dict[str, str], int]:
+    if off + 4 > end:
+        raise _Bad("map length")
+    n = _u4(b, off)
+    off += 4
+    stop = off + n
+    if stop > end:
+        raise _Bad("map")
+    out = {}
+    while off < stop:
+        k, off = _string(b, off, stop)
+        v, off = _string(b, off, stop)
+        out[k] = v
+    return out, off
+
+
+def _schema(b, off: int, end: int):
+    if off + 2 > end:
+        raise _Bad("schema")
+    sid = struct.unpack_from("<H", b, off)[0]
+    name, p = _string(b, off + 2, end)
+    encoding, p = _string(b, p, end)
+    if p + 4 > end:
+        raise _Bad("schema data")
+    n = _u4(b, p)
+    if p + 4 + n > end:
+        raise _Bad("schema data")
+    return sid, name, encoding, bytes(b[p + 4:p + 4 + n])
+
+
+def _channel(b, off: int, end: int):
+    if off + 4 > end:
+        raise _Bad("channel")
+    cid, schema_id = struct.unpack_from("<HH", b, off)
+    topic, p = _string(b, off + 4, end)
+    encoding, p = _string(b, p, end)
+    metadata, p = _string_map(b, p, end)
+    return cid, schema_id, topic, encoding, metadata
+
+
+def _message(b, off: int, end: int):
+    if off + 22 > end:
+        raise _Bad("message")
+    cid, seq, log_time, publish_time = struct.unpack_from("<HIQQ", b, off)
+    return cid, seq, log_time, publish_time, bytes(b[off + 22:end])
+
+
+def _chunk_header(b, off: int, end: int):
+    """(start, end, uncompressed size, crc, compression, data offset, data length) of a chunk record body."""
+    if off + 32 > end:
+        raise _Bad("chunk header")
+    t0, t1, usize = struct.unpack_from("<QQQ", b, off)
+    crc = _u4(b, off + 24)
+    clen = _u4(b, off + 28)
+    if clen > 4 or off + 32 + clen + 8 > end:
+        raise _Bad("chunk compression")
+    comp = bytes(b[off + 32:off + 32 + clen])
+    if comp not in _COMPRESSIONS:
+        raise _Bad("chunk compression")
+    p = off + 32 + clen
+    dlen = _u8(b, p)
+    p += 8
+    if p + dlen != end or t1 < t0 or usize > _MAX_UNCOMPRESSED:
+        raise _Bad("chunk lengths")
+    return t0, t1, usize, crc, comp.decode(), p, dlen
+
+
+def _decompress(comp: str, data: bytes, usize: int) -> bytes:
+    try:
+        if comp == "zstd":
+            out = zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
+        elif comp == "lz4":
+            import lz4.frame  # optional dependency of mcap
+
+            out = lz4.frame.decompress(data)
+        else:
+            out = bytes(data)
+    except Exception as exc:  # zstd/lz4 raise their own error types on corrupt input
+        raise _Bad(f"decompression: {type(exc).__name__}") from None
+    if len(out) != usize:
+        raise _Bad("uncompressed size")
+    return out
+
+
+class _Salvager:
+    def __init__(self, buf, report: RecoveryReport):
+        self.b = buf
+        self.n = len(buf)
+        self.report = report
+        self.schemas: dict[int, tuple[str, str, bytes]] = {}
+        self.channels: dict[int, tuple[int, str, str, dict]] = {}
+        # (chunk start, chunk end, [(cid, seq, log, pub, data)]) of every good chunk, in file order
+        self.chunks: list[tuple[int, int, list]] = []
+        self.loose: list = []   # messages outside chunks (unchunked writers)
+        self.metadata: list[tuple[str, dict]] = []
+        self.bad_regions: list[tuple[int, int, int | None, int | None]] = []  # (from, to, t0, t1)
+
+    # one record at ``pos``: returns the next position, or raises _Bad
+    def record(self, pos: int) -> int:
+        b, n = self.b, self.n
+        if pos + 9 > n:
+            raise _Bad("truncated record header")
+        op = b[pos]
+        length = _u8(b, pos + 1)
+        if op == 0 or op > _MAX_OPCODE:
+            raise _Bad("opcode")
+        start, end = pos + 9, pos + 9 + length
+        if end > n:
+            raise _Bad("truncated record")
+        if op == OP_CHUNK:
+            self.chunk(start, end)
+        elif op == OP_SCHEMA:
+            sid, name, enc, data = _schema(b, start, end)
+            self.schemas.setdefault(sid, (name, enc, data))
+        elif op == OP_CHANNEL:
+            cid, sid, topic, enc, meta = _channel(b, start, end)
+            self.channels.setdefault(cid, (sid, topic, enc, meta))
+        elif op == OP_MESSAGE:
+            self.loose.append(_message(b, start, end))
+        elif op == OP_METADATA:
+            name, p = _string(b, start, end)
+            meta, _ = _string_map(b, p, end)
+            self.metadata.append((name, meta))
+        elif op == OP_FOOTER:
+            self.report.had_summary = True
+        return end
+
+    def chunk(self, start: int, end: int) -> None:
+        t0, t1, usize, crc, comp, doff, dlen = _chunk_header(self.b, start, end)
+        data = _decompress(comp, self.b[doff:doff + dlen], usize)
+        if crc and zlib.crc32(data) != crc:
+            raise _Bad("chunk crc")
+        msgs, p = [], 0
+        schemas, channels = {}, {}
+        while p < len(data):   # every inner record must parse: a chunk is kept whole or not at all
+            if p + 9 > len(data):
+                raise _Bad("chunk record header")
+            op, length = data[p], _u8(data, p + 1)
+            s, e = p + 9, p + 9 + length
+            if e > len(data):
+                raise _Bad("chunk record")
+            if op == OP_MESSAGE:
+                msgs.append(_message(data, s, e))
+            elif op == OP_SCHEMA:
+                sid, name, enc, sdata = _schema(data, s, e)
+                schemas[sid] = (name, enc, sdata)
+            elif op == OP_CHANNEL:
+                cid, sid, topic, enc, meta = _channel(data, s, e)
+                channels[cid] = (sid, topic, enc, meta)
+            p = e
+        for k, v in schemas.items():
+            self.schemas.setdefault(k, v)
+        for k, v in channels.items():
+            self.channels.setdefault(k, v)
+        self.chunks.append((start - 9, end, msgs))
+
+    def _plausible_chunk_at(self, pos: int) -> bool:
+        b, n = self.b, self.n
+        if pos + 9 + 32 > n:
+            return False
+        length = _u8(b, pos + 1)
+        if pos + 9 + length > n:
+            return False
+        try:
+            _chunk_header(b, pos + 9, pos + 9 + length)
+        except _Bad:
+            return False
+        return True
+
+    def resync(self, pos: int) -> int | None:
+        """The offset of the next chunk record after ``pos`` that validates, or None."""
+        b = self.b
+        p = pos
+        while True:
+            p = b.find(b"\x06", p + 1)
+            if p < 0:
+                return None
+            if not self._plausible_chunk_at(p):
+                continue
+            try:
+                self.record(p)  # the chunk is appended by record(); pop it, run() re-reads it
+            except _Bad:
+                continue
+            self.chunks.pop()
+            return p
+
+    def _time_at(self, pos: int) -> tuple[int | None, int | None]:
+        """Log times a damaged chunk header at ``pos`` still tells, if it parses."""
+        b, n = self.b, self.n
+        if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
+            t0, t1 = struct.unpack_from("<QQ", b, pos + 9)
+            if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
+                return t0, t1
+        return None, None
+
+    def run(self) -> None:
+        b, n = self.b, self.n
+        if n >= len(MCAP_MAGIC) and bytes(b[:len(MCAP_MAGIC)]) == MCAP_MAGIC:
+            pos = len(MCAP_MAGIC)
+        else:
+            pos = 0
+            nxt = self.resync(-1)
+            if nxt is None:
+                self.bad_regions.append((0, n, None, None))
+                return
+            if nxt > 0:
+                self.bad_regions.append((0, nxt, None, None))
+            pos = nxt
+        while pos < n:
+            if self.report.had_summary and pos + len(MCAP_MAGIC) == n:
+                break  # trailing magic
+            try:
+                pos = self.record(pos)
+                continue
+            except (_Bad, struct.error, IndexError, ValueError):
+                pass
+            t0, t1 = self._time_at(pos)
+            nxt = self.resync(pos)
+            stop = n if nxt is None else nxt
+            self.bad_regions.append((pos, stop, t0, t1))
+            if nxt is None:
+                break
+            pos = nxt
+
+
+def _topic_of(channels, cid):
+    ch = channels.get(cid)
+    return None if ch is None else ch[1]
+
+
+def salvage(path: str | os.PathLike, out: str | os.PathLike) -> RecoveryReport:
+    """Recover every intact chunk of ``path`` into ``out``; returns what was recovered and lost.
+
+    Raises InputFileError (missing, unreadable, or the same file as ``out``), OutputError
+    (``out`` not writable) and DamagedFileError when nothing at all can be recovered.
+    """
+    src, dst = os.fspath(path), os.fspath(out)
+    if not os.path.exists(src):
+        raise InputFileError(f"{src}: no such file")
+    if os.path.isdir(src):
+        raise InputFileError(f"{src}: is a directory, not an MCAP file")
+    if os.path.exists(dst) and os.path.samefile(src, dst) or Path(src).resolve() == Path(dst).resolve():
+        raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another --out)")
+    report = RecoveryReport(path=src, out=dst)
+    try:
+        f = open(src, "rb")
+    except OSError as exc:
+        raise InputFileError(f"{src}: cannot read ({exc.strerror or exc})") from None
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        report.file_size = size
+        if size == 0:
+            raise InputFileError(f"{src}: empty file, nothing to recover")
+        try:
+            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except (OSError, ValueError) as exc:
+            raise InputFileError(f"{src}: cannot read ({exc})") from None
+        try:
+            sal = _Salvager(buf, report)
+            sal.run()
+            _write(sal, report, dst)
+        finally:
+            buf.close()
+    return report
+
+
+def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
+    counts: dict[str, int] = {}
+    kept = []  # (cid, seq, log, pub, data) in file order
+    t_min = t_max = None
+    for _, _, msgs in sal.chunks:
+        kept.extend(msgs)
+    kept.extend(sal.loose)
+    for m in kept:
+        topic = _topic_of(sal.channels, m[0])
+        if topic is None:
+            report.orphan_messages += 1
+            continue
+        counts[topic] = counts.get(topic, 0) + 1
+        t_min = m[2] if t_min is None else min(t_min, m[2])
+        t_max = m[2] if t_max is None else max(t_max, m[2])
+    report.chunks_recovered = len(sal.chunks)
+    report.metadata_records = len(sal.metadata)
+    report.start_ns, report.end_ns = t_min, t_max
+    _account_losses(sal, report)
+    if not counts:
+        raise DamagedFileError(
+            f"{report.path}: nothing recoverable ({report.bytes_unreadable} of {report.file_size} bytes unreadable, "
+            "no intact chunk with known channels)")
+    report.messages_per_topic = dict(sorted(counts.items()))
+
+    tmp = dst + ".partial"
+    try:
+        fo = open(tmp, "wb")
+    except OSError as exc:
+        raise OutputError(f"cannot write {dst}: {exc.strerror or exc}") from None
+    try:
+        with fo:
+            w = Writer(fo, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+            w.start(profile="", library=f"phonepose {__version__} (recovered)")
+            schema_ids: dict[int, int] = {}
+            channel_ids: dict[int, int] = {}
+            for cid, (sid, topic, enc, meta) in sorted(sal.channels.items()):
+                if sid and sid in sal.schemas and sid not in schema_ids:
+                    name, senc, data = sal.schemas[sid]
+                    schema_ids[sid] = w.register_schema(name=name, encoding=senc, data=data)
+                channel_ids[cid] = w.register_channel(topic=topic, message_encoding=enc,
+                                                      schema_id=schema_ids.get(sid, 0), metadata=meta)
+            for cid, seq, log, pub, data in kept:
+                new = channel_ids.get(cid)
+                if new is not None:
+                    w.add_message(channel_id=new, log_time=log, data=data, publish_time=pub, sequence=seq)
+            for name, meta in sal.metadata:
+                w.add_metadata(name, meta)
+            w.finish()
+            fo.flush()
+            os.fsync(fo.fileno())
+        os.replace(tmp, dst)
+    except OSError as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise OutputError(f"cannot write {dst}: {exc.strerror or exc}") from None
+
+
+def _account_losses(sal: _Salvager, report: RecoveryReport) -> None:
+    """Bytes and approximate log time of every damaged region.
+
+    A region between two good chunks lost at most the log time between them; at the tail, the
+    span its surviving chunk header tells (unknown when that header is gone too).
+    """
+    report.bytes_unreadable = sum(e - s for s, e, _, _ in sal.bad_regions)
+    good = []
+    for s, e, msgs in sal.chunks:
+        if msgs:
+            ts = [m[2] for m in msgs]
+            good.append((s, e, min(ts), max(ts)))
+    good.sort()
+    for s, e, t0, t1 in sal.bad_regions:
+        before = [c for c in good if c[1] <= s]
+        after = [c for c in good if c[0] >= e]
+        prev_end = before[-1][3] if before else None
+        next_start = after[0][2] if after else None
+        if prev_end is not None and next_start is not None:
+            lo, hi = prev_end, max(prev_end, next_start)
+        elif next_start is not None:
+            lo, hi = (t0 if t0 is not None and t0 <= next_start else None), next_start
+        elif t1 is not None and (prev_end is None or t1 >= prev_end):
+            lo, hi = (prev_end if prev_end is not None else t0), t1
+        elif sal.b[s] != OP_CHUNK and _cut_record(sal, s):
+            lo = hi = prev_end  # the file ends inside an index/summary record: no message data lost
+        else:
+            lo, hi = prev_end, None
+        if sal.b[s] == OP_CHUNK:
+            report.chunks_skipped += 1
+        report.lost.append(LostSpan(lo, hi, e - s))
+
+
+def _cut_record(sal: _Salvager, pos: int) -> bool:
+    """Whether the record at ``pos`` is valid-looking but cut off by the end of the file."""
+    if pos + 9 > sal.n:
+        return True
+    op = sal.b[pos]
+    return 0 < op <= _MAX_OPCODE and op != OP_CHUNK and pos + 9 + _u8(sal.b, pos + 1) > sal.n
