@@ -1,0 +1,80 @@
+"""The paper's metrics (Park & Ogawa 2024, section 4.2.3, after Zhang & Scaramuzza 2018).
+
+:func:`paper_metrics` is what the playback engine calls per tracker. Choices (docs/evaluation.md):
+
+- Input: ``gt`` and ``est`` are already associated (one row each, same stamps); rows where the
+  tracker had no pose are dropped by the caller before the call.
+- p_ATE [m] / r_ATE [deg]: RMSE of ``‖p_gt − p_est‖`` and of the rotation angle of
+  ``R_est R_gtᵀ``, **without alignment** (both are in the display frame; the paper measures ATE
+  without aligning).
+- p_RE [m]: RMSE of rpg's relative translation error, pooled over the default sub-trajectory
+  lengths (10..50 % of the GT path length, truncated to 2 decimals), pairs found on the GT path
+  distance with tolerance 0.2·L, each pair paired with its true start (no index-shift quirk).
+  posyaw alignment is used as rpg would, which changes nothing for RE (s = 1).
+- inside/outside: a frame belongs to the split given by ``inside``; an RE pair belongs to the
+  split of its **start** frame. "total" uses every frame and every pair.
+- ``None`` where a value cannot be computed (no frames in the split, no RE pair, path too short).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from phonepose.evaluation.ate import absolute_errors
+from phonepose.evaluation.relative import accumulated_distances, default_lengths, find_pairs, pair_errors
+from phonepose.evaluation.stats import rmse
+from phonepose.geometry import Pose
+
+SCOPES = ("inside", "outside", "total")
+
+
+def _empty() -> dict:
+    return {"frames": 0, "p_ate_m": None, "r_ate_deg": None, "p_re_m": None}
+
+
+def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(start index, translation error [m])`` of every RE pair over all ``lengths``, pooled."""
+    n = len(gt)
+    if n < 2:
+        return np.zeros(0, np.int64), np.zeros(0)
+    if lengths is None:
+        lengths = default_lengths(gt.translation)
+    d = accumulated_distances(gt.translation)
+    starts_all, ends_all = [], []
+    for L in lengths:  # five lengths, not a loop over poses
+        if not L > 0:
+            continue
+        s, e = find_pairs(d, float(L))
+        if e.size >= 2:
+            starts_all.append(s)
+            ends_all.append(e)
+    if not starts_all:
+        return np.zeros(0, np.int64), np.zeros(0)
+    starts = np.concatenate(starts_all)
+    ends = np.concatenate(ends_all)
+    _, t_w, _ = pair_errors(gt, est, starts, ends, 1.0)
+    return starts, np.sqrt(np.sum(t_w * t_w, axis=1))
+
+
+def paper_metrics(stamps: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -> dict:
+    """``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` (None = not computable)."""
+    stamps = np.asarray(stamps, dtype=float)
+    inside = np.asarray(inside, dtype=bool).ravel()
+    n = int(stamps.size)
+    if n == 0 or gt is None or est is None:
+        return {s: _empty() for s in SCOPES}
+    if len(gt) != n or len(est) != n or inside.size != n:
+        raise ValueError(f"paper_metrics: {n} stamps, {len(gt)} GT, {len(est)} estimates, {inside.size} flags")
+    e_trans, e_rot = absolute_errors(gt, est)
+    starts, re_trans = relative_translation_pairs(gt, est)
+    pair_inside = inside[starts]
+    out = {}
+    for scope, mask, pmask in (("inside", inside, pair_inside), ("outside", ~inside, ~pair_inside),
+                               ("total", np.ones(n, bool), np.ones(starts.size, bool))):
+        frames = int(mask.sum())
+        if frames == 0:
+            out[scope] = _empty()
+            continue
+        out[scope] = {"frames": frames, "p_ate_m": rmse(e_trans[mask]), "r_ate_deg": rmse(e_rot[mask]),
+                      "p_re_m": rmse(re_trans[pmask])}
+    return out

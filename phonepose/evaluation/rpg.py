@@ -1,0 +1,75 @@
+"""Zhang & Scaramuzza's evaluation as rpg_trajectory_evaluation runs it: associate, align, ATE, RE.
+
+:func:`evaluate_rpg` returns the ``--json`` document of ``phonepose evaluate --metric rpg``::
+
+    {"n_matched": n, "align": {...}, "ate": {"trans_m": stats, "rot_deg": stats, "scale_perc": stats},
+     "re": {"<length>": {"trans_m", "trans_perc", "rot_deg", "yaw_deg", "gravity_deg", "rot_deg_per_m"}}}
+
+where ``stats`` is ``{"rmse", "mean", "median", "std", "min", "max", "num_samples"}``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from phonepose.errors import ConfigError
+from phonepose.evaluation.alignment import align
+from phonepose.evaluation.association import associate_index, associate_rpg
+from phonepose.evaluation.ate import absolute_errors, scale_errors_perc
+from phonepose.evaluation.relative import default_lengths, relative_errors
+from phonepose.evaluation.stats import statistics
+from phonepose.evaluation.trajectory import Trajectory
+
+
+def length_key(length: float) -> str:
+    return repr(float(length))
+
+
+def associate(gt: Trajectory, est: Trajectory, max_diff: float = 0.02):
+    if gt.stamps is None or est.stamps is None:
+        if len(gt) != len(est):
+            raise ConfigError(f"index-matched (KITTI) trajectories need the same length: {len(gt)} vs {len(est)}")
+        return associate_index(len(est), len(gt))
+    return associate_rpg(est.stamps, gt.stamps, max_diff)
+
+
+def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", align_frames: int = -1,
+                 lengths=None, max_diff: float = 0.02, index_shift_quirk: bool = False,
+                 scale_quirk: bool = False, details: bool = False) -> dict:
+    i_est, i_gt = associate(gt, est, max_diff)
+    if i_est.size == 0:
+        raise ConfigError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
+                          f"(|dt| < {max_diff} s)")
+    g, e = gt.poses[i_gt], est.poses[i_est]
+    al = align(g, e, align_method, align_frames)
+    e_al = al.apply(e)
+    e_trans, e_rot = absolute_errors(g, e_al)
+    e_scale = scale_errors_perc(g.translation, e_al.translation, rpg_quirk=scale_quirk)
+    if lengths is None:
+        lengths = default_lengths(gt.positions)
+    lengths = [float(x) for x in lengths]
+    if any(not (x > 0) for x in lengths):
+        raise ConfigError(f"--lengths {lengths}: sub-trajectory lengths must be > 0 m")
+    rel = relative_errors(g, e, lengths, al.scale, index_shift_quirk)
+    out = {
+        "n_matched": int(i_est.size),
+        "align": al.to_dict(),
+        "ate": {"trans_m": statistics(e_trans), "rot_deg": statistics(e_rot), "scale_perc": statistics(e_scale)},
+        "re": {
+            length_key(L): {
+                "num_pairs": len(r),
+                "trans_m": statistics(r.trans),
+                "trans_perc": statistics(r.trans_perc),
+                "rot_deg": statistics(r.rot_deg),
+                "yaw_deg": statistics(r.yaw_deg),
+                "gravity_deg": statistics(r.gravity_deg),
+                "rot_deg_per_m": statistics(r.rot_deg_per_m),
+            }
+            for L, r in rel.items()
+        },
+    }
+    if details:
+        out["_matches"] = (i_est, i_gt)
+        out["_relative"] = rel
+        out["_ate"] = (e_trans, e_rot)
+    return out

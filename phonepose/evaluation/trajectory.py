@@ -1,0 +1,180 @@
+"""Stamped trajectories: loaders for TUM, EuRoC csv and KITTI files, and the TUM writer.
+
+A :class:`Trajectory` holds stamps in seconds (float64, or ``None`` for KITTI, which is matched by
+index) and a :class:`~phonepose.geometry.Pose` stack ``T_world_body``. Loaders raise
+:class:`~phonepose.errors.InputFileError` with one line naming the file (and the line, when one
+line is at fault); they read the numbers the way evo and rpg do (``float`` of the text, EuRoC
+nanoseconds divided by 1e9), so that stamps compare bit for bit with theirs.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from phonepose.errors import ConfigError, InputFileError, OutputError
+from phonepose.geometry import Pose
+
+FORMATS = ("tum", "euroc", "kitti")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    stamps: np.ndarray | None  # (N,) seconds, float64; None = index-matched (KITTI)
+    poses: Pose  # N poses T_world_body
+    source: str = ""
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def positions(self) -> np.ndarray:
+        return np.atleast_2d(self.poses.translation)
+
+    def __getitem__(self, index) -> "Trajectory":
+        stamps = None if self.stamps is None else self.stamps[index]
+        return Trajectory(stamps, self.poses[index], self.source)
+
+    def path_length(self) -> float:
+        return path_length(self.positions)
+
+
+def path_length(positions: np.ndarray) -> float:
+    """Sum of the distances between consecutive positions (rpg's ``traj_length``)."""
+    p = np.asarray(positions, dtype=float)
+    if len(p) < 2:
+        return 0.0
+    d = np.diff(p, axis=0)
+    return float(np.sum(np.sqrt(np.sum(d * d, axis=1))))
+
+
+# ----------------------------------------------------------------------------- reading
+def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarray:
+    """All numeric rows of a text file (``#`` comments and blank lines skipped), ``ncols`` or more each."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(f"{path}: no such file")
+    if p.is_dir():
+        raise InputFileError(f"{path}: is a directory, expected a {what} file")
+    try:
+        text = p.read_text()
+    except UnicodeDecodeError:
+        raise InputFileError(f"{path}: not a text file (expected {what})") from None
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    rows = []
+    lines = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.split("#", 1)[0].strip()
+        if s:
+            rows.append(s)
+            lines.append(lineno)
+    if not rows:
+        raise InputFileError(f"{path}: no poses (expected {what})")
+    try:
+        m = np.loadtxt(rows, delimiter=delimiter, ndmin=2, dtype=float)
+    except ValueError:
+        m = None
+    if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])):
+        return m
+    # slow path: find the first bad line and name it
+    for s, lineno in zip(rows, lines):
+        parts = [x for x in (s.split(delimiter) if delimiter else s.split())]
+        try:
+            vals = [float(x) for x in parts]
+        except ValueError:
+            raise InputFileError(f"{path}:{lineno}: not a number in {s[:60]!r} (expected {what})") from None
+        if len(vals) < ncols:
+            raise InputFileError(f"{path}:{lineno}: {len(vals)} values, expected {ncols} ({what})")
+        if not np.all(np.isfinite(vals[:ncols])):
+            raise InputFileError(f"{path}:{lineno}: non-finite value ({what})")
+    raise InputFileError(f"{path}: rows of unequal length (expected {what})")
+
+
+def _poses_from_xyzw(path, lines_offset, xyz, quat_xyzw) -> Pose:
+    norms = np.linalg.norm(quat_xyzw, axis=1)
+    bad = np.flatnonzero(~(norms > 1e-12))
+    if bad.size:
+        raise InputFileError(f"{path}: pose {int(bad[0]) + lines_offset} has a zero quaternion")
+    return Pose.from_xyzw(xyz, quat_xyzw)
+
+
+def load_tum(path) -> Trajectory:
+    """TUM: ``t tx ty tz qx qy qz qw`` per line, time in seconds, quaternion w last."""
+    m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'")
+    if m.shape[1] != 8:
+        raise InputFileError(f"{path}: {m.shape[1]} columns, expected 8 (TUM 't tx ty tz qx qy qz qw')")
+    return Trajectory(m[:, 0].copy(), _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8]), str(path))
+
+
+def load_euroc(path) -> Trajectory:
+    """EuRoC/ASL csv: ``t[ns], px, py, pz, qw, qx, qy, qz[, ...]`` (as evo: stamps = t / 1e9)."""
+    m = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'")
+    quat_xyzw = m[:, [5, 6, 7, 4]]
+    return Trajectory(np.divide(m[:, 0], 1e9), _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw), str(path))
+
+
+def load_kitti(path) -> Trajectory:
+    """KITTI: 12 values per line, the row-major 3x4 ``[R|t]``; no stamps (poses matched by index)."""
+    m = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values")
+    if m.shape[1] != 12:
+        raise InputFileError(f"{path}: {m.shape[1]} columns, expected 12 (KITTI 3x4 row-major [R|t])")
+    mat = np.zeros((len(m), 4, 4))
+    mat[:, :3, :] = m.reshape(-1, 3, 4)
+    mat[:, 3, 3] = 1.0
+    dets = np.linalg.det(mat[:, :3, :3])
+    bad = np.flatnonzero(~(np.abs(dets - 1.0) < 1e-3))
+    if bad.size:
+        raise InputFileError(f"{path}: pose {int(bad[0])} is not a rotation (det {dets[bad[0]]:.4g})")
+    return Trajectory(None, Pose.from_matrix(mat), str(path))
+
+
+def load_trajectory(path, fmt: str = "tum") -> Trajectory:
+    loaders = {"tum": load_tum, "euroc": load_euroc, "kitti": load_kitti}
+    if fmt not in loaders:
+        raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    return loaders[fmt](path)
+
+
+# ----------------------------------------------------------------------------- writing
+def _format_stamps(stamps) -> list[str]:
+    s = np.asarray(stamps)
+    if np.issubdtype(s.dtype, np.integer):  # integer nanoseconds: exact
+        out = []
+        for t in s.tolist():
+            sign = "-" if t < 0 else ""
+            t = abs(int(t))
+            out.append(f"{sign}{t // 1_000_000_000}.{t % 1_000_000_000:09d}")
+        return out
+    return [f"{t:.9f}" for t in s.astype(float).tolist()]
+
+
+def tum_lines(stamps, poses: Pose | None) -> list[str]:
+    """The lines ``write_tum`` writes (without newlines); quaternions made canonical (qw >= 0)."""
+    if poses is None or len(np.atleast_1d(stamps)) == 0:
+        return []
+    t = np.atleast_2d(poses.translation).astype(float)
+    q = np.atleast_2d(poses.rotation.as_quat(canonical=True))
+    vals = np.hstack([t, q])
+    vals = np.where(np.abs(vals) < 5e-10, 0.0, vals)  # no "-0.000000000"
+    stamp_txt = _format_stamps(np.atleast_1d(stamps))
+    if len(stamp_txt) != len(vals):
+        raise ValueError(f"{len(stamp_txt)} stamps for {len(vals)} poses")
+    body = [" ".join(f"{v:.9f}" for v in row) for row in vals.tolist()]
+    return [f"{a} {b}" for a, b in zip(stamp_txt, body)]
+
+
+def write_tum(path: str | os.PathLike, stamps, poses: Pose | None) -> None:
+    """Write ``t tx ty tz qx qy qz qw`` lines with a ``#`` header, 9 decimals everywhere.
+
+    ``stamps`` are seconds (float) or integer nanoseconds (any integer dtype, written exactly).
+    The same input always gives the same bytes.
+    """
+    text = "# timestamp tx ty tz qx qy qz qw\n" + "".join(line + "\n" for line in tum_lines(stamps, poses))
+    try:
+        Path(path).write_text(text)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
