@@ -32,7 +32,7 @@ import rerun.blueprint as rrb
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick
 
-TRAJECTORY_EVERY_TICKS = 10
+TRAJECTORY_EVERY_TICKS = 20   # columns and trajectories are sent every 20 ticks (1 s at 20 Hz)
 AXIS_LENGTH_M = 0.05
 # one colour per tracker (T1..T7, then cycling)
 PALETTE = [(230, 25, 75), (245, 130, 48), (255, 225, 25), (60, 180, 75), (70, 240, 240), (0, 130, 200),
@@ -98,7 +98,8 @@ class CameraLogger:
         rec.log(DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
 
     def log(self, tick: Tick) -> None:
-        if tick.T_dvio_display is not None:
+        # the display pose is the one at the frame's stamp: it changes with the frame
+        if tick.T_dvio_display is not None and (tick.image_is_new or not self.enabled or tick.image is None):
             self.rec.log(DISPLAY, _transform(tick.T_dvio_display))
         if self.enabled and tick.image is not None and tick.image_is_new:
             fmt = (tick.image.format or "jpeg").lower()
@@ -126,8 +127,17 @@ class MarkerLogger:
         self.shown = True
 
 
+def _time_columns(idx: list[int], t_ns: list[int]) -> list:
+    return [rr.TimeColumn("tick", sequence=np.asarray(idx, dtype=np.int64)),
+            rr.TimeColumn("time", timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]"))]
+
+
 class _PoseTrackLogger:
-    """A pose with axes and its trajectory so far (one tracker, or the GT)."""
+    """A pose with axes and its trajectory so far (one tracker, or the GT).
+
+    Poses are buffered and sent as columns (``send_columns``) every ``every`` ticks, which is
+    many times cheaper than one ``log`` per tick; a missing pose clears the entity at once.
+    """
 
     def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str,
                  every: int = TRAJECTORY_EVERY_TICKS):
@@ -137,28 +147,46 @@ class _PoseTrackLogger:
         self.color = color
         self.label = label
         self.every = max(1, int(every))
-        self.points: list[np.ndarray] = []
-        self.segments: list[list[np.ndarray]] = [[]]
+        self.segments: list[list[tuple]] = [[]]
         self.shown = False
         self.dirty = 0
+        self.rows_idx: list[int] = []
+        self.rows_t: list[int] = []
+        self.rows_q: list[np.ndarray] = []
+        self.rows_p: list[np.ndarray] = []
 
-    def log(self, pose: Pose | None) -> None:
+    def log(self, tick: Tick, pose: Pose | None) -> None:
         if pose is None:
             if self.shown:
+                self.flush_poses()
                 self.rec.log(self.pose_path, rr.Clear(recursive=True))
                 self.shown = False
             if self.segments[-1]:
                 self.segments.append([])
             return
-        self.rec.log(self.pose_path, _transform(pose), rr.TransformAxes3D(AXIS_LENGTH_M))
+        p = np.asarray(pose.translation, dtype=float)
+        self.rows_idx.append(tick.index)
+        self.rows_t.append(tick.t_ns)
+        self.rows_q.append(pose.quat_xyzw)
+        self.rows_p.append(p)
         self.shown = True
-        self.segments[-1].append(np.asarray(pose.translation, dtype=np.float32))
+        self.segments[-1].append(p)
         self.dirty += 1
-        if self.dirty >= self.every:
-            self.flush_trajectory()
+
+    def flush_poses(self) -> None:
+        if not self.rows_idx:
+            return
+        n = len(self.rows_idx)
+        self.rec.send_columns(
+            self.pose_path, indexes=_time_columns(self.rows_idx, self.rows_t),
+            columns=[*rr.Transform3D.columns(translation=np.vstack(self.rows_p).astype(np.float32),
+                                             quaternion=np.vstack(self.rows_q).astype(np.float32)),
+                     *rr.TransformAxes3D.columns(axis_length=np.full(n, AXIS_LENGTH_M, dtype=np.float32))])
+        self.rows_idx, self.rows_t, self.rows_q, self.rows_p = [], [], [], []
 
     def flush_trajectory(self) -> None:
-        strips = [np.vstack(s) for s in self.segments if len(s) >= 2]
+        """The trajectory so far, at the current tick (the engine set the clock)."""
+        strips = [np.asarray(s, dtype=np.float32) for s in self.segments if len(s) >= 2]
         if strips:
             self.rec.log(self.trajectory_path, rr.LineStrips3D(strips, colors=[self.color], radii=0.002,
                                                                labels=[self.label] if len(strips) == 1 else None))
@@ -189,23 +217,40 @@ class TaskLogger:
 
 
 class ErrorLogger:
-    """Per-tracker position (m) and rotation (deg) error against GT, as scalars."""
+    """Per-tracker position (m) and rotation (deg) error against GT, as scalars (sent in columns)."""
 
     def __init__(self, rec: rr.RecordingStream, names: list[str]):
         self.rec = rec
+        self.rows: dict[str, list] = {name: [] for name in names}
         for i, name in enumerate(names):
             color = PALETTE[i % len(PALETTE)]
             rec.log(f"{ERRORS}/{name}/position_m", rr.SeriesLines(colors=[color], names=[name]), static=True)
             rec.log(f"{ERRORS}/{name}/rotation_deg", rr.SeriesLines(colors=[color], names=[name]), static=True)
 
-    def log(self, gt: Pose | None, poses: dict[str, Pose | None]) -> None:
+    def log(self, tick: Tick, gt: Pose | None, poses: dict[str, Pose | None]) -> None:
         if gt is None:
             return
+        gq, gp = gt.quat_xyzw, np.asarray(gt.translation, dtype=float)
         for name, pose in poses.items():
-            if pose is None:
+            if pose is not None:
+                self.rows[name].append((tick.index, tick.t_ns, gq, gp, pose.quat_xyzw, np.asarray(pose.translation)))
+
+    def flush(self) -> None:
+        for name, rows in self.rows.items():
+            if not rows:
                 continue
-            self.rec.log(f"{ERRORS}/{name}/position_m", rr.Scalars([float(gt.distance_to(pose))]))
-            self.rec.log(f"{ERRORS}/{name}/rotation_deg", rr.Scalars([float(np.degrees(gt.angle_to(pose)))]))
+            idx = [r[0] for r in rows]
+            t = [r[1] for r in rows]
+            gq = np.vstack([r[2] for r in rows])
+            eq = np.vstack([r[4] for r in rows])
+            pos = np.linalg.norm(np.vstack([r[3] for r in rows]) - np.vstack([r[5] for r in rows]), axis=1)
+            dot = np.clip(np.abs(np.sum(gq * eq, axis=1)), 0.0, 1.0)
+            rot = np.degrees(2.0 * np.arccos(dot))
+            self.rec.send_columns(f"{ERRORS}/{name}/position_m", indexes=_time_columns(idx, t),
+                                  columns=rr.Scalars.columns(scalars=pos))
+            self.rec.send_columns(f"{ERRORS}/{name}/rotation_deg", indexes=_time_columns(idx, t),
+                                  columns=rr.Scalars.columns(scalars=rot))
+            rows.clear()
 
 
 class PlaybackRerunLogger:
@@ -236,6 +281,8 @@ class PlaybackRerunLogger:
             for i, name in enumerate(tracker_names)
         }
         self.errors = ErrorLogger(rec, tracker_names)
+        self.batch_ticks = max(1, int(trajectory_every))
+        self._since_flush = 0
 
     def set_time(self, tick: Tick) -> None:
         self.rec.set_time("tick", sequence=tick.index)
@@ -245,13 +292,23 @@ class PlaybackRerunLogger:
         self.set_time(tick)
         self.camera.log(tick)
         self.markers.log(obs)
-        self.gt.log(tick.gt_T_dvio_controller)
+        self.gt.log(tick, tick.gt_T_dvio_controller)
         for name, pose in poses.items():
-            self.trackers[name].log(pose)
-        self.errors.log(tick.gt_T_dvio_controller, poses)
+            self.trackers[name].log(tick, pose)
+        self.errors.log(tick, tick.gt_T_dvio_controller, poses)
+        self._since_flush += 1
+        if self._since_flush >= self.batch_ticks:
+            self.flush()
 
-    def close(self) -> None:
+    def flush(self) -> None:
+        """Send the buffered columns and the trajectories so far (at the current tick)."""
         for t in [self.gt, *self.trackers.values()]:
+            t.flush_poses()
             if t.dirty:
                 t.flush_trajectory()
+        self.errors.flush()
+        self._since_flush = 0
+
+    def close(self) -> None:
+        self.flush()
         self.rec.flush()
