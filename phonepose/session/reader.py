@@ -11,11 +11,10 @@ from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
 from google.protobuf.message import DecodeError
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader, make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from phonepose.errors import DamagedFileError, InputFileError, SessionContentError
+from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -86,7 +85,7 @@ class SessionReader:
         try:
             self._reader: SeekingReader = make_reader(self._file)
             self._summary_record = self._reader.get_summary()
-        except (McapError, EOFError, ValueError, MemoryError, OSError, KeyError, IndexError) as exc:
+        except Exception as exc:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
             self._file.close()
             raise DamagedFileError(
                 f"{self.path}: damaged MCAP file ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
@@ -153,7 +152,9 @@ class SessionReader:
                     yield from pending
                     pending.clear()
                 pending.append(item)
-        except (McapError, EOFError, ValueError, OSError) as exc:
+        except PhoneposeError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - anything the mcap/zstd/lz4 layers raise on damaged bytes
             raise DamagedFileError(
                 f"{self.path}: damaged MCAP data ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
             ) from None
