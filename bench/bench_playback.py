@@ -33,7 +33,9 @@ def _make_session(tmp: Path) -> tuple[Path, str]:
                            timeout=900)
         if r.returncode == 0 and out.exists():
             return out, "simulator exp2 TRI2 trial 1 seed 0"
-        why = (r.stderr.strip().splitlines() or ["?"])[-1]
+        lines = [ln.strip(" │╭╮╰╯─") for ln in r.stderr.splitlines()]
+        lines = [ln for ln in lines if ln]
+        why = f"exit {r.returncode}: {lines[-1] if lines else ''}"
     except (OSError, subprocess.TimeoutExpired) as exc:
         why = str(exc)
     print(f"simulator not available ({why}); using the hand-made playback test session (640x480, 20 s)")

@@ -83,8 +83,13 @@ def default_blueprint(tracker_names: list[str]) -> rrb.Blueprint:
     )
 
 
+def _time_columns(idx: list[int], t_ns: list[int]) -> list:
+    return [rr.TimeColumn("tick", sequence=np.asarray(idx, dtype=np.int64)),
+            rr.TimeColumn("time", timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]"))]
+
+
 class CameraLogger:
-    """Display pose, camera (static Pinhole), the recorded JPEG bytes."""
+    """Display pose, camera (static Pinhole), the recorded JPEG bytes (buffered, sent as columns)."""
 
     def __init__(self, rec: rr.RecordingStream, context: SessionContext):
         self.rec = rec
@@ -97,14 +102,39 @@ class CameraLogger:
                                       image_plane_distance=0.1), static=True)
         rec.log(DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
 
+        self.img_idx: list[int] = []
+        self.img_t: list[int] = []
+        self.img_blobs: list[np.ndarray] = []
+        self.img_media: list[str] = []
+        self.pose_idx: list[int] = []
+        self.pose_t: list[int] = []
+        self.pose_q: list[np.ndarray] = []
+        self.pose_p: list[np.ndarray] = []
+
     def log(self, tick: Tick) -> None:
         # the display pose is the one at the frame's stamp: it changes with the frame
         if tick.T_dvio_display is not None and (tick.image_is_new or not self.enabled or tick.image is None):
-            self.rec.log(DISPLAY, _transform(tick.T_dvio_display))
+            self.pose_idx.append(tick.index)
+            self.pose_t.append(tick.t_ns)
+            self.pose_q.append(tick.T_dvio_display.quat_xyzw)
+            self.pose_p.append(np.asarray(tick.T_dvio_display.translation, dtype=float))
         if self.enabled and tick.image is not None and tick.image_is_new:
             fmt = (tick.image.format or "jpeg").lower()
-            media = "image/png" if "png" in fmt else "image/jpeg"
-            self.rec.log(IMAGE, rr.EncodedImage(contents=tick.image.data, media_type=media))
+            self.img_idx.append(tick.index)
+            self.img_t.append(tick.t_ns)
+            self.img_blobs.append(np.frombuffer(tick.image.data, dtype=np.uint8))   # the recorded bytes, as they are
+            self.img_media.append("image/png" if "png" in fmt else "image/jpeg")
+
+    def flush(self) -> None:
+        if self.pose_idx:
+            self.rec.send_columns(DISPLAY, indexes=_time_columns(self.pose_idx, self.pose_t),
+                                  columns=rr.Transform3D.columns(translation=np.vstack(self.pose_p).astype(np.float32),
+                                                                 quaternion=np.vstack(self.pose_q).astype(np.float32)))
+            self.pose_idx, self.pose_t, self.pose_q, self.pose_p = [], [], [], []
+        if self.img_idx:
+            self.rec.send_columns(IMAGE, indexes=_time_columns(self.img_idx, self.img_t),
+                                  columns=rr.EncodedImage.columns(blob=self.img_blobs, media_type=self.img_media))
+            self.img_idx, self.img_t, self.img_blobs, self.img_media = [], [], [], []
 
 
 class MarkerLogger:
@@ -125,11 +155,6 @@ class MarkerLogger:
         strip = np.vstack([c, c[:1]])
         self.rec.log(MARKERS, rr.LineStrips2D([strip], labels=[f"id {m.id}"], colors=[(0, 255, 0)], radii=1.5))
         self.shown = True
-
-
-def _time_columns(idx: list[int], t_ns: list[int]) -> list:
-    return [rr.TimeColumn("tick", sequence=np.asarray(idx, dtype=np.int64)),
-            rr.TimeColumn("time", timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]"))]
 
 
 class _PoseTrackLogger:
@@ -302,6 +327,7 @@ class PlaybackRerunLogger:
 
     def flush(self) -> None:
         """Send the buffered columns and the trajectories so far (at the current tick)."""
+        self.camera.flush()
         for t in [self.gt, *self.trackers.values()]:
             t.flush_poses()
             if t.dirty:
