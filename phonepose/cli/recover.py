@@ -69,7 +69,8 @@ def recover(
         }, indent=2))
         return
     console = Console()
-    table = Table("topic", "messages recovered", title=f"{file} -> {out}")
+    typer.echo(f"{file} -> {out}")
+    table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():
         table.add_row(topic, str(n))
     console.print(table)
