@@ -1,3 +1,116 @@
-"""``phonepose evaluate``: not built yet (see the issues)."""
+"""``phonepose evaluate``: ATE/RE as rpg_trajectory_evaluation, APE/RPE as evo (docs/evaluation.md)."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from phonepose.cli import app
+from phonepose.errors import ConfigError
+
+METRICS = ("rpg", "ape", "rpe")
+
+
+def _parse_lengths(text: str | None) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ConfigError(f"--lengths {text!r}: expected comma-separated metres, e.g. 1,2.5,5") from None
+    if not vals or any(not (v > 0) for v in vals):
+        raise ConfigError(f"--lengths {text!r}: expected positive metres, e.g. 1,2.5,5")
+    return vals
+
+
+def _fmt(v) -> str:
+    return "-" if v is None else f"{v:.6g}"
+
+
+def _stats_row(table, name: str, length: str, unit: str, s: dict, end_section: bool = False) -> None:
+    table.add_row(name, length, unit, *(_fmt(s.get(k)) for k in ("rmse", "mean", "median", "std", "min", "max")),
+                  str(s.get("num_samples", "")), end_section=end_section)
+
+
+def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(width=max(Console().width, 112))
+    al = result["align"]
+    console.print(f"[bold]{est}[/bold] vs [bold]{gt}[/bold]: {result['n_matched']} matched poses, "
+                  f"align {al['method']} (frames {al['num_frames']}, scale {al['scale']:.6g})")
+    table = Table("error", "L \\[m]", "unit", "rmse", "mean", "median", "std", "min", "max", "n")
+    if metric == "rpg":
+        _stats_row(table, "ATE translation", "", "m", result["ate"]["trans_m"])
+        _stats_row(table, "ATE rotation", "", "deg", result["ate"]["rot_deg"])
+        for length, r in result["re"].items():
+            _stats_row(table, "RE translation", length, "m", r["trans_m"])
+            _stats_row(table, "RE translation", length, "%", r["trans_perc"])
+            _stats_row(table, "RE rotation", length, "deg", r["rot_deg"])
+            _stats_row(table, "RE yaw", length, "deg", r["yaw_deg"])
+            _stats_row(table, "RE gravity", length, "deg", r["gravity_deg"], end_section=True)
+    else:
+        s = result[metric]
+        unit = {"translation part": "m", "rotation angle in degrees": "deg", "rotation angle in radians": "rad",
+                "point distance": "m", "point distance error ratio": "%"}.get(s["pose_relation"], "-")
+        name = f"{metric.upper()} {s['pose_relation']}"
+        length = ""
+        if metric == "rpe":
+            length = f"Δ {s['delta']} {s['delta_unit']}{' all' if s['all_pairs'] else ''}"
+        _stats_row(table, name, length, unit, s)
+    console.print(table)
+
+
+@app.command()
+def evaluate(
+    gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
+    est: Path = typer.Option(..., "--est", help="Estimated trajectory file (TUM, or KITTI with --format kitti)."),
+    fmt: str = typer.Option("tum", "--format", help="GT format: tum | euroc (ASL csv; estimate in TUM) | kitti."),
+    align: str = typer.Option(None, "--align",
+                              help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for ape/rpe as evo)."),
+    align_frames: int = typer.Option(-1, "--align-frames", help="Align with the first N matched poses (-1: all)."),
+    metric: str = typer.Option("rpg", "--metric", help="rpg (ATE + RE) | ape | rpe (evo-compatible)."),
+    delta: float = typer.Option(1.0, "--delta", help="RPE delta."),
+    delta_unit: str = typer.Option("f", "--delta-unit", help="RPE delta unit: f (frames) | m | d (deg) | r (rad)."),
+    pose_relation: str = typer.Option("trans", "--pose-relation",
+                                      help="APE/RPE relation: trans | angle (deg) | angle_rad | rot_part | full."),
+    lengths: str = typer.Option(None, "--lengths", help="RE sub-trajectory lengths in m, e.g. 1,2,5 "
+                                "(default: 10,20,30,40,50 %% of the GT path length)."),
+    all_pairs: bool = typer.Option(False, "--all-pairs", help="RPE: all (overlapping) pairs instead of consecutive."),
+    pairs_from_reference: bool = typer.Option(False, "--pairs-from-reference", help="RPE: pairs from the GT poses."),
+    max_diff: float = typer.Option(None, "--max-diff",
+                                   help="Association window in s (default: 0.02 strict for rpg, 0.01 for ape/rpe)."),
+    as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
+) -> None:
+    """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
+    from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
+    from phonepose.evaluation.rpg import evaluate_rpg
+    from phonepose.evaluation.trajectory import FORMATS, load_trajectory
+
+    if metric not in METRICS:
+        raise ConfigError(f"--metric {metric!r}: expected one of {', '.join(METRICS)}")
+    if fmt not in FORMATS:
+        raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    if align is not None and align not in ("posyaw", "se3", "sim3", "none"):
+        raise ConfigError(f"--align {align!r}: expected one of posyaw, se3, sim3, none")
+    if max_diff is not None and not (max_diff > 0):
+        raise ConfigError(f"--max-diff {max_diff}: must be > 0 s")
+    lens = _parse_lengths(lengths)
+    gt_traj = load_trajectory(gt, fmt)
+    est_traj = load_trajectory(est, "kitti" if fmt == "kitti" else "tum")
+    if metric == "rpg":
+        result = evaluate_rpg(gt_traj, est_traj, align or "posyaw", align_frames, lens,
+                              0.02 if max_diff is None else max_diff)
+    elif metric == "ape":
+        result = evaluate_ape(gt_traj, est_traj, pose_relation, align or "none", align_frames,
+                              0.01 if max_diff is None else max_diff)
+    else:
+        result = evaluate_rpe(gt_traj, est_traj, pose_relation, delta, delta_unit, all_pairs, pairs_from_reference,
+                              0.1, align or "none", align_frames, 0.01 if max_diff is None else max_diff)
+    if as_json:
+        typer.echo(json.dumps(result, indent=2, allow_nan=False))
+        return
+    _print_table(result, metric, gt, est)
