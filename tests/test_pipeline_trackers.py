@@ -135,3 +135,20 @@ def test_cm1_literal_reading_is_selectable():
     literal.step(observation(0, now, None, [cm1_event(fix, align)]))
     out = literal.step(observation(1, align, None))
     np.testing.assert_allclose(out.translation, 2 * align.translation - fix.translation, atol=1e-9)
+
+
+
+def test_paper_keyword_and_registering_our_own():
+    from phonepose.pipeline.trackers import CompositeTracker, TrackerSpec, register
+
+    assert [t.name for t in make_trackers("paper")] == ["T1", "T2", "T3", "T4", "T5", "T6", "T7"]
+    spec = TrackerSpec("X9", Method.MARKER, Method.MARKER, CorrectionKind.NONE, "test only",
+                       factory=lambda spec, math, reading: CompositeTracker(spec, math, reading))
+    register(spec)
+    try:
+        assert tracker_names()[-1] == "X9" and make_trackers("all")[-1].name == "X9"
+        assert [t.name for t in make_trackers("paper")][-1] == "T7"
+        with pytest.raises(ValueError):
+            register(spec)
+    finally:
+        TRACKERS.pop("X9")

@@ -198,7 +198,7 @@ def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Tracker:
     spec = TRACKERS.get(name) or TRACKERS.get(str(name).upper())
     if spec is None:
-        raise ConfigError(f"unknown tracker {name!r}; valid: {', '.join(tracker_names())}, all")
+        raise ConfigError(f"unknown tracker {name!r}; valid: {', '.join(tracker_names())}, all, paper")
     math = CorrectionMath.parse(correction_math)
     reading = CM1Reading.parse(cm1_reading)
     if spec.factory is not None:
@@ -208,7 +208,7 @@ def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
 
 def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "CorrectionMath | str" = "paper",
                   cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
-    """Trackers by name; ``"all"`` (alone or in the list) means every registered one.
+    """Trackers by name; ``"all"`` means every registered one (T1-T7, then ours), ``"paper"`` T1-T7.
 
     Accepts a list or a comma-separated string (``"T1,T7"``).
     """
@@ -217,6 +217,8 @@ def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "Correc
     names = list(names)
     if any(n.lower() == "all" for n in names):
         names = tracker_names()
+    elif any(n.lower() == "paper" for n in names):
+        names = list(PAPER_TRACKERS)
     if not names:
         raise ConfigError(f"no tracker given; valid: {', '.join(tracker_names())}, all")
     return [make_tracker(n, correction_math, cm1_reading) for n in names]
