@@ -104,17 +104,26 @@ class SessionWriter:
             return
         self._finished = True
         try:
-            self._writer.finish()
-            self._file.flush()
-        finally:
-            if self._owns_file:
-                self._file.close()
+            try:
+                self._writer.finish()
+                self._file.flush()
+            finally:
+                if self._owns_file:
+                    self._file.close()
+        except OSError as exc:
+            raise OutputError(f"cannot finish {self.path}: {exc.strerror or exc} (the file written so far stays "
+                              f"readable; run `phonepose recover`)") from None
 
     def __enter__(self) -> "SessionWriter":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.finish()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.finish()
+        except OutputError:
+            if exc_type is None:
+                raise
+            # already failing (e.g. disk full in write()): keep that error, not the summary's
 
 
 def _expected_type(topic: str):
