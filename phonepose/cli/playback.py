@@ -19,18 +19,18 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def metrics_table(metrics: dict) -> Table:
-    table = Table(title=f"{metrics['session']} @ {metrics['rate_hz']} Hz  (inside / outside the FoV / total)")
+    """One row per tracker and scope (inside / outside the FoV / total); n/a where not computable."""
+    table = Table(title=f"{metrics['session']} @ {metrics['rate_hz']} Hz")
     table.add_column("tracker", style="bold")
+    table.add_column("scope")
     for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm"):
         table.add_column(label, justify="right")
     for name, m in metrics["trackers"].items():
-        cells = []
-        for key, scale, digits in (("frames", None, 0), ("p_ate_m", 100.0, 2), ("r_ate_deg", 1.0, 2), ("p_re_m", 100.0, 2)):
-            if scale is None:
-                cells.append(" / ".join(str(m[s]["frames"]) for s in ("inside", "outside", "total")))
-            else:
-                cells.append(" / ".join(_fmt(m[s][key], scale, digits) for s in ("inside", "outside", "total")))
-        table.add_row(name, *cells)
+        for i, scope in enumerate(("inside", "outside", "total")):
+            d = m[scope]
+            table.add_row(name if i == 0 else "", scope, str(d["frames"]), _fmt(d["p_ate_m"], 100.0),
+                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0),
+                          end_section=(scope == "total"))
     return table
 
 

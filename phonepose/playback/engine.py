@@ -30,7 +30,12 @@ from phonepose.errors import ConfigError, OutputError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
 from phonepose.playback.context import read_context
-from phonepose.playback.outputs import paper_metrics, write_metrics, write_tum
+from phonepose.playback.outputs import paper_metrics, write_metrics
+
+try:  # the evaluation module's TUM writer (same fixed format); ours only if it is missing
+    from phonepose.evaluation.trajectory import write_tum
+except ImportError:  # pragma: no cover
+    from phonepose.playback.outputs import write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
