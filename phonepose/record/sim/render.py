@@ -1,14 +1,15 @@
 """Camera frames of the simulated scene: background, the phone, its screen with the marker.
 
 How it stays exact and fast (markers.md §2):
-- The phone is a flat textured rectangle (front: bezel, white screen, the ArUco marker with its
-  quiet zone; back: dark housing) drawn with ``warpPerspective`` of a texture whose pixel grid
-  is tied to metres, so the projected marker corners land exactly where the pinhole model puts
-  them (OpenCV pixel-centre convention).
-- It is drawn at 2x into an undistorted canvas (with a margin: barrel distortion pulls pixels
-  from outside the 640x480 pinhole image in), box-filtered down with INTER_AREA, then the lens
-  distortion is applied by remapping with precomputed maps. Only the phone's bounding box is
-  warped and remapped; the static background is pre-distorted once.
+- The phone is a flat rectangle: bezel and lit screen are anti-aliased polygons (back: dark
+  housing); the marker with its one-module quiet zone is a ``warpPerspective`` of a texture
+  whose texel grid is tied to metres, so the projected marker corners land exactly where the
+  pinhole model puts them (OpenCV pixel-centre convention). A mip level close to the projected
+  size is picked, so the warp never skips texels.
+- All of it is drawn at 2x into an undistorted canvas (with a margin: barrel distortion pulls
+  pixels from outside the 640x480 pinhole image in), box-filtered down with INTER_AREA, then
+  the lens distortion is applied by remapping with precomputed maps. Only the phone's bounding
+  box is drawn and remapped; the static background is pre-distorted once.
 - Noise comes from a precomputed bank (random offsets per frame), motion blur is a line kernel
   along the marker's image-space motion during the exposure, then a global brightness gain
   (auto-exposure) and JPEG.
@@ -21,40 +22,30 @@ import numpy as np
 
 from phonepose.geometry import Pose
 from phonepose.record.sim.config import SimConfig
-from phonepose.record.sim.world import (HEIGHT, PHONE_HEIGHT_M, PHONE_THICKNESS_M, PHONE_WIDTH_M, SCREEN_MARGIN_M,
-                                        WIDTH, CameraIntrinsics, MARKER_CENTER_IN_BODY)
+from phonepose.record.sim.world import (HEIGHT, MARKER_CENTER_IN_BODY, PHONE_HEIGHT_M, PHONE_THICKNESS_M,
+                                        PHONE_WIDTH_M, SCREEN_MARGIN_M, WIDTH, CameraIntrinsics)
 
 MARGIN = 48          # undistorted canvas margin (px) around the 640x480 pinhole image
 SS = 2               # supersampling factor of the phone rendering
-TEX_PX_PER_M = 4800  # texture resolution: 0.21 mm per texel, a 5 cm marker is 240 texels
 NOISE_BANK = 4
 
 
-def _marker_texture(cfg: SimConfig) -> np.ndarray:
-    """Front face of the phone, gray levels, (rows = top to bottom, cols = left to right)."""
+def _marker_texture(cfg: SimConfig) -> tuple[np.ndarray, float]:
+    """The marker with a one-module white quiet zone, as shown on the screen (gray levels).
+
+    Returns the texture and the metric width of one texel. Texel (u, v) has its centre at
+    ((u + 0.5) * texel - half, half - (v + 0.5) * texel) in the marker frame (x right, y up),
+    so the texture's outer edges are exactly the quiet zone's edges.
+    """
     r = cfg.render
-    w = int(round(PHONE_WIDTH_M * TEX_PX_PER_M))
-    h = int(round(PHONE_HEIGHT_M * TEX_PX_PER_M))
-    w, h = w - w % 8, h - h % 8
-    tex = np.full((h, w), 18, np.uint8)                          # dark bezel / housing edge
-    b = int(round(SCREEN_MARGIN_M * TEX_PX_PER_M))
-    tex[b:h - b, b:w - b] = r.screen_white_dn                    # lit screen
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, cfg.marker.dictionary))
-    bits = dictionary.markerSize + 2
-    side = int(round(cfg.marker.size_m * TEX_PX_PER_M))
-    cell = side // bits
-    side = cell * bits
-    img = cv2.aruco.generateImageMarker(dictionary, cfg.marker.id, bits, borderBits=1)
-    img = cv2.resize(img, (side, side), interpolation=cv2.INTER_NEAREST)
-    img = np.where(img > 127, r.screen_white_dn, r.screen_black_dn).astype(np.uint8)
-    # Marker centre in texel coordinates (texel centres at integers): body x right, y up.
-    cx = (MARKER_CENTER_IN_BODY[0] + PHONE_WIDTH_M / 2) * TEX_PX_PER_M - 0.5
-    cy = (PHONE_HEIGHT_M / 2 - MARKER_CENTER_IN_BODY[1]) * TEX_PX_PER_M - 0.5
-    x0 = int(round(cx - (side - 1) / 2))
-    y0 = int(round(cy - (side - 1) / 2))
-    tex[y0:y0 + side, x0:x0 + side] = img
-    # The exact metric size of the drawn square must equal the configured size.
-    return tex, side / TEX_PX_PER_M, (x0, y0)
+    bits = dictionary.markerSize + 2                      # data bits + black border
+    cell = 40                                             # texels per module
+    img = cv2.aruco.generateImageMarker(dictionary, cfg.marker.id, bits * cell, borderBits=1)
+    img = cv2.copyMakeBorder(img, cell, cell, cell, cell, cv2.BORDER_CONSTANT, value=255)   # quiet zone
+    tex = np.where(img > 127, r.screen_white_dn, r.screen_black_dn).astype(np.uint8)
+    texel_m = cfg.marker.size_m / (bits * cell)
+    return tex, texel_m
 
 
 class Renderer:
@@ -69,20 +60,10 @@ class Renderer:
         self.Kc[0, 2] += MARGIN
         self.Kc[1, 2] += MARGIN
         self.cw, self.ch = WIDTH + 2 * MARGIN, HEIGHT + 2 * MARGIN
-        front, side_m, (x0, y0) = _marker_texture(cfg)
-        self.marker_side_m = side_m
-        # Texel (u, v) of level 0 has its centre at body x = (u + 0.5)/ppm - W/2 + sx,
-        # y = H/2 - (v + 0.5)/ppm + sy; (sx, sy) put the marker square's centre at its body pose.
-        ppm = TEX_PX_PER_M
-        hpx, wpx = front.shape
-        W, H = wpx / ppm, hpx / ppm
-        side_px = side_m * ppm
-        self._plane_shift = np.array([MARKER_CENTER_IN_BODY[0] - (x0 + side_px / 2) / ppm + W / 2,
-                                      MARKER_CENTER_IN_BODY[1] - H / 2 + (y0 + side_px / 2) / ppm])
-        self.tex_size_m = (W, H)
-        back = np.full_like(front, 45)
-        cv2.circle(back, (wpx // 4, hpx // 10), wpx // 10, 20, -1)   # camera bump
-        self.levels = {"front": _mips(front), "back": _mips(back)}
+        tex, self.texel_m = _marker_texture(cfg)
+        self.marker_levels = _mips(tex)
+        self.quiet_half_m = tex.shape[0] * self.texel_m / 2   # half side of marker + quiet zone
+        self.white = int(cfg.render.screen_white_dn)
         self.bg_canvas2 = _background(self.cw * SS, self.ch * SS, rng)
         self.bg_canvas = cv2.resize(self.bg_canvas2, (self.cw, self.ch), interpolation=cv2.INTER_AREA)
         # Distorted pixel -> undistorted canvas coordinate maps.
@@ -93,6 +74,10 @@ class Renderer:
         self.map_x = und[..., 0].astype(np.float32)
         self.map_y = und[..., 1].astype(np.float32)
         self.bg = cv2.remap(self.bg_canvas, self.map_x, self.map_y, cv2.INTER_LINEAR)
+        # fixed-point maps remap about twice as fast; the phone's patch is pasted into a working
+        # copy of the canvas so the maps need no per-frame offset
+        self.map_fixed = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
+        self.work = self.bg_canvas.copy()
         s = cfg.render.noise_sigma_dn
         self.noise = []
         if s > 0:
@@ -101,18 +86,13 @@ class Renderer:
                 self.noise.append((np.clip(n, 0, 255).astype(np.uint8), np.clip(-n, 0, 255).astype(np.uint8)))
         self._encode_params = [cv2.IMWRITE_JPEG_QUALITY, int(cfg.render.jpeg_quality)]
 
-    # ------------------------------------------------------------------ geometry
-    def _face_corners(self, T_cam_ctrl: Pose, front: bool) -> np.ndarray:
-        """The 3D corners (camera frame) of the textured face: TL, TR, BR, BL of the texture."""
-        w, h = self.tex_size_m
-        sx, sy = self._plane_shift
-        z = PHONE_THICKNESS_M / 2 if front else -PHONE_THICKNESS_M / 2
-        # For the back face the texture is seen mirrored: walk its corners the other way round.
-        xs = np.array([-w / 2, w / 2, w / 2, -w / 2]) + sx
-        ys = np.array([h / 2, h / 2, -h / 2, -h / 2]) + sy
-        if not front:
-            xs = -xs
-        return T_cam_ctrl.apply(np.column_stack([xs, ys, np.full(4, z)]))
+    # ------------------------------------------------------------------ drawing
+    def _canvas(self, T_cam_ctrl: Pose, xy: np.ndarray, z: float) -> np.ndarray | None:
+        """Canvas pixel coordinates of body-plane points (x, y, z); None if any is behind the camera."""
+        pts = T_cam_ctrl.apply(np.column_stack([xy, np.full(len(xy), z)]))
+        if np.any(pts[:, 2] < 0.03):
+            return None
+        return pts[:, :2] / pts[:, 2:3] * np.diag(self.Kc)[:2] + self.Kc[:2, 2]
 
     def render(self, T_cam_ctrl: Pose, blur_px: np.ndarray | None, gain: float, rng: np.random.Generator) -> np.ndarray:
         """The BGR frame (uint8, 480x640x3) with the phone at ``T_cam_ctrl``.
@@ -120,12 +100,9 @@ class Renderer:
         ``blur_px``: the marker's image displacement (dx, dy) during the exposure (None: no blur).
         """
         frame = self.bg.copy()
-        R = T_cam_ctrl.rotation.as_matrix()
-        normal = R[:, 2]
+        normal = T_cam_ctrl.rotation.as_matrix()[:, 2]
         front = float(normal @ -T_cam_ctrl.translation) > 0
-        corners = self._face_corners(T_cam_ctrl, front)
-        if np.all(corners[:, 2] > 0.03):
-            self._draw_phone(frame, corners, front, blur_px)
+        self._draw_phone(frame, T_cam_ctrl, front, blur_px)
         if gain != 1.0:
             cv2.convertScaleAbs(frame, frame, alpha=gain)
         if self.noise:
@@ -139,17 +116,21 @@ class Renderer:
         ok, buf = cv2.imencode(".jpg", frame, self._encode_params)
         return buf.tobytes()
 
-    def _draw_phone(self, frame: np.ndarray, corners: np.ndarray, front: bool, blur_px) -> None:
-        proj = corners[:, :2] / corners[:, 2:3] * np.diag(self.Kc)[:2] + self.Kc[:2, 2]   # canvas pixels
-        # Distorted-image bounding box: where the canvas quad's bounding box lands.
-        lo = proj.min(axis=0) - 3
-        hi = proj.max(axis=0) + 3
-        if hi[0] < 0 or hi[1] < 0 or lo[0] > self.cw - 1 or lo[1] > self.ch - 1:
+    def _draw_phone(self, frame: np.ndarray, T: Pose, front: bool, blur_px) -> None:
+        w2, h2 = PHONE_WIDTH_M / 2, PHONE_HEIGHT_M / 2
+        outline_xy = np.array([[-w2, h2], [w2, h2], [w2, -h2], [-w2, -h2]])
+        z = PHONE_THICKNESS_M / 2 if front else -PHONE_THICKNESS_M / 2
+        outline = self._canvas(T, outline_xy, z)
+        if outline is None:
             return
+        lo = outline.min(axis=0) - 3
+        hi = outline.max(axis=0) + 3
         if blur_px is not None:
             pad = int(np.ceil(np.abs(blur_px).max() / 2)) + 2
             lo -= pad
             hi += pad
+        if hi[0] < 0 or hi[1] < 0 or lo[0] > self.cw - 1 or lo[1] > self.ch - 1:
+            return
         d_lo, d_hi = self._distorted_box(lo, hi)
         if d_lo is None:
             return
@@ -161,32 +142,62 @@ class Renderer:
         cx1 = min(int(np.ceil(mx.max())) + 3, self.cw)
         cy1 = min(int(np.ceil(my.max())) + 3, self.ch)
         patch2 = self.bg_canvas2[cy0 * SS:cy1 * SS, cx0 * SS:cx1 * SS].copy()
-        # texture -> local 2x canvas pixels
-        tex_levels = self.levels["front" if front else "back"]
-        span_px = np.linalg.norm(proj[1] - proj[0]) * SS
-        tex_w = tex_levels[0].shape[1]
-        level = 0
-        while level + 1 < len(tex_levels) and tex_w / 2 ** (level + 1) >= span_px:
-            level += 1
-        tex = tex_levels[level]
-        th, tw = tex.shape
-        # texel centres of the chosen level at their metric places: corner texels' outer edges at -0.5 / size-0.5
-        src = np.array([[-0.5, -0.5], [tw - 0.5, -0.5], [tw - 0.5, th - 0.5], [-0.5, th - 0.5]], np.float64)
-        dst = (proj - np.array([cx0, cy0])) * SS + (SS - 1) / 2
-        H = _dlt(src, dst)
-        # The phone is gray: warp one channel (3x cheaper), then paste it inside its outline.
-        size = (patch2.shape[1], patch2.shape[0])
-        gray2 = cv2.warpPerspective(tex, H, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        quad = cv2.perspectiveTransform(src.reshape(1, 4, 2), H)[0]
-        mask2 = np.zeros(patch2.shape[:2], np.uint8)
-        cv2.fillConvexPoly(mask2, np.round(quad * 16).astype(np.int32), 255, lineType=cv2.LINE_AA, shift=4)
-        cv2.copyTo(cv2.cvtColor(gray2, cv2.COLOR_GRAY2BGR), mask2, patch2)
+        origin = np.array([cx0, cy0])
+
+        def local2(px):   # canvas pixels -> pixels of the 2x patch (pixel-centre convention)
+            return (px - origin) * SS + (SS - 1) / 2
+
+        def fill(px, value):
+            pts = np.round(local2(px) * 16).astype(np.int32)
+            cv2.fillConvexPoly(patch2, pts, (value, value, value), lineType=cv2.LINE_AA, shift=4)
+
+        if not front:
+            fill(outline, 40)                                   # the phone's back
+        else:
+            fill(outline, 18)                                   # bezel
+            m = SCREEN_MARGIN_M
+            screen = self._canvas(T, outline_xy - np.sign(outline_xy) * m, z)
+            fill(screen, self.white)
+            self._draw_marker(patch2, T, z, local2)
         patch = cv2.resize(patch2, (cx1 - cx0, cy1 - cy0), interpolation=cv2.INTER_AREA)
         if blur_px is not None:
             patch = _motion_blur(patch, blur_px)
-        out = cv2.remap(patch, mx - np.float32(cx0), my - np.float32(cy0), cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_REPLICATE)
-        frame[y0:y1, x0:x1] = out
+        self.work[cy0:cy1, cx0:cx1] = patch
+        m1, m2 = self.map_fixed
+        frame[y0:y1, x0:x1] = cv2.remap(self.work, m1[y0:y1, x0:x1], m2[y0:y1, x0:x1], cv2.INTER_LINEAR,
+                                        borderMode=cv2.BORDER_REPLICATE)
+        self.work[cy0:cy1, cx0:cx1] = self.bg_canvas[cy0:cy1, cx0:cx1]
+
+    def _draw_marker(self, patch2: np.ndarray, T: Pose, z: float, local2) -> None:
+        """Warp the marker texture (exact texel-to-metre mapping) into the 2x patch."""
+        c = MARKER_CENTER_IN_BODY[:2]
+        q = self.quiet_half_m
+        quad_xy = c + np.array([[-q, q], [q, q], [q, -q], [-q, -q]])
+        quad = self._canvas(T, quad_xy, z)
+        if quad is None:
+            return
+        dst = local2(quad)
+        span = np.linalg.norm(dst[1] - dst[0])
+        levels = self.marker_levels
+        level = 0
+        while level + 1 < len(levels) and levels[level + 1].shape[1] >= span:
+            level += 1
+        tex = levels[level]
+        th, tw = tex.shape
+        # texture outer edges (-0.5 and size - 0.5 in texel coordinates) are the quad's corners
+        src = np.array([[-0.5, -0.5], [tw - 0.5, -0.5], [tw - 0.5, th - 0.5], [-0.5, th - 0.5]])
+        bx0 = max(int(np.floor(dst[:, 0].min())) - 1, 0)
+        by0 = max(int(np.floor(dst[:, 1].min())) - 1, 0)
+        bx1 = min(int(np.ceil(dst[:, 0].max())) + 2, patch2.shape[1])
+        by1 = min(int(np.ceil(dst[:, 1].max())) + 2, patch2.shape[0])
+        if bx1 <= bx0 or by1 <= by0:
+            return
+        H = _dlt(src, dst - np.array([bx0, by0]))
+        size = (bx1 - bx0, by1 - by0)
+        gray = cv2.warpPerspective(tex, H, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        mask = np.zeros((size[1], size[0]), np.uint8)
+        cv2.fillConvexPoly(mask, np.round((dst - np.array([bx0, by0])) * 16).astype(np.int32), 255, shift=4)
+        cv2.copyTo(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), mask, patch2[by0:by1, bx0:bx1])
 
     def _distorted_box(self, lo, hi):
         """Integer box [x0, x1) x [y0, y1) of distorted pixels whose canvas point is in [lo, hi]."""

@@ -33,7 +33,8 @@ TABLE4 = {
 }
 
 # Path way points of the controller body, display-camera optical frame (m). The *2 variants
-# push the listed vertices to the right by a solved amount.
+# push the listed vertices right, well out of the view (PUSH_OUT_M); the time spent outside is
+# then solved by the pace of the moves to and from them.
 _PATHS = {
     "TRI1": ([(-0.08, 0.05, 0.30), (0.08, 0.06, 0.33), (0.0, -0.06, 0.27)], []),
     "TRI2": ([(-0.10, 0.05, 0.30), (0.06, 0.06, 0.33), (-0.02, -0.06, 0.27)], [1]),
@@ -52,6 +53,7 @@ def _exp1_targets_cam() -> list[tuple[float, float, float]]:
 
 
 EXP1_HOLD_S = 5.0
+PUSH_OUT_M = 0.22
 
 
 @dataclass
@@ -114,11 +116,15 @@ class _Posing:
         return KeyPose(t, p, self.facing(p, vary_deg))
 
 
-def _segment_times(points: np.ndarray, total: float, rng: np.random.Generator, variation: float) -> np.ndarray:
+def _segment_times(points: np.ndarray, total: float, rng: np.random.Generator, variation: float,
+                   slow: np.ndarray | None = None, slow_factor: float = 1.0) -> np.ndarray:
     """Durations of moves along ``points`` that sum to ``total``: longer moves take longer
-    (about length^0.75, as in reaching), with a per-move pace variation."""
+    (about length^0.75, as in reaching), with a per-move pace variation; moves flagged in
+    ``slow`` take ``slow_factor`` times longer."""
     lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
     w = np.maximum(lengths, 1e-3) ** 0.75 * np.clip(1 + variation * rng.normal(size=len(lengths)), 0.5, 1.5)
+    if slow is not None:
+        w = np.where(slow, w * slow_factor, w)
     return w / w.sum() * total
 
 
@@ -185,40 +191,45 @@ def _plan_exp2(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: 
     move_s = 1.2
     task_start = t + move_s + 0.3
 
-    def keys_for(extend: float) -> tuple[list[KeyPose], np.ndarray]:
-        pts = human_pts.copy()
-        pts[push, 0] += extend
-        closed = np.vstack([pts, pts[:1]])
-        world_pts = pose.to_world(closed)
-        durations = _segment_times(world_pts, task_s, np.random.default_rng(seg_rng_state), cfg.human.speed_variation)
+    n_pts = len(base_pts)
+    # moves that start or end at a pushed vertex (the closed path returns to vertex 0)
+    seg_from, seg_to = np.arange(n_pts), (np.arange(n_pts) + 1) % n_pts
+    slow = np.isin(seg_from, push) | np.isin(seg_to, push)
+    pts = human_pts.copy()
+    pts[push, 0] += PUSH_OUT_M
+    world_pts = pose.to_world(np.vstack([pts, pts[:1]]))
+
+    def keys_for(slow_factor: float) -> list[KeyPose]:
+        durations = _segment_times(world_pts, task_s, np.random.default_rng(seg_rng_state), cfg.human.speed_variation,
+                                   slow, slow_factor)
         out = [KeyPose(t + move_s, world_pts[0], orient[0]), KeyPose(task_start, world_pts[0], orient[0])]
         tk = task_start
         for i, d in enumerate(durations):
             tk += d
             out.append(KeyPose(tk, world_pts[i + 1], orient[(i + 1) % len(orient)]))
-        return out, pts
+        return out
 
-    extend = 0.0
+    factor = 1.0
     if push:
-        # Solve how far the pushed vertices go so the outside-view frame count matches Table 4.
-        lo, hi = 0.0, 0.5
-        for _ in range(30):
+        # Solve the pace so the number of 20 Hz frames outside the view matches Table 4: the
+        # phone crosses the edge of the view while moving, so tremor barely changes the count.
+        lo, hi = np.log(0.05), np.log(20.0)
+        for _ in range(40):
             mid = (lo + hi) / 2
-            k, _ = keys_for(mid)
-            n = _tick_count_outside(world, cfg, plan.keys + k, task_start, task_start + task_s)
+            n = _tick_count_outside(world, cfg, plan.keys + keys_for(np.exp(mid)), task_start, task_start + task_s)
             if n < outside_frames:
                 lo = mid
             else:
                 hi = mid
-        extend = hi
-    task_keys, pts = keys_for(extend)
+        factor = np.exp(hi)
+    task_keys = keys_for(factor)
     plan.keys += task_keys
     plan.task_start, plan.task_end = task_start, task_start + task_s
     end_key = task_keys[-1]
     plan.keys.append(KeyPose(plan.task_end + 0.8, end_key.position, end_key.rotation))
     plan.end = plan.task_end + 0.8
     way = base_pts.copy()
-    way[push, 0] += extend
+    way[push, 0] += PUSH_OUT_M
     plan.waypoints_world = pose.to_world(way)
     plan.closed = True
 
