@@ -133,3 +133,19 @@ def test_tracking_crop_is_used_when_the_marker_was_just_seen():
     assert a is not None and b is not None
     assert rec.stats["roi"] == 1 and rec.stats["track-roi"] == 1
     assert 1000 * np.linalg.norm(b.T_camera_marker.translation - moved.translation) < 1.0
+
+
+def test_lens_distortion_is_used():
+    # Barrel distortion, markers towards the image corners (160-190 px off centre).
+    distorted = pinhole_camera()
+    distorted = type(distorted)(distorted.K, np.array([-0.25, 0.08, 0.001, -0.001, 0.0]), 640, 480, Pose.identity())
+    for offset in [(0.1, 0.07), (-0.1, 0.06), (0.12, -0.07)]:
+        T_true = looking_at(0.3, 35, 60, 20, offset)
+        img = render_marker(distorted, MARKER, T_true)
+        obs = MarkerRecognizer(distorted, MARKER).recognize(img)
+        assert np.max(np.abs(obs.corners_px - project_corners(distorted, MARKER, T_true))) < 0.3
+        assert 1000 * obs.T_camera_marker.distance_to(T_true) < 1.0
+        assert np.degrees(obs.T_camera_marker.angle_to(T_true)) < 0.5
+        # the same corners through a camera model without distortion land centimetres off
+        ignored = MarkerRecognizer(CAMERA, MARKER).recognize(img)
+        assert 1000 * ignored.T_camera_marker.distance_to(T_true) > 10.0

@@ -5,7 +5,9 @@ so that marker recognition can be checked against exactly known corners and pose
 is rendered ``supersample`` times larger with ``warpPerspective`` and box-filtered down with
 ``INTER_AREA``, so pixels integrate the scene as a sensor would; corners are then exact in
 OpenCV's pixel-centre convention (pixel ``i`` covers ``[i - 0.5, i + 0.5]``).
-No lens distortion is rendered: use a camera with ``D = 0``.
+Lens distortion (plumb_bob) is added by :func:`render_marker` when ``camera.D`` is non-zero: the
+scene is rendered through the pinhole part and remapped, every output pixel sampling where its
+undistorted ray lands.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def marker_texture(marker: MarkerModel, px_per_module: int = 80, quiet_modules: 
 
 
 def project_corners(camera: CameraModel, marker: MarkerModel, T_camera_marker: Pose) -> np.ndarray:
-    """The exact image corners TL, TR, BR, BL (pixel centres), pinhole camera."""
+    """The exact image corners TL, TR, BR, BL (pixel centres, distorted by ``camera.D``)."""
     rvec, tvec = T_camera_marker.as_cv()
     pts, _ = cv2.projectPoints(marker_object_points(marker.size_m), rvec, tvec, camera.K, camera.D)
     return pts.reshape(4, 2)
@@ -49,6 +51,16 @@ def render_marker(camera: CameraModel, marker: MarkerModel, T_camera_marker: Pos
                   background: int = 110, blur_sigma: float = 0.0, noise_sigma: float = 0.0,
                   rng: np.random.Generator | None = None) -> np.ndarray:
     """A grayscale ``camera.height x camera.width`` image of the marker at ``T_camera_marker``."""
+    if np.any(np.asarray(camera.D) != 0):
+        pinhole = CameraModel(camera.K, np.zeros(5), camera.width, camera.height, camera.T_display_camera)
+        ideal = render_marker(pinhole, marker, T_camera_marker, supersample=supersample, background=background)
+        u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
+        pts = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+        und = cv2.undistortPoints(pts, camera.K, camera.D, None, None, camera.K, criteria).reshape(camera.height, camera.width, 2)
+        img = cv2.remap(ideal, und[..., 0].astype(np.float32), und[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=background).astype(np.float64)
+        return _finish(img, blur_sigma, noise_sigma, rng)
     texture, side, quiet = marker_texture(marker)
     L, s = marker.size_m, supersample
     # texture pixel centres -> marker plane (x, y, 1): texture edge coordinate = centre + 0.5
@@ -63,6 +75,10 @@ def render_marker(camera: CameraModel, marker: MarkerModel, T_camera_marker: Pos
     big = cv2.warpPerspective(texture, H, (camera.width * s, camera.height * s), flags=cv2.INTER_LINEAR,
                               borderMode=cv2.BORDER_CONSTANT, borderValue=background)
     img = cv2.resize(big, (camera.width, camera.height), interpolation=cv2.INTER_AREA).astype(np.float64)
+    return _finish(img, blur_sigma, noise_sigma, rng)
+
+
+def _finish(img: np.ndarray, blur_sigma: float, noise_sigma: float, rng: np.random.Generator | None) -> np.ndarray:
     if blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma)
     if noise_sigma > 0:
