@@ -83,7 +83,7 @@ class SessionReader:
         self.path = check_mcap_file(path)
         self._file = open(self.path, "rb")
         try:
-            self._reader: SeekingReader = make_reader(self._file)
+            self._reader: SeekingReader = make_reader(self._file, validate_crcs=True)  # flipped bits in a chunk: error, not garbage
             self._summary_record = self._reader.get_summary()
         except Exception as exc:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
             self._file.close()
