@@ -138,23 +138,45 @@ class CameraLogger:
 
 
 class MarkerLogger:
-    """The recognised marker's corners as a closed 2D strip labelled with its id."""
+    """The recognised marker's corners as a closed 2D strip labelled with its id (sent as columns).
+
+    Logged once per new camera frame; a frame without the marker clears the path.
+    """
 
     def __init__(self, rec: rr.RecordingStream):
         self.rec = rec
         self.shown = False
+        self.idx: list[int] = []
+        self.t: list[int] = []
+        self.strips: list[np.ndarray] = []
+        self.labels: list[str] = []
 
-    def log(self, obs: Observation) -> None:
+    def log(self, tick: Tick, obs: Observation) -> None:
+        if tick.image is None or not tick.image_is_new:
+            return
         m = obs.marker
         if m is None:
             if self.shown:
+                self.flush()
                 self.rec.log(MARKERS, rr.Clear(recursive=True))
                 self.shown = False
             return
         c = np.asarray(m.corners_px, dtype=np.float32).reshape(4, 2)
-        strip = np.vstack([c, c[:1]])
-        self.rec.log(MARKERS, rr.LineStrips2D([strip], labels=[f"id {m.id}"], colors=[(0, 255, 0)], radii=1.5))
+        self.idx.append(tick.index)
+        self.t.append(tick.t_ns)
+        self.strips.append(np.vstack([c, c[:1]]))
+        self.labels.append(f"id {m.id}")
         self.shown = True
+
+    def flush(self) -> None:
+        if not self.idx:
+            return
+        n = len(self.idx)
+        self.rec.send_columns(MARKERS, indexes=_time_columns(self.idx, self.t),
+                              columns=rr.LineStrips2D.columns(strips=self.strips, labels=self.labels,
+                                                              colors=np.tile(np.array([[0, 255, 0]], np.uint8), (n, 1)),
+                                                              radii=np.full(n, 1.5, np.float32)))
+        self.idx, self.t, self.strips, self.labels = [], [], [], []
 
 
 class _PoseTrackLogger:
@@ -316,7 +338,7 @@ class PlaybackRerunLogger:
     def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
         self.set_time(tick)
         self.camera.log(tick)
-        self.markers.log(obs)
+        self.markers.log(tick, obs)
         self.gt.log(tick, tick.gt_T_dvio_controller)
         for name, pose in poses.items():
             self.trackers[name].log(tick, pose)
@@ -328,6 +350,7 @@ class PlaybackRerunLogger:
     def flush(self) -> None:
         """Send the buffered columns and the trajectories so far (at the current tick)."""
         self.camera.flush()
+        self.markers.flush()
         for t in [self.gt, *self.trackers.values()]:
             t.flush_poses()
             if t.dirty:
