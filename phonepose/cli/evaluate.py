@@ -40,8 +40,9 @@ def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
 
     console = Console(width=max(Console().width, 112))
     al = result["align"]
-    console.print(f"[bold]{est}[/bold] vs [bold]{gt}[/bold]: {result['n_matched']} matched poses, "
-                  f"align {al['method']} (frames {al['num_frames']}, scale {al['scale']:.6g})")
+    console.print(f"estimate [bold]{est}[/bold]\nvs GT    [bold]{gt}[/bold]", soft_wrap=True)
+    console.print(f"{result['n_matched']} matched poses, align {al['method']} "
+                  f"(frames {al['num_frames']}, scale {al['scale']:.6g})")
     table = Table("error", "L \\[m]", "unit", "rmse", "mean", "median", "std", "min", "max", "n")
     if metric == "rpg":
         _stats_row(table, "ATE translation", "", "m", result["ate"]["trans_m"])

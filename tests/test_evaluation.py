@@ -1,0 +1,349 @@
+"""Evaluation internals: exact alignment recovery, zero error on identical trajectories, the vectorised
+association and pair searches against plain-loop references, loaders/writer, paper_metrics, CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from phonepose.errors import ConfigError, InputFileError
+from phonepose.evaluation import (
+    Trajectory, align, associate_evo, associate_rpg, evaluate_rpg, load_euroc, load_kitti, load_tum,
+    paper_metrics, write_tum,
+)
+from phonepose.evaluation.evo_metrics import Unit, _first_crossings, id_pairs_from_delta
+from phonepose.evaluation.relative import find_pairs, relative_errors
+from phonepose.geometry import Pose
+
+DATA = Path(__file__).parent / "data"
+
+
+def random_traj(n: int, seed: int) -> Pose:
+    rng = np.random.default_rng(seed)
+    p = np.cumsum(rng.normal(0, 0.1, (n, 3)), axis=0)
+    r = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.05, (n, 3)), axis=0))
+    return Pose(r, p)
+
+
+# ----------------------------------------------------------------------------- alignment
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), scale=st.floats(0.2, 5.0))
+def test_umeyama_recovers_known_sim3_and_se3(seed, scale):
+    rng = np.random.default_rng(seed)
+    gt = random_traj(50, seed)
+    r = Rotation.random(random_state=seed)
+    t = rng.normal(0, 3, 3)
+    # est = T^-1 gt with a scale: gt = s R est + t
+    est = Pose(r.inv() * gt.rotation, r.inv().apply(gt.translation - t) / scale)
+    a = align(gt, est, "sim3")
+    assert a.scale == pytest.approx(scale, rel=1e-9)
+    np.testing.assert_allclose(a.rotation, r.as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(a.translation, t, atol=1e-8)
+    assert a.apply(est).allclose(gt, atol=1e-8)
+    est1 = Pose(r.inv() * gt.rotation, r.inv().apply(gt.translation - t))
+    for method, n in (("se3", -1), ("se3", 10), ("se3", 1)):
+        b = align(gt, est1, method, n)
+        assert b.scale == 1.0
+        np.testing.assert_allclose(b.rotation, r.as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(b.translation, t, atol=1e-8)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), yaw=st.floats(-3.1, 3.1))
+def test_posyaw_recovers_known_yaw(seed, yaw):
+    gt = random_traj(40, seed)
+    r = Rotation.from_euler("z", yaw)
+    t = np.array([1.0, -2.0, 0.5])
+    est = Pose(r.inv() * gt.rotation, r.inv().apply(gt.translation - t))
+    for n in (-1, 1, 5):
+        a = align(gt, est, "posyaw", n)
+        np.testing.assert_allclose(a.rotation, r.as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(a.translation, t, atol=1e-8)
+
+
+def test_alignment_options_are_checked():
+    gt = random_traj(10, 1)
+    with pytest.raises(ConfigError):
+        align(gt, gt, "sim3", 1)
+    with pytest.raises(ConfigError):
+        align(gt, gt, "se3", 11)
+    with pytest.raises(ConfigError):
+        align(gt, gt, "yaw", -1)
+
+
+# ----------------------------------------------------------------------------- zero errors
+@pytest.mark.parametrize("method", ["posyaw", "se3", "sim3", "none"])
+def test_trajectory_against_itself_is_zero(method):
+    poses = random_traj(300, 7)
+    tr = Trajectory(np.arange(300) * 0.05, poses)
+    r = evaluate_rpg(tr, tr, method, lengths=[1.0, 2.0])
+    assert r["n_matched"] == 300
+    assert r["ate"]["trans_m"]["max"] == pytest.approx(0, abs=1e-9)
+    assert r["ate"]["rot_deg"]["max"] == pytest.approx(0, abs=1e-6)
+    for v in r["re"].values():
+        assert v["trans_m"]["num_samples"] > 10
+        assert v["trans_m"]["max"] == pytest.approx(0, abs=1e-9)
+        assert v["rot_deg"]["max"] == pytest.approx(0, abs=1e-5)  # arccos near 1: ~1e-6 deg resolution
+
+
+# ----------------------------------------------------------------------------- plain-loop references
+def rpg_associate_loop(te, tr, max_diff):
+    cands = sorted((abs(a - (b + 0.0)), i, j) for i, a in enumerate(te) for j, b in enumerate(tr)
+                   if abs(a - (b + 0.0)) < max_diff)
+    ui, uj, out = set(), set(), []
+    for _, i, j in cands:
+        if i not in ui and j not in uj:
+            ui.add(i), uj.add(j), out.append((i, j))
+    return sorted(out)
+
+
+stamp_lists = st.lists(st.integers(0, 400), min_size=1, max_size=60).map(lambda v: np.sort(np.array(v)) * 0.005)
+
+
+@settings(max_examples=80, deadline=None)
+@given(te=stamp_lists, tr=stamp_lists)
+def test_rpg_association_equals_greedy_loop(te, tr):
+    i, j = associate_rpg(te, tr, 0.02)
+    assert list(zip(i.tolist(), j.tolist())) == rpg_associate_loop(te, tr, 0.02)
+
+
+@settings(max_examples=80, deadline=None)
+@given(te=stamp_lists, tr=stamp_lists)
+def test_evo_association_equals_evo_sync(te, tr):
+    """Against evo 1.38.1's own matching_time_indices (shorter trajectory as query; duplicates included)."""
+    sync = pytest.importorskip("evo.core.sync")
+    i_est, i_ref = associate_evo(te, tr, 0.01)
+    if te.size > tr.size:
+        q_idx, s_idx = sync.matching_time_indices(tr, te, 0.01)
+        assert (i_ref.tolist(), i_est.tolist()) == (q_idx, s_idx)
+    else:
+        q_idx, s_idx = sync.matching_time_indices(te, tr, 0.01)
+        assert (i_est.tolist(), i_ref.tolist()) == (q_idx, s_idx)
+
+
+def rpg_pairs_loop(d, dist, max_dist_diff):
+    out = []
+    for idx, x in enumerate(d):
+        best, err = -1, max_dist_diff
+        for i in range(idx, len(d)):
+            if abs(d[i] - (x + dist)) < err:
+                best, err = i, abs(d[i] - (x + dist))
+        if best != -1:
+            out.append((idx, best))
+    return out
+
+
+steps = st.lists(st.sampled_from([0.0, 0.0, 0.1, 0.25, 0.3, 1.0, 1.7]), min_size=1, max_size=80)
+
+
+@settings(max_examples=100, deadline=None)
+@given(s=steps, length=st.sampled_from([0.3, 0.5, 1.0, 2.0]))
+def test_rpg_pair_search_equals_loop(s, length):
+    d = np.concatenate(([0.0], np.cumsum(s)))
+    a, b = find_pairs(d, length)
+    assert list(zip(a.tolist(), b.tolist())) == rpg_pairs_loop(d.tolist(), length, 0.2 * length)
+
+
+@settings(max_examples=100, deadline=None)
+@given(s=steps, delta=st.sampled_from([0.3, 0.5, 1.0, 2.0]))
+def test_evo_path_pairs_equal_loops(s, delta):
+    d = np.concatenate(([0.0], np.cumsum(s)))
+    p = np.zeros((d.size, 3))
+    p[:, 0] = d
+    poses = Pose(Rotation.identity(d.size), p)
+    # consecutive: accumulate with reset
+    ids, cur = [0], 0.0
+    for i in range(1, d.size):
+        cur += float(np.linalg.norm(p[i] - p[i - 1]))
+        if cur >= delta:
+            ids.append(i)
+            cur = 0.0
+    assert _first_crossings(np.diff(d), delta) == ids
+    # all pairs: argmin over j > i, accepted if <= tol
+    expected = []
+    for i in range(d.size - 1):
+        dfh = d[i + 1:] - d[i]
+        k = int(np.argmin(np.abs(dfh - delta)))
+        if abs(dfh[k] - delta) <= 0.1 * delta:
+            expected.append((i, k + i + 1))
+    try:
+        got = id_pairs_from_delta(poses, delta, Unit.meters, 0.1, all_pairs=True)
+    except ConfigError:
+        assert expected == []
+        return
+    assert [tuple(x) for x in got.tolist()] == expected
+
+
+# ----------------------------------------------------------------------------- files
+def test_loaders_read_the_fixture_formats():
+    tum = load_tum(DATA / "evo/V102.txt")
+    csv = load_euroc(DATA / "evo/V102_groundtruth.csv")
+    assert len(tum) == 807 and len(csv) == 16702
+    first = next(x for x in (DATA / "evo/V102_groundtruth.csv").read_text().splitlines() if not x.startswith("#"))
+    assert csv.stamps[0] == float(first.split(",")[0]) / 1e9  # as evo: ns / 1e9
+    assert np.all(np.abs(np.linalg.norm(csv.poses.rotation.as_quat(), axis=1) - 1) < 1e-12)
+
+
+@pytest.mark.parametrize("text,where", [
+    ("# header\n0 1 2 3 0 0 0 1\n1 1 2 x 0 0 0 1\n", ":3: not a number"),
+    ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 1\n", ":2: 7 values, expected 8"),
+    ("0 1 2 3 0 0 0 1 5\n", "9 columns, expected 8"),
+    ("# only a comment\n", "no poses"),
+    ("0 1 2 3 0 0 0 0\n", "zero quaternion"),
+    ("0 1 2 nan 0 0 0 1\n", ":1: non-finite"),
+])
+def test_malformed_tum_is_one_clear_line(tmp_path, text, where):
+    p = tmp_path / "bad.txt"
+    p.write_text(text)
+    with pytest.raises(InputFileError) as e:
+        load_tum(p)
+    msg = str(e.value)
+    assert str(p) in msg and where in msg and "\n" not in msg
+
+
+def test_missing_and_binary_files(tmp_path):
+    with pytest.raises(InputFileError, match="no such file"):
+        load_tum(tmp_path / "nope.txt")
+    (tmp_path / "b.txt").write_bytes(b"\x89PNG\x00\xff\xfe")
+    with pytest.raises(InputFileError, match="not a text file"):
+        load_tum(tmp_path / "b.txt")
+    (tmp_path / "k.txt").write_text("1 0 0 0 0 1 0 0 0 0 1\n")
+    with pytest.raises(InputFileError, match="11 values, expected 12"):
+        load_kitti(tmp_path / "k.txt")
+
+
+def test_write_tum_round_trip_and_fixed_format(tmp_path):
+    poses = random_traj(20, 3)
+    stamps = 1700000000.0 + np.arange(20) * 0.05
+    write_tum(tmp_path / "a.tum", stamps, poses)
+    back = load_tum(tmp_path / "a.tum")
+    np.testing.assert_allclose(back.stamps, stamps, atol=1e-9, rtol=0)
+    assert back.poses.allclose(poses, atol=1e-8)
+    lines = (tmp_path / "a.tum").read_text().splitlines()
+    assert lines[0] == "# timestamp tx ty tz qx qy qz qw" and len(lines) == 21
+    assert all(len(x.split(".")[-1]) == 9 for x in lines[1].split())
+    assert all(float(x.split()[-1]) >= 0 for x in lines[1:])  # qw >= 0
+    # integer nanoseconds are written exactly
+    write_tum(tmp_path / "b.tum", np.array([1_700_000_000_123_456_789], np.int64), poses[:1])
+    assert (tmp_path / "b.tum").read_text().splitlines()[1].startswith("1700000000.123456789 ")
+    write_tum(tmp_path / "c.tum", np.zeros(0), None)
+    assert (tmp_path / "c.tum").read_text() == "# timestamp tx ty tz qx qy qz qw\n"
+
+
+def test_kitti_loader(tmp_path):
+    poses = random_traj(5, 2)
+    m = poses.as_matrix()[:, :3, :].reshape(5, 12)
+    np.savetxt(tmp_path / "k.txt", m)
+    k = load_kitti(tmp_path / "k.txt")
+    assert k.stamps is None and k.poses.allclose(poses, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- paper metrics
+def test_paper_metrics_no_alignment_and_splits():
+    n = 400
+    gt = random_traj(n, 11)
+    offset = np.array([0.03, 0.0, -0.04])  # 5 cm constant offset, no rotation error
+    est = Pose(gt.rotation, gt.translation + offset)
+    inside = np.zeros(n, bool)
+    inside[:250] = True
+    m = paper_metrics(np.arange(n) * 0.1, gt, est, inside)
+    assert m["inside"]["frames"] == 250 and m["outside"]["frames"] == 150 and m["total"]["frames"] == 400
+    for s in ("inside", "outside", "total"):
+        assert m[s]["p_ate_m"] == pytest.approx(0.05, abs=1e-12)  # not aligned away
+        assert m[s]["r_ate_deg"] == pytest.approx(0.0, abs=1e-6)
+    # a world-frame offset does not change the relative error of a translation-only offset... in the
+    # body frame it does: RE translation = |R_i^T offset - R_i^T offset| = 0 only for equal offsets
+    assert m["total"]["p_re_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_paper_metrics_re_pairs_go_to_the_split_of_their_start():
+    n = 300
+    gt = random_traj(n, 5)
+    rng = np.random.default_rng(0)
+    est = Pose(gt.rotation, gt.translation + np.cumsum(rng.normal(0, 0.002, (n, 3)), axis=0))
+    inside = np.arange(n) < 120
+    m = paper_metrics(np.arange(n) * 0.1, gt, est, inside)
+    from phonepose.evaluation.paper import relative_translation_pairs
+
+    starts, err = relative_translation_pairs(gt, est)
+    assert m["inside"]["p_re_m"] == pytest.approx(np.sqrt(np.mean(err[starts < 120] ** 2)), rel=1e-12)
+    assert m["outside"]["p_re_m"] == pytest.approx(np.sqrt(np.mean(err[starts >= 120] ** 2)), rel=1e-12)
+    assert m["total"]["p_re_m"] == pytest.approx(np.sqrt(np.mean(err ** 2)), rel=1e-12)
+    # pooled over the 5 default lengths, each pair exactly as rpg's RE (s = 1)
+    from phonepose.evaluation.relative import default_lengths
+
+    rel = relative_errors(gt, est, default_lengths(gt.translation))
+    assert sum(len(r) for r in rel.values()) == starts.size
+
+
+def test_paper_metrics_empty_and_none():
+    gt = random_traj(30, 1)
+    m = paper_metrics(np.arange(30) * 0.1, gt, gt, np.ones(30, bool))
+    assert m["outside"] == {"frames": 0, "p_ate_m": None, "r_ate_deg": None, "p_re_m": None}
+    assert paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))["total"]["frames"] == 0
+    one = paper_metrics(np.zeros(1), gt[:1], gt[:1], np.ones(1, bool))
+    assert one["total"]["frames"] == 1 and one["total"]["p_re_m"] is None
+
+
+# ----------------------------------------------------------------------------- CLI
+def run_cli(capsys, *args):
+    """In process (the command modules import once per test session); returns (code, stdout, stderr)."""
+    from phonepose.cli import main
+
+    try:
+        main(["evaluate", *args])
+        code = 0
+    except SystemExit as e:
+        code = e.code or 0
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_json_layout(capsys):
+    code, out, err = run_cli(capsys, "--gt", str(DATA / "rpg/MH_04_stamped_groundtruth.txt"),
+                             "--est", str(DATA / "rpg/MH_04_stamped_ba_estimate0.txt"), "--json")
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["n_matched"] == 187 and d["align"]["method"] == "posyaw"
+    assert set(d["ate"]["trans_m"]) >= {"rmse", "mean", "median", "std", "min", "max"}
+    assert list(d["re"]) == ["9.17", "18.34", "27.52", "36.69", "45.87"]
+    assert set(d["re"]["9.17"]) >= {"trans_m", "trans_perc", "rot_deg", "yaw_deg", "gravity_deg"}
+    assert d["ate"]["trans_m"]["rmse"] == pytest.approx(0.105614372, abs=5e-10)
+    code, out, err = run_cli(capsys, "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
+                             str(DATA / "evo/V102.txt"), "--format", "euroc", "--metric", "rpe", "--delta", "1",
+                             "--delta-unit", "m", "--json")
+    d = json.loads(out)
+    assert d["rpe"]["num_samples"] == 72 and d["rpe"]["rmse"] == pytest.approx(0.060284, abs=5e-7)
+
+
+def test_cli_table(capsys):
+    code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
+                           str(DATA / "evo/fr2_desk_ORB.txt"), "--metric", "ape", "--align", "se3")
+    assert code == 0 and "2174 matched poses" in out and "0.00811898" in out
+
+
+@pytest.mark.parametrize("args,code,text", [
+    (["--gt", "{evo}/V102.txt", "--est", "{evo}/V102.txt", "--align", "yaw"], 5, "--align"),
+    (["--gt", "{evo}/V102.txt", "--est", "{evo}/V102.txt", "--metric", "ate"], 5, "--metric"),
+    (["--gt", "{evo}/V102.txt", "--est", "{evo}/V102.txt", "--lengths", "1,x"], 5, "--lengths"),
+    (["--gt", "{evo}/V102.txt", "--est", "{evo}/V102.txt", "--align", "sim3", "--align-frames", "1"], 5, "sim3"),
+    (["--gt", "{evo}/V102_groundtruth.csv", "--est", "{evo}/V102.txt"], 2, "V102_groundtruth.csv:2"),
+])
+def test_cli_errors_are_one_line(capsys, args, code, text):
+    got, _, err = run_cli(capsys, *[a.format(evo=DATA / "evo") for a in args])
+    assert got == code
+    assert text in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_cli_error_in_a_real_process():
+    r = subprocess.run([sys.executable, "-m", "phonepose", "evaluate", "--gt", "missing.txt", "--est", "x.txt"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip() == "phonepose: error: missing.txt: no such file"
