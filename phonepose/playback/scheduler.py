@@ -27,8 +27,9 @@ position (at most ``max_gap_s`` of data).
 from __future__ import annotations
 
 import bisect
+import logging
 import math
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -40,6 +41,13 @@ from phonepose.geometry import Pose
 from phonepose.pipeline.types import SessionContext, Tick
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
+
+log = logging.getLogger("phonepose")
+
+# A pose whose quaternion norm is further than this from 1 (or has NaN/inf anywhere) is skipped
+# and reported, never normalised into something plausible (docs/reliability.md). All zeros is the
+# protobuf default of an unset orientation and reads as identity.
+QUAT_NORM_TOL = 1e-3
 
 DEFAULT_RATE_HZ = 20.0
 GT_TOLERANCE_S = 0.02
@@ -104,11 +112,16 @@ def compose(a, b):
 
 
 def raw_pose(msg_pose):
+    """(qx, qy, qz, qw, x, y, z), or None for NaN/inf values or a non-unit quaternion."""
     q, p = msg_pose.orientation, msg_pose.position
     qx, qy, qz, qw = q.x, q.y, q.z, q.w
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    if not (math.isfinite(n) and math.isfinite(p.x) and math.isfinite(p.y) and math.isfinite(p.z)):
+        return None
     if n == 0.0:
         return (0.0, 0.0, 0.0, 1.0, p.x, p.y, p.z)   # unset orientation reads as identity
+    if abs(n - 1.0) > QUAT_NORM_TOL:
+        return None
     return (qx / n, qy / n, qz / n, qw / n, p.x, p.y, p.z)
 
 
@@ -218,6 +231,10 @@ def _stamp_s(msg, log_time_ns: int) -> float:
     return (ns if ns else log_time_ns) / 1e9
 
 
+_POSE_TOPICS = frozenset((Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Topic.GT_CONTROLLER_POSE,
+                          Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR))
+
+
 class TickScheduler:
     """Iterate ``Tick`` objects over one pass of ``reader`` (see the module docstring)."""
 
@@ -258,6 +275,8 @@ class TickScheduler:
         last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
         self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
                                  session_start_ns=start_ns)
+        # (topic, reason) -> samples skipped in the pass; reported as one warning line each
+        self.skipped: Counter = Counter()
 
     def __len__(self) -> int:
         return self.info.n_ticks
@@ -348,6 +367,7 @@ class TickScheduler:
             return tick
 
         prev_t = None
+        last_stamp: dict[str, tuple[int, int]] = {}   # topic -> (log_time, header stamp) of the last sample used
         for m in self.reader.messages(SCHEDULED_TOPICS, end_ns=read_end):
             now = m.log_time_ns
             while next_t <= info.last_tick_ns and next_t < now and ready(next_t, now):
@@ -356,24 +376,41 @@ class TickScheduler:
                 next_t += self.period_ns
                 index += 1
             topic, msg = m.topic, m.msg
+            if topic != Topic.CALIBRATION_EVENTS:
+                # duplicate or backwards timestamps on one stream: skipped and reported, never used
+                stamp = msg.timestamp.ToNanoseconds()
+                prev = last_stamp.get(topic)
+                if prev is not None and (now == prev[0] or (stamp and prev[1] and stamp <= prev[1])):
+                    self.skipped[(topic, "duplicate or non-monotonic timestamp")] += 1
+                    continue
+                last_stamp[topic] = (now, stamp)
+            raw = None
+            if topic in _POSE_TOPICS:
+                raw = _pose_msg(msg)
+                if raw is None:
+                    self.skipped[(topic, "NaN/inf value or non-unit quaternion")] += 1
+                    continue
             if topic == Topic.CAMERA_IMAGE:
                 images.append((now, msg))
             elif topic == Topic.DISPLAY_VIO_POSE:
-                display.add(now, _pose_msg(msg))
+                display.add(now, raw)
             elif topic == Topic.CONTROLLER_VIO_POSE:
-                controller.add(now, _pose_msg(msg))
+                controller.add(now, raw)
             elif topic == Topic.GT_CONTROLLER_POSE:
                 if self.has_gt:
-                    gt.add(now, _pose_msg(msg))
+                    gt.add(now, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
-                d_anchor.append((now, to_pose(_pose_msg(msg))))
+                d_anchor.append((now, to_pose(raw)))
             elif topic == Topic.CONTROLLER_ANCHOR:
-                c_anchor.append((now, to_pose(_pose_msg(msg))))
+                c_anchor.append((now, to_pose(raw)))
             elif topic == Topic.CONTROLLER_IMU:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it
-                imu.append((now, (_stamp_s(msg, now), msg.gyro_x, msg.gyro_y, msg.gyro_z,
-                                  msg.accel_x, msg.accel_y, msg.accel_z)))
+                row = (_stamp_s(msg, now), msg.gyro_x, msg.gyro_y, msg.gyro_z, msg.accel_x, msg.accel_y, msg.accel_z)
+                if not all(math.isfinite(v) for v in row):
+                    self.skipped[(topic, "NaN/inf value")] += 1
+                    continue
+                imu.append((now, row))
             elif topic == Topic.CALIBRATION_EVENTS:
                 events.append((now, msg))
             # bound the image queue: only the newest frame at or before the next tick matters
@@ -384,3 +421,5 @@ class TickScheduler:
             prev_t = next_t
             next_t += self.period_ns
             index += 1
+        for (topic, reason), n in sorted(self.skipped.items()):
+            log.warning("phonepose: warning: %s: %d sample(s) skipped: %s", topic, n, reason)
