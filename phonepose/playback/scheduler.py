@@ -380,7 +380,9 @@ class TickScheduler:
                 # duplicate or backwards timestamps on one stream: skipped and reported, never used
                 stamp = msg.timestamp.ToNanoseconds()
                 prev = last_stamp.get(topic)
-                if prev is not None and (now == prev[0] or (stamp and prev[1] and stamp <= prev[1])):
+                # Judged by the header stamp only: controller streams carry the receipt time as
+                # log_time, so several samples of one network packet share it legitimately.
+                if prev is not None and stamp and prev[1] and stamp <= prev[1]:
                     self.skipped[(topic, "duplicate or non-monotonic timestamp")] += 1
                     continue
                 last_stamp[topic] = (now, stamp)
