@@ -26,10 +26,10 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from phonepose.errors import ConfigError, OutputError
+from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
-from phonepose.playback.context import read_context
+from phonepose.playback.context import has_camera, read_context
 from phonepose.playback.outputs import paper_metrics, write_metrics
 
 try:  # the evaluation module's TUM writer (same fixed format); ours only if it is missing
@@ -117,6 +117,28 @@ def _detections_message(stages, obs: Observation):
     if fn is None:
         from phonepose.pipeline.shared import detections_message as fn
     return fn(obs)
+
+
+def _needs_camera(tracker) -> bool:
+    """A row that uses the marker inside the FoV, or a correction captured from marker sightings (CM2, CM3)."""
+    spec = getattr(tracker, "spec", None)
+    if spec is None:
+        return False
+    return getattr(spec.inside, "value", spec.inside) == "marker" or \
+        getattr(spec.correction, "value", spec.correction) in ("CM2", "CM3")
+
+
+def _check_camera_trackers(session: str, context: SessionContext, trackers) -> None:
+    """A session without camera images cannot run marker-based trackers: say so instead of reporting VIO as them."""
+    if has_camera(context):
+        return
+    need = [t.name for t in trackers if _needs_camera(t)]
+    if need:
+        able = [t.name for t in trackers if not _needs_camera(t)]
+        raise SessionContentError(
+            f"{session}: no camera images ({Topic.CAMERA_IMAGE}): {', '.join(need)} need the camera"
+            + (f"; run the VIO-only trackers with {' '.join('-t ' + n for n in able)}" if able else
+               "; choose VIO-only trackers (T1, T2)"))
 
 
 def default_out_dir(session: str | os.PathLike) -> Path:
@@ -229,6 +251,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     files: dict[str, str] = {}
     with SessionReader(session) as reader:
         context = read_context(reader)
+        _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s)
         stages = (stages_factory or _default_stages)(context)
         writer = None
