@@ -46,6 +46,8 @@ def read_context(reader: SessionReader) -> SessionContext:
     """The SessionContext of an open session; SessionContentError if it cannot be played back."""
     summary = reader.summary()
     path = reader.path
+    if summary.message_count == 0:
+        raise SessionContentError(f"{path}: empty session (no messages)")
     if not summary.has(Topic.CONTROLLER_VIO_POSE):
         raise SessionContentError(f"{path}: no controller VIO ({Topic.CONTROLLER_VIO_POSE}); nothing to play back")
     has_images = summary.has(Topic.CAMERA_IMAGE)
