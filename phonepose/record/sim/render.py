@@ -78,6 +78,8 @@ class Renderer:
         # copy of the canvas so the maps need no per-frame offset
         self.map_fixed = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
         self.work = self.bg_canvas.copy()
+        self._f = np.diag(self.Kc)[:2].copy()
+        self._c = self.Kc[:2, 2].copy()
         s = cfg.render.noise_sigma_dn
         self.noise = []
         if s > 0:
@@ -87,21 +89,25 @@ class Renderer:
         self._encode_params = [cv2.IMWRITE_JPEG_QUALITY, int(cfg.render.jpeg_quality)]
 
     # ------------------------------------------------------------------ drawing
-    def _canvas(self, T_cam_ctrl: Pose, xy: np.ndarray, z: float) -> np.ndarray | None:
+    def _canvas(self, T: tuple[np.ndarray, np.ndarray], xy: np.ndarray, z: float) -> np.ndarray | None:
         """Canvas pixel coordinates of body-plane points (x, y, z); None if any is behind the camera."""
-        pts = T_cam_ctrl.apply(np.column_stack([xy, np.full(len(xy), z)]))
+        R, t = T
+        pts = xy @ R[:, :2].T + (R[:, 2] * z + t)
         if np.any(pts[:, 2] < 0.03):
             return None
-        return pts[:, :2] / pts[:, 2:3] * np.diag(self.Kc)[:2] + self.Kc[:2, 2]
+        return pts[:, :2] / pts[:, 2:3] * self._f + self._c
 
-    def render(self, T_cam_ctrl: Pose, blur_px: np.ndarray | None, gain: float, rng: np.random.Generator) -> np.ndarray:
-        """The BGR frame (uint8, 480x640x3) with the phone at ``T_cam_ctrl``.
+    def render(self, T_cam_ctrl: Pose | tuple[np.ndarray, np.ndarray], blur_px: np.ndarray | None, gain: float,
+               rng: np.random.Generator) -> np.ndarray:
+        """The BGR frame (uint8, 480x640x3) with the phone at ``T_cam_ctrl`` (a Pose or (R, t)).
 
         ``blur_px``: the marker's image displacement (dx, dy) during the exposure (None: no blur).
         """
         frame = self.bg.copy()
-        normal = T_cam_ctrl.rotation.as_matrix()[:, 2]
-        front = float(normal @ -T_cam_ctrl.translation) > 0
+        if isinstance(T_cam_ctrl, Pose):
+            T_cam_ctrl = (T_cam_ctrl.rotation.as_matrix(), np.asarray(T_cam_ctrl.translation, dtype=float))
+        R, t = T_cam_ctrl
+        front = float(R[:, 2] @ -t) > 0
         self._draw_phone(frame, T_cam_ctrl, front, blur_px)
         if gain != 1.0:
             cv2.convertScaleAbs(frame, frame, alpha=gain)
@@ -135,12 +141,12 @@ class Renderer:
         if d_lo is None:
             return
         (x0, y0), (x1, y1) = d_lo, d_hi
-        mx = self.map_x[y0:y1, x0:x1]
-        my = self.map_y[y0:y1, x0:x1]
-        cx0 = max(int(np.floor(mx.min())) - 2, 0)
-        cy0 = max(int(np.floor(my.min())) - 2, 0)
-        cx1 = min(int(np.ceil(mx.max())) + 3, self.cw)
-        cy1 = min(int(np.ceil(my.max())) + 3, self.ch)
+        # The patch only needs to cover the phone: the remap reads everything else from the
+        # working canvas, which holds the background.
+        cx0, cy0 = max(int(np.floor(lo[0])), 0), max(int(np.floor(lo[1])), 0)
+        cx1, cy1 = min(int(np.ceil(hi[0])) + 1, self.cw), min(int(np.ceil(hi[1])) + 1, self.ch)
+        if cx1 <= cx0 or cy1 <= cy0:
+            return
         patch2 = self.bg_canvas2[cy0 * SS:cy1 * SS, cx0 * SS:cx1 * SS].copy()
         origin = np.array([cx0, cy0])
 
@@ -200,16 +206,13 @@ class Renderer:
         cv2.copyTo(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR), mask, patch2[by0:by1, bx0:bx1])
 
     def _distorted_box(self, lo, hi):
-        """Integer box [x0, x1) x [y0, y1) of distorted pixels whose canvas point is in [lo, hi]."""
-        # Under radial distortion a canvas box maps to a curved region; test its border densely.
-        xs = np.linspace(lo[0], hi[0], 12)
-        ys = np.linspace(lo[1], hi[1], 12)
-        border = np.concatenate([np.column_stack([xs, np.full(12, lo[1])]), np.column_stack([xs, np.full(12, hi[1])]),
-                                 np.column_stack([np.full(12, lo[0]), ys]), np.column_stack([np.full(12, hi[0]), ys])])
-        # canvas -> normalised -> distorted pixels
-        norm = (border - self.Kc[:2, 2]) / np.diag(self.Kc)[:2]
-        pts = np.column_stack([norm, np.ones(len(norm))])
-        px = self.camera.project(pts)
+        """Integer box [x0, x1) x [y0, y1) of distorted pixels covering the canvas box [lo, hi]."""
+        # Under radial distortion a canvas box maps to a curved region: distort its border.
+        xs = np.linspace(lo[0], hi[0], 8)
+        ys = np.linspace(lo[1], hi[1], 8)
+        border = np.concatenate([np.column_stack([xs, np.full(8, lo[1])]), np.column_stack([xs, np.full(8, hi[1])]),
+                                 np.column_stack([np.full(8, lo[0]), ys]), np.column_stack([np.full(8, hi[0]), ys])])
+        px = self._distort((border - self._c) / self._f)
         x0 = max(int(np.floor(px[:, 0].min())) - 2, 0)
         y0 = max(int(np.floor(px[:, 1].min())) - 2, 0)
         x1 = min(int(np.ceil(px[:, 0].max())) + 3, WIDTH)
@@ -217,6 +220,16 @@ class Renderer:
         if x1 <= x0 or y1 <= y0:
             return None, None
         return (x0, y0), (x1, y1)
+
+    def _distort(self, xy: np.ndarray) -> np.ndarray:
+        """Normalised pinhole coordinates -> distorted pixels (OpenCV plumb_bob)."""
+        k1, k2, p1, p2, k3 = self.camera.D
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return np.column_stack([xd * self.K[0, 0] + self.K[0, 2], yd * self.K[1, 1] + self.K[1, 2]])
 
 
 def _dlt(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -239,20 +252,23 @@ def _mips(tex: np.ndarray) -> list[np.ndarray]:
 
 
 def _motion_blur(img: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Average of the image shifted along the segment ``d`` (px) centred on the frame time."""
     length = float(np.hypot(*d))
     if length < 0.75:
         return img
     n = int(np.ceil(length)) | 1
-    k = np.zeros((n, n), np.float32)
     c = (n - 1) / 2
-    steps = max(int(np.ceil(length * 4)), 2)
-    for s in np.linspace(-0.5, 0.5, steps):
-        x, y = c + s * d[0], c + s * d[1]
-        xi, yi = int(np.floor(x)), int(np.floor(y))
-        fx, fy = x - xi, y - yi
-        for dx, dy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            if 0 <= xi + dx < n and 0 <= yi + dy < n:
-                k[yi + dy, xi + dx] += w
+    s = np.linspace(-0.5, 0.5, max(int(np.ceil(length * 4)), 2))
+    x, y = c + s * d[0], c + s * d[1]
+    xi, yi = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - xi, y - yi
+    k = np.zeros((n + 1, n + 1), np.float64)
+    # bilinear splat of the sample points along the segment
+    np.add.at(k, (yi, xi), (1 - fx) * (1 - fy))
+    np.add.at(k, (yi, xi + 1), fx * (1 - fy))
+    np.add.at(k, (yi + 1, xi), (1 - fx) * fy)
+    np.add.at(k, (yi + 1, xi + 1), fx * fy)
+    k = k[:n, :n].astype(np.float32)
     k /= k.sum()
     return cv2.filter2D(img, -1, k, borderType=cv2.BORDER_REPLICATE)
 

@@ -165,6 +165,7 @@ class SimSession:
         cm2 = int(np.argmin(np.abs(self.t_cam - plan.t_cm2)))
         self.t_cm2 = float(self.t_cam[cm2])
         self._renderer: Renderer | None = None
+        self._R_cam_ctrl: np.ndarray | None = None
 
     # ------------------------------------------------------------------ helpers
     def _cvio_base_on_grid(self, traj: Trajectory) -> np.ndarray:
@@ -199,8 +200,10 @@ class SimSession:
         return self.world.camera.project(T_cm.apply(marker_corners_in_marker(self.cfg.marker.size_m)))
 
     def render_frame(self, i: int, rng: np.random.Generator) -> np.ndarray:
+        if self._R_cam_ctrl is None:
+            self._R_cam_ctrl = self.T_cam_ctrl.rotation.as_matrix()
         blur = None if self.blur is None else self.blur[i]
-        return self.renderer.render(self.T_cam_ctrl[i], blur, float(self.gain[i]), rng)
+        return self.renderer.render((self._R_cam_ctrl[i], self.T_cam_ctrl.translation[i]), blur, float(self.gain[i]), rng)
 
     @property
     def task_frames_20hz(self) -> int:
