@@ -15,7 +15,7 @@ from mcap.reader import SeekingReader, make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
-from phonepose.schemas.topics import TOPIC_TYPES
+from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
@@ -124,13 +124,24 @@ class SessionReader:
                 raise SessionContentError(
                     f"{self.path}: topic {channel.topic} has encoding {channel.message_encoding!r}, "
                     "phonepose reads protobuf only")
+            try:
+                expected = message_type_for(channel.topic).DESCRIPTOR.full_name
+            except KeyError:
+                expected = None
+            if expected is not None and schema.name != expected:
+                raise SessionContentError(f"{self.path}: topic {channel.topic} has schema {schema.name!r}, "
+                                          f"phonepose expects {expected!r}")
             cls = _KNOWN_TYPES.get(schema.name)
             if cls is not None:
                 decoder = cls.FromString
             else:
-                decoder = self._fallback.decoder_for(channel.message_encoding, schema)
+                try:
+                    decoder = self._fallback.decoder_for(channel.message_encoding, schema)
+                except Exception:  # noqa: BLE001 - a schema whose descriptor data does not parse
+                    decoder = None
                 if decoder is None:
-                    raise SessionContentError(f"{self.path}: unknown schema {schema.name!r} on {channel.topic}")
+                    raise SessionContentError(f"{self.path}: unknown schema {schema.name!r} on {channel.topic} "
+                                              "(its descriptor cannot be read)")
             self._decoders[channel.id] = decoder
         try:
             return decoder(data)
