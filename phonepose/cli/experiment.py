@@ -1,3 +1,110 @@
-"""``phonepose experiment``: not built yet (see the issues)."""
+"""``phonepose experiment exp1|exp2``: the paper's experiments on simulated sessions."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from phonepose.cli import app
+from phonepose.errors import ConfigError
+
+experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.", no_args_is_help=True,
+                             add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
+app.add_typer(experiment_app, name="experiment")
+
+
+def _f(v, scale=1.0, digits=1) -> str:
+    return "–" if v is None else f"{v * scale:.{digits}f}"
+
+
+def exp2_summary_tables(result) -> list[Table]:
+    """The averages of Tables 5 and 6, ours next to the paper's (cm / deg)."""
+    t5 = Table(title="Table 5 (TRI1 + REC1, inside the view): ours / paper")
+    t5.add_column("tracker", style="bold")
+    for label in ("p_ATE cm", "r_ATE deg", "p_RE cm"):
+        t5.add_column(label, justify="right")
+    by = {}
+    for r in result.table5:
+        by.setdefault(r["tracker"], {})[r["key"]] = r
+    for tracker, d in by.items():
+        t5.add_row(tracker, *[f"{_f(d[k]['average'], d[k]['scale'])} / {d[k]['paper']}"
+                              for k in ("p_ate_m", "r_ate_deg", "p_re_m")])
+    t6 = Table(title="Table 6 (TRI2 + REC2): ours / paper, average of 6 sequences")
+    t6.add_column("tracker", style="bold")
+    for scope in ("inside", "outside", "total"):
+        for label in ("p_ATE", "r_ATE", "p_RE"):
+            t6.add_column(f"{scope[:3]} {label}", justify="right")
+    rows6 = {}
+    for r in result.table6:
+        rows6.setdefault(r["tracker"], {})[(r["scope"], r["key"])] = r
+    for tracker, d in rows6.items():
+        cells = []
+        for scope in ("inside", "outside", "total"):
+            for k in ("p_ate_m", "r_ate_deg", "p_re_m"):
+                r = d[(scope, k)]
+                cells.append(f"{_f(r['average'], r['scale'])}/{r['paper']}")
+        t6.add_row(tracker, *cells)
+    return [t5, t6]
+
+
+@experiment_app.command("exp2")
+def exp2(
+    out: Path = typer.Option(Path("exp2-out"), "--out", "-o", help="Output directory."),
+    trials: int = typer.Option(3, "--trials", help="Trials per path (the paper has 3)."),
+    seed: int = typer.Option(0, "--seed", help="Base seed; each sequence derives its own from it."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
+    correction_math: str = typer.Option("paper", "--correction-math", help="paper (eq. 1-6) or se3."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Sequences in parallel (default: up to 2)."),
+) -> None:
+    """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
+
+    Writes sessions/, playback/ (TUM trajectories and metrics per sequence), table5.md/.csv,
+    table6.md/.csv, fig11_TRI2_01.png and exp2.json into --out.
+    """
+    from phonepose.experiments.exp2 import run_exp2
+    from phonepose.pipeline.corrections import CorrectionMath
+
+    if not 1 <= trials <= 3:
+        raise ConfigError(f"--trials must be 1..3 (the paper's Table 4 has 3 trials per path), got {trials}")
+    if jobs is not None and jobs < 1:
+        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+    CorrectionMath.parse(correction_math)
+    console = Console()
+    done = []
+
+    def progress(name: str) -> None:
+        done.append(name)
+        console.print(f"  [green]done[/green] {name} ({len(done)}/{4 * trials})")
+
+    console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
+    result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
+                      correction_math=correction_math, jobs=jobs, progress=progress)
+    for table in exp2_summary_tables(result):
+        console.print(table)
+    for name, path in result.files.items():
+        console.print(f"  {name}: {path}")
+
+
+@experiment_app.command("exp1")
+def exp1(
+    out: Path = typer.Option(Path("exp1-out"), "--out", "-o", help="Output directory."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
+    correction_math: str = typer.Option("paper", "--correction-math", help="paper (eq. 1-6) or se3."),
+) -> None:
+    """Experiment 1 (discrete data): 16 targets at 25 and 35 cm, Tables 2 and 3 and target selection."""
+    from phonepose.experiments.exp1 import exp1_tables, run_exp1
+    from phonepose.pipeline.corrections import CorrectionMath
+
+    CorrectionMath.parse(correction_math)
+    console = Console()
+    console.print(f"[bold]experiment 1[/bold]: 16 targets, seed {seed} -> {out}")
+    result = run_exp1(out, seed=seed, config=str(config) if config else None, correction_math=correction_math)
+    for table in exp1_tables(result):
+        console.print(table)
+    for name, path in result.files.items():
+        console.print(f"  {name}: {path}")

@@ -1,0 +1,90 @@
+"""Shared pieces of the experiment runners: one sequence = record (simulator) + playback."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SequenceJob:
+    name: str              # e.g. "TRI2_01"
+    scenario: str          # exp1 | exp2
+    path: str | None       # TRI1.. for exp2
+    trial: int
+    seed: int
+    out_dir: str
+    config: str | None = None
+    correction_math: str = "paper"
+    rerun: bool = False
+
+
+def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
+    """A distinct, reproducible seed per sequence (stable across runs and Python versions)."""
+    code = sum((i + 1) * ord(c) for i, c in enumerate(path or "exp1"))
+    return int(base_seed) * 100_003 + code * 31 + int(trial)
+
+
+def run_sequence(job: SequenceJob) -> dict:
+    """Record one simulated session and play it back with T1-T7; returns what the tables need."""
+    from phonepose.playback.engine import run_playback
+    from phonepose.record.sim import record_sim
+
+    out = Path(job.out_dir)
+    session = out / "sessions" / f"{job.name}.mcap"
+    session.parent.mkdir(parents=True, exist_ok=True)
+    record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=job.config)
+    rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
+    if rrd is not None:
+        rrd.parent.mkdir(parents=True, exist_ok=True)
+    result = run_playback(session, trackers="paper", out_dir=out / "playback" / job.name,
+                          correction_math=job.correction_math, rerun_path=rrd)
+    trajectories = {
+        name: {"stamps_ns": tr.stamps_ns, "translation": None if tr.poses is None else tr.poses.translation,
+               "quat": None if tr.poses is None else tr.poses.quat_xyzw, "inside": tr.inside}
+        for name, tr in result.trajectories.items()
+    }
+    gt = None
+    if result.has_gt:
+        gt = {"stamps_ns": result.gt_stamps_ns, "translation": result.gt.translation, "quat": result.gt.quat_xyzw}
+    return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed, "session": str(session),
+            "metrics": result.metrics, "trajectories": trajectories, "gt": gt,
+            "rerun": None if rrd is None else str(rrd)}
+
+
+def run_jobs(jobs: list[SequenceJob], jobs_in_parallel: int = 1,
+             progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Run sequences, in parallel processes if asked; results come back in job order."""
+    if jobs_in_parallel <= 1 or len(jobs) == 1:
+        out = []
+        for job in jobs:
+            out.append(run_sequence(job))
+            if progress:
+                progress(job.name)
+        return out
+    with ProcessPoolExecutor(max_workers=jobs_in_parallel) as pool:
+        futures = [pool.submit(run_sequence, job) for job in jobs]
+        out = []
+        for job, fut in zip(jobs, futures):
+            out.append(fut.result())
+            if progress:
+                progress(job.name)
+        return out
+
+
+def default_jobs() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+def mean_or_none(values: Iterable[float | None]) -> float | None:
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def fmt(value: float | None, scale: float = 1.0, digits: int = 1) -> str:
+    return "–" if value is None else f"{value * scale:.{digits}f}"
