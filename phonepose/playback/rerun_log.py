@@ -29,10 +29,15 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from phonepose.errors import OutputError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick
 
-TRAJECTORY_EVERY_TICKS = 20   # columns and trajectories are sent every 20 ticks (1 s at 20 Hz)
+TRAJECTORY_EVERY_TICKS = 20   # trajectories so far are re-logged every 20 ticks (1 s at 20 Hz)
+# Buffered rows (images, poses, errors, markers) are sent as columns every this many ticks: to a
+# .rrd file in large batches (each send_columns has a fixed cost), to a live viewer promptly.
+COLUMNS_EVERY_TICKS_FILE = 100
+COLUMNS_EVERY_TICKS_LIVE = 5
 AXIS_LENGTH_M = 0.05
 # one colour per tracker (T1..T7, then cycling)
 PALETTE = [(230, 25, 75), (245, 130, 48), (255, 225, 25), (60, 180, 75), (70, 240, 240), (0, 130, 200),
@@ -182,18 +187,16 @@ class MarkerLogger:
 class _PoseTrackLogger:
     """A pose with axes and its trajectory so far (one tracker, or the GT).
 
-    Poses are buffered and sent as columns (``send_columns``) every ``every`` ticks, which is
-    many times cheaper than one ``log`` per tick; a missing pose clears the entity at once.
+    Poses are buffered and sent as columns (``send_columns``) by the owner, which is many times
+    cheaper than one ``log`` per tick; a missing pose clears the entity at once.
     """
 
-    def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str,
-                 every: int = TRAJECTORY_EVERY_TICKS):
+    def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str):
         self.rec = rec
         self.pose_path = pose_path
         self.trajectory_path = trajectory_path
         self.color = color
         self.label = label
-        self.every = max(1, int(every))
         self.segments: list[list[tuple]] = [[]]
         self.shown = False
         self.dirty = 0
@@ -305,7 +308,8 @@ class PlaybackRerunLogger:
 
     def __init__(self, context: SessionContext, tracker_names: list[str], *, session_name: str = "session",
                  rrd_path: str | os.PathLike | None = None, spawn: bool = False,
-                 trajectory_every: int = TRAJECTORY_EVERY_TICKS, recording: rr.RecordingStream | None = None):
+                 trajectory_every: int = TRAJECTORY_EVERY_TICKS, columns_every: int | None = None,
+                 recording: rr.RecordingStream | None = None):
         self.blueprint = default_blueprint(tracker_names)
         if recording is not None:
             self.rec = recording
@@ -314,22 +318,31 @@ class PlaybackRerunLogger:
             if spawn:
                 self.rec.spawn(default_blueprint=self.blueprint)
             elif rrd_path is not None:
-                Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
+                try:
+                    Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
+                except OSError as exc:
+                    raise OutputError(f"cannot write {rrd_path}: {exc.strerror or exc}") from None
+                if Path(rrd_path).is_dir():
+                    raise OutputError(f"cannot write {rrd_path}: is a directory")
                 self.rec.save(os.fspath(rrd_path), default_blueprint=self.blueprint)
         rec = self.rec
         rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
         self.camera = CameraLogger(rec, context)
         self.markers = MarkerLogger(rec)
         self.task = TaskLogger(rec, context)
-        self.gt = _PoseTrackLogger(rec, GT_POSE, GT_TRAJECTORY, GT_COLOR, "GT", trajectory_every)
+        self.gt = _PoseTrackLogger(rec, GT_POSE, GT_TRAJECTORY, GT_COLOR, "GT")
         self.trackers = {
             name: _PoseTrackLogger(rec, tracker_pose_path(name), tracker_trajectory_path(name),
-                                   PALETTE[i % len(PALETTE)], name, trajectory_every)
+                                   PALETTE[i % len(PALETTE)], name)
             for i, name in enumerate(tracker_names)
         }
         self.errors = ErrorLogger(rec, tracker_names)
-        self.batch_ticks = max(1, int(trajectory_every))
-        self._since_flush = 0
+        if columns_every is None:
+            columns_every = COLUMNS_EVERY_TICKS_LIVE if spawn else COLUMNS_EVERY_TICKS_FILE
+        self.columns_every = max(1, int(columns_every))
+        self.trajectory_every = max(1, int(trajectory_every))
+        self._since_columns = 0
+        self._since_trajectory = 0
 
     def set_time(self, tick: Tick) -> None:
         self.rec.set_time("tick", sequence=tick.index)
@@ -343,20 +356,32 @@ class PlaybackRerunLogger:
         for name, pose in poses.items():
             self.trackers[name].log(tick, pose)
         self.errors.log(tick, tick.gt_T_dvio_controller, poses)
-        self._since_flush += 1
-        if self._since_flush >= self.batch_ticks:
-            self.flush()
+        self._since_columns += 1
+        self._since_trajectory += 1
+        if self._since_columns >= self.columns_every:
+            self.flush_columns()
+        if self._since_trajectory >= self.trajectory_every:
+            self.flush_trajectories()
 
-    def flush(self) -> None:
-        """Send the buffered columns and the trajectories so far (at the current tick)."""
+    def flush_columns(self) -> None:
+        """Send the buffered rows (they carry their own tick/time)."""
         self.camera.flush()
         self.markers.flush()
         for t in [self.gt, *self.trackers.values()]:
             t.flush_poses()
+        self.errors.flush()
+        self._since_columns = 0
+
+    def flush_trajectories(self) -> None:
+        """The trajectories so far, at the current tick."""
+        for t in [self.gt, *self.trackers.values()]:
             if t.dirty:
                 t.flush_trajectory()
-        self.errors.flush()
-        self._since_flush = 0
+        self._since_trajectory = 0
+
+    def flush(self) -> None:
+        self.flush_columns()
+        self.flush_trajectories()
 
     def close(self) -> None:
         self.flush()
