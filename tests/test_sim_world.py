@@ -224,3 +224,16 @@ def test_gt_is_the_true_pose_with_the_hand_eye_offset_and_clock_offset():
     assert np.rad2deg(s.world.hand_eye.rotation.magnitude()) == pytest.approx(cfg.mocap.hand_eye_rotation_deg)
     assert np.allclose(s.log_gt - s.t_gt, 0.02)
     assert np.allclose(np.diff(s.t_gt), 1 / 60)
+
+
+def test_marker_chain_through_the_display_vio_is_exact_without_errors(tri2_clean):
+    """T_dvio_ctrl = T_dvio_display · T_display_camera · T_camera_ctrl: what marker trackers compute."""
+    from phonepose.record.sim.world import T_DISPLAY_CAMERA
+
+    s = tri2_clean
+    i = np.arange(0, len(s.t_cam), 25)
+    j = np.searchsorted(s.t_dvio, s.t_cam[i]).clip(0, len(s.t_dvio) - 1)
+    chain = s.T_dvio_display[j] @ Pose(Rotation.concatenate([T_DISPLAY_CAMERA.rotation] * len(i)),
+                                       np.tile(T_DISPLAY_CAMERA.translation, (len(i), 1))) @ s.T_cam_ctrl[i]
+    true = s.true_controller_in_dvio(s.t_cam[i])
+    assert np.max(chain.distance_to(true)) < 1e-9 and np.max(chain.angle_to(true)) < 1e-9
