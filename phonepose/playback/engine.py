@@ -254,15 +254,20 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s)
         stages = (stages_factory or _default_stages)(context)
-        writer = None
-        if out is not None:
-            files["trackers.mcap"] = str(out / "trackers.mcap")
-            writer = SessionWriter(out / "trackers.mcap")
-        logger = None
+        logger = None   # first: a --rerun path that cannot be written fails before any file is opened
         if rerun_path is not None or spawn:
             from phonepose.playback.rerun_log import PlaybackRerunLogger
             logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session_name=Path(session).stem,
                                          rrd_path=rerun_path, spawn=spawn)
+        writer = None
+        if out is not None:
+            files["trackers.mcap"] = str(out / "trackers.mcap")
+            try:
+                writer = SessionWriter(out / "trackers.mcap")
+            except BaseException:
+                if logger is not None:
+                    logger.close()
+                raise
         engine = PlaybackEngine(context, stages, tracker_objs, writer=writer, rerun_logger=logger)
         total = len(scheduler)
         try:
