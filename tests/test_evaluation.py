@@ -199,6 +199,7 @@ def test_loaders_read_the_fixture_formats():
     ("# only a comment\n", "no poses"),
     ("0 1 2 3 0 0 0 0\n", "zero quaternion"),
     ("0 1 2 nan 0 0 0 1\n", ":1: non-finite"),
+    ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 0 1 9\n", ":2: 9 values, the lines before have 8"),
 ])
 def test_malformed_tum_is_one_clear_line(tmp_path, text, where):
     p = tmp_path / "bad.txt"
@@ -328,6 +329,10 @@ def test_cli_table(capsys):
     code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
                            str(DATA / "evo/fr2_desk_ORB.txt"), "--metric", "ape", "--align", "se3")
     assert code == 0 and "2174 matched poses" in out and "0.00811898" in out
+    # a .csv estimate with --format euroc is read as EuRoC too: GT against itself
+    code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
+                           str(DATA / "evo/V102_groundtruth.csv"), "--format", "euroc", "--metric", "ape", "--json")
+    assert code == 0 and json.loads(out)["ape"]["max"] == 0.0
 
 
 @pytest.mark.parametrize("args,code,text", [
@@ -347,3 +352,16 @@ def test_cli_error_in_a_real_process():
     r = subprocess.run([sys.executable, "-m", "phonepose", "evaluate", "--gt", "missing.txt", "--est", "x.txt"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.strip() == "phonepose: error: missing.txt: no such file"
+
+
+@pytest.mark.parametrize("max_rounds", [64, 1, 2])
+def test_rpg_association_dense_irregular_stamps(monkeypatch, max_rounds):
+    """Dense irregular stamps (many blocking candidates), also with the in-order fallback forced early."""
+    import phonepose.evaluation.association as assoc
+
+    monkeypatch.setattr(assoc, "_MAX_ROUNDS", max_rounds)
+    rng = np.random.default_rng(3)
+    te = np.sort(rng.uniform(0, 2, 300))
+    tr = np.sort(te + rng.normal(0, 0.004, 300))
+    i, j = associate_rpg(te, tr, 0.02)
+    assert list(zip(i.tolist(), j.tolist())) == rpg_associate_loop(te, tr, 0.02)

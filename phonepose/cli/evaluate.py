@@ -69,7 +69,7 @@ def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
 def evaluate(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
     est: Path = typer.Option(..., "--est", help="Estimated trajectory file (TUM, or KITTI with --format kitti)."),
-    fmt: str = typer.Option("tum", "--format", help="GT format: tum | euroc (ASL csv; estimate in TUM) | kitti."),
+    fmt: str = typer.Option("tum", "--format", help="GT format: tum | euroc (ASL csv; the estimate in TUM, or ASL csv if it ends in .csv) | kitti."),
     align: str = typer.Option(None, "--align",
                               help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for ape/rpe as evo)."),
     align_frames: int = typer.Option(-1, "--align-frames", help="Align with the first N matched poses (-1: all)."),
@@ -101,7 +101,8 @@ def evaluate(
         raise ConfigError(f"--max-diff {max_diff}: must be > 0 s")
     lens = _parse_lengths(lengths)
     gt_traj = load_trajectory(gt, fmt)
-    est_traj = load_trajectory(est, "kitti" if fmt == "kitti" else "tum")
+    est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
+    est_traj = load_trajectory(est, est_fmt)
     if metric == "rpg":
         result = evaluate_rpg(gt_traj, est_traj, align or "posyaw", align_frames, lens,
                               0.02 if max_diff is None else max_diff)

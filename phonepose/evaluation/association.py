@@ -20,6 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 
+_MAX_ROUNDS = 64
+
+
 def _sorted_view(stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     s = np.asarray(stamps, dtype=float)
     if s.size < 2 or np.all(np.diff(s) >= 0):
@@ -52,7 +55,14 @@ def associate_rpg(est_stamps: np.ndarray, ref_stamps: np.ndarray, max_diff: floa
     acc_i, acc_j = [], []
     used_i = np.zeros(te.size, bool)
     used_j = np.zeros(np.asarray(ref_stamps).size, bool)
+    rounds = 0
     while ci.size:
+        rounds += 1
+        if rounds > _MAX_ROUNDS:  # long chains of blocking candidates (never seen on real data): finish in order
+            ci, cj = _greedy_tail(ci, cj, used_i, used_j)
+            acc_i.append(ci)
+            acc_j.append(cj)
+            break
         first_i = np.zeros(ci.size, bool)
         first_j = np.zeros(ci.size, bool)
         first_i[np.unique(ci, return_index=True)[1]] = True
@@ -70,6 +80,17 @@ def associate_rpg(est_stamps: np.ndarray, ref_stamps: np.ndarray, max_diff: floa
     i_ref = np.concatenate(acc_j).astype(np.int64)
     o = np.argsort(i_est, kind="stable")
     return i_est[o], i_ref[o]
+
+
+def _greedy_tail(ci, cj, used_i, used_j):
+    """Plain greedy over the remaining candidates (already in acceptance order)."""
+    out_i, out_j = [], []
+    for i, j in zip(ci.tolist(), cj.tolist()):
+        if not used_i[i] and not used_j[j]:
+            used_i[i] = used_j[j] = True
+            out_i.append(i)
+            out_j.append(j)
+    return np.asarray(out_i, np.int64), np.asarray(out_j, np.int64)
 
 
 def nearest_indices(query: np.ndarray, stamps: np.ndarray, max_diff: float):

@@ -81,6 +81,7 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarr
     if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])):
         return m
     # slow path: find the first bad line and name it
+    width = None
     for s, lineno in zip(rows, lines):
         parts = [x for x in (s.split(delimiter) if delimiter else s.split())]
         try:
@@ -91,6 +92,9 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarr
             raise InputFileError(f"{path}:{lineno}: {len(vals)} values, expected {ncols} ({what})")
         if not np.all(np.isfinite(vals[:ncols])):
             raise InputFileError(f"{path}:{lineno}: non-finite value ({what})")
+        if width is not None and len(vals) != width:
+            raise InputFileError(f"{path}:{lineno}: {len(vals)} values, the lines before have {width} ({what})")
+        width = len(vals)
     raise InputFileError(f"{path}: rows of unequal length (expected {what})")
 
 
