@@ -1,0 +1,341 @@
+"""Bad input at the command line: one line on stderr, the documented exit code, no traceback.
+
+Each case builds its input from a small valid session (phonepose.playback.testdata), runs the
+CLI in-process (``phonepose.cli.main``) and checks the exit code and message. The same CASES
+generate the table in docs/reliability.md: ``python tests/test_reliability_cli.py``.
+Warnings (skipped samples) are checked through a real subprocess, where logging prints them.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+from mcap_protobuf.schema import build_file_descriptor_set
+
+from phonepose.playback.testdata import write_test_session
+from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.schemas.topics import Topic
+from phonepose.session import SessionReader, SessionWriter
+
+
+# ----------------------------------------------------------------------------- inputs
+def rewrite(src: Path, dst: Path, fn) -> Path:
+    """Copy a session message by message; ``fn(topic, msg, log_time)`` returns the messages to write."""
+    with SessionReader(src) as r, SessionWriter(dst) as w:
+        for m in r.messages():
+            for topic, msg, t in fn(m.topic, m.msg, m.log_time_ns) or []:
+                w.write(topic, msg, t)
+    return dst
+
+
+def with_channel(src: Path, dst: Path, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+                 message_encoding: str, data=lambda b: b) -> Path:
+    """Copy a session with ``topic`` re-registered under another schema/encoding (raw mcap)."""
+    with SessionReader(src) as r, open(dst, "wb") as f:
+        w = Writer(f)
+        w.start()
+        cids = {}
+        for schema, ch, m in r.raw_messages():
+            if ch.topic not in cids:
+                if ch.topic == topic:
+                    sid = w.register_schema(schema_name, schema_encoding, schema_data)
+                    cids[ch.topic] = w.register_channel(topic, message_encoding, sid)
+                else:
+                    sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                    cids[ch.topic] = w.register_channel(ch.topic, ch.message_encoding, sid)
+            w.add_message(cids[ch.topic], m.log_time, data(m.data) if ch.topic == topic else m.data,
+                          m.publish_time, m.sequence)
+        w.finish()
+    return dst
+
+
+def _drop(*prefixes):
+    return lambda topic, msg, t: [] if topic.startswith(prefixes) else [(topic, msg, t)]
+
+
+def _bad_dictionary(topic, msg, t):
+    if topic == Topic.CONTROLLER_MARKER:
+        msg.dictionary = "DICT_NOPE_99"
+    return [(topic, msg, t)]
+
+
+def _duplicate_vio(topic, msg, t):
+    return [(topic, msg, t)] * (2 if topic == Topic.CONTROLLER_VIO_POSE else 1)
+
+
+def _backwards_vio():
+    k = itertools.count()
+
+    def fn(topic, msg, t):
+        if topic == Topic.CONTROLLER_VIO_POSE and next(k) % 5 == 4:
+            msg.timestamp.FromNanoseconds(msg.timestamp.ToNanoseconds() - 200_000_000)
+        return [(topic, msg, t)]
+    return fn
+
+
+def _bad_quaternions():
+    k = itertools.count()
+
+    def fn(topic, msg, t):
+        if topic == Topic.CONTROLLER_VIO_POSE:
+            i = next(k)
+            if i % 6 == 1:
+                msg.pose.orientation.x = math.nan
+            elif i % 6 == 3:
+                msg.pose.orientation.w = 5.0          # non-unit
+            elif i % 6 == 5:
+                msg.pose.position.y = math.inf
+        return [(topic, msg, t)]
+    return fn
+
+
+def _truncate(src: Path, dst: Path) -> Path:
+    data = src.read_bytes()
+    dst.write_bytes(data[: len(data) // 2])
+    return dst
+
+
+def _corrupt_middle(src: Path, dst: Path) -> Path:
+    b = bytearray(src.read_bytes())
+    for k in range(100):
+        b[len(b) // 2 + 13 * k] ^= 0xFF
+    dst.write_bytes(bytes(b))
+    return dst
+
+
+# ----------------------------------------------------------------------------- cases
+@dataclass
+class Case:
+    id: str
+    what: str                                   # the bad input, for the docs table
+    argv: Callable[[Path, Path], list[str]]     # (good session, tmp dir) -> arguments
+    code: int
+    message: str                                # regex the stderr line must match
+
+
+def _p(f):
+    return f
+
+
+def _empty(good, d):
+    with SessionWriter(d / "empty.mcap"):
+        pass
+    return d / "empty.mcap"
+
+
+CASES = [
+    Case("missing", "session file does not exist", lambda g, d: ["info", str(d / "nope.mcap")], 2,
+         r"nope\.mcap: no such file$"),
+    Case("directory", "a directory instead of a file", lambda g, d: ["info", str(d)], 2, r"is a directory"),
+    Case("zero-bytes", "empty (0-byte) file", lambda g, d: ["info", str(_write(d / "z.mcap", b""))], 2,
+         r"z\.mcap: empty file$"),
+    Case("not-mcap", "not an MCAP file (a PNG)",
+         lambda g, d: ["info", str(_write(d / "x.mcap", b"\x89PNG\r\n\x1a\n" + b"\0" * 100))], 2,
+         r"x\.mcap: not an MCAP file$"),
+    Case("truncated-info", "truncated session (recording killed), `info`",
+         lambda g, d: ["info", str(_truncate(g, d / "cut.mcap"))], 3,
+         r"cut\.mcap: damaged MCAP file \(.*\); run `phonepose recover .*cut\.mcap --out FIXED\.mcap`$"),
+    Case("truncated-playback", "truncated session, `playback`",
+         lambda g, d: ["playback", str(_truncate(g, d / "cut.mcap")), "-q", "--out", str(d / "o")], 3,
+         r"cut\.mcap: damaged MCAP file .*run `phonepose recover"),
+    Case("corrupt-chunk", "flipped bits inside a chunk, `playback` (info still reads the summary)",
+         lambda g, d: ["playback", str(_corrupt_middle(g, d / "bad.mcap")), "-q", "--out", str(d / "o")], 3,
+         r"bad\.mcap: damaged MCAP data \((CRCValidationError|ZstdError)\); run `phonepose recover"),
+    Case("empty-session", "valid MCAP without messages",
+         lambda g, d: ["playback", str(_empty(g, d)), "-q", "--out", str(d / "o")], 4,
+         r"empty\.mcap: empty session \(no messages\)$"),
+    Case("no-vio", "session without controller VIO",
+         lambda g, d: ["playback", str(rewrite(g, d / "novio.mcap", _drop(Topic.CONTROLLER_VIO_POSE))), "-q",
+                       "--out", str(d / "o")], 4,
+         r"novio\.mcap: no controller VIO \(/controller/vio/pose\); nothing to play back$"),
+    Case("no-camera", "session without camera, marker-based tracker asked for",
+         lambda g, d: ["playback", str(rewrite(g, d / "nocam.mcap", _drop("/display/camera"))), "-q",
+                       "-t", "T1", "-t", "T4", "--out", str(d / "o")], 4,
+         r"nocam\.mcap: no camera images \(/display/camera/image\): T4 need the camera; "
+         r"run the VIO-only trackers with -t T1$"),
+    Case("wrong-schema", "known topic carrying another schema (IMU on /controller/vio/pose)",
+         lambda g, d: ["playback", str(with_channel(g, d / "ws.mcap", Topic.CONTROLLER_VIO_POSE, "phonepose.Imu",
+                                                    "protobuf", build_file_descriptor_set(pb.Imu).SerializeToString(),
+                                                    "protobuf")), "-q", "--out", str(d / "o")], 4,
+         r"ws\.mcap: topic /controller/vio/pose has schema 'phonepose\.Imu', phonepose expects "
+         r"'foxglove\.PoseInFrame'$"),
+    Case("unknown-schema", "unknown schema (`acme.Pose`, unreadable descriptor) on a topic",
+         lambda g, d: ["playback", str(with_channel(g, d / "us.mcap", Topic.CONTROLLER_VIO_POSE, "acme.Pose",
+                                                    "protobuf", b"\x00junk", "protobuf")),
+                       "-q", "--out", str(d / "o")], 4,
+         r"us\.mcap: topic /controller/vio/pose has schema 'acme\.Pose'"),
+    Case("json-encoding", "a topic in JSON instead of protobuf",
+         lambda g, d: ["playback", str(with_channel(g, d / "js.mcap", Topic.CONTROLLER_VIO_POSE, "acme.Pose",
+                                                    "jsonschema", b"{}", "json", lambda b: b'{"x": 1}')),
+                       "-q", "--out", str(d / "o")], 4,
+         r"js\.mcap: topic /controller/vio/pose has encoding 'json', phonepose reads protobuf only$"),
+    Case("unknown-tracker", "unknown tracker name",
+         lambda g, d: ["playback", str(g), "-q", "-t", "T99", "--out", str(d / "o")], 5,
+         r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
+    Case("bad-rate", "bad option value (`--rate -1`)",
+         lambda g, d: ["playback", str(g), "-q", "--rate", "-1", "--out", str(d / "o")], 5,
+         r"--rate must be > 0 \(got -1\.0\)$"),
+    Case("bad-correction-math", "bad option value (`--correction-math foo`)",
+         lambda g, d: ["playback", str(g), "-q", "--correction-math", "foo", "--out", str(d / "o")], 5,
+         r"unknown correction math 'foo'; allowed: paper, se3$"),
+    Case("bad-dictionary", "unknown marker dictionary in the session's marker spec",
+         lambda g, d: ["playback", str(rewrite(g, d / "dict.mcap", _bad_dictionary)), "-q", "--out", str(d / "o")], 5,
+         r"unknown marker dictionary 'DICT_NOPE_99'; allowed: DICT_4X4_100, .*DICT_ARUCO_ORIGINAL$"),
+    Case("out-not-dir", "output directory cannot be created (a file is in the way)",
+         lambda g, d: ["playback", str(g), "-q", "-t", "T1", "--out", str(_write(d / "f", b"x") / "out")], 6,
+         r"cannot create output directory .*f/out: Not a directory$"),
+    Case("rerun-not-writable", "`--rerun` file cannot be written",
+         lambda g, d: ["playback", str(g), "-q", "-t", "T1", "--out", str(d / "o"), "--rerun", str(d)], 6,
+         r"cannot write .*: is a directory$"),
+    Case("recover-same-file", "`recover` asked to overwrite its input",
+         lambda g, d: ["recover", str(g), "--out", str(g)], 2, r"is the input file; recover writes a new file"),
+    Case("recover-nothing", "`recover` on bytes with no intact chunk",
+         lambda g, d: ["recover", str(_write(d / "n.mcap", np.random.default_rng(0).bytes(50_000))),
+                       "--out", str(d / "fixed.mcap")], 3,
+         r"n\.mcap: nothing recoverable \(50000 of 50000 bytes unreadable, no intact chunk with known channels\)$"),
+    Case("recover-out-dir", "`recover --out` in a missing directory",
+         lambda g, d: ["recover", str(g), "--out", str(d / "nodir" / "fixed.mcap")], 6,
+         r"cannot write .*nodir/fixed\.mcap: No such file or directory$"),
+    Case("evaluate-missing", "`evaluate` with a missing trajectory file",
+         lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "est.txt")], 2,
+         r"gt\.txt: no such file$"),
+    Case("evaluate-garbage", "`evaluate` with a trajectory that is not TUM",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", b"hello world\n")), "--est", str(d / "gt.txt")], 2,
+         r"gt\.txt:1: not a number in 'hello world'"),
+    Case("evaluate-bad-metric", "`evaluate --metric xx`",
+         lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "gt.txt"), "--metric", "xx"], 5,
+         r"--metric 'xx': expected one of rpg, ape, rpe$"),
+]
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("good") / "good.mcap"
+    write_test_session(path, duration_s=2.0)
+    return path
+
+
+def run_inprocess(argv: list[str], capsys) -> tuple[int, str, str]:
+    from phonepose.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    out = capsys.readouterr()
+    code = exc.value.code
+    return (0 if code is None else code), out.out, out.err
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_input(case: Case, good, tmp_path, capsys):
+    code, _, err = run_inprocess(case.argv(good, tmp_path), capsys)
+    lines = err.strip().splitlines()
+    assert code == case.code, err
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith("phonepose: error: ")
+    assert re.search(case.message, lines[0]), lines[0]
+
+
+def test_the_good_session_plays(good, tmp_path, capsys):
+    """The control: the input every case breaks plays back cleanly."""
+    code, out, err = run_inprocess(["playback", str(good), "-q", "-t", "T1", "-t", "T4", "--out", str(tmp_path / "o")],
+                                   capsys)
+    assert code == 0 and err == "", err
+    assert "T4" in out
+
+
+def _subprocess(*args):
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
+
+
+def _tum(path: Path) -> np.ndarray:
+    return np.loadtxt(path, comments="#").reshape(-1, 8)
+
+
+@pytest.fixture(scope="module")
+def clean_run(good, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("clean") / "o"
+    ok = _subprocess("playback", str(good), "-q", "-t", "T1", "--out", str(out))
+    assert ok.returncode == 0 and ok.stderr == ""
+    return out
+
+
+WARNING_CASES = [
+    ("duplicate-timestamps", "every controller VIO sample written twice", _duplicate_vio,
+     r"/controller/vio/pose: 60 sample\(s\) skipped: duplicate or non-monotonic timestamp"),
+    ("backwards-timestamps", "every 5th controller VIO stamp 200 ms in the past", _backwards_vio(),
+     r"/controller/vio/pose: 12 sample\(s\) skipped: duplicate or non-monotonic timestamp"),
+    ("bad-quaternions", "controller VIO with NaN / |q| = 5 / inf position in every other sample",
+     _bad_quaternions(), r"/controller/vio/pose: 30 sample\(s\) skipped: NaN/inf value or non-unit quaternion"),
+]
+
+
+@pytest.mark.parametrize("cid,what,fn,message", WARNING_CASES, ids=[c[0] for c in WARNING_CASES])
+def test_bad_samples_are_reported_and_skipped(good, clean_run, tmp_path, cid, what, fn, message):
+    """Reported once per topic on stderr, skipped (never used), and the playback still succeeds."""
+    bad = rewrite(good, tmp_path / f"{cid}.mcap", fn)
+    r = _subprocess("playback", str(bad), "-q", "-t", "T1", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and re.search("^phonepose: warning: " + message + "$", lines[0]), r.stderr
+    est = _tum(tmp_path / "o" / "trajectories" / "T1.tum")
+    ref = _tum(clean_run / "trajectories" / "T1.tum")
+    assert np.isfinite(est).all()
+    assert len(est) == len(ref) and np.array_equal(est[:, 0], ref[:, 0])
+    q_norm = np.linalg.norm(est[:, 4:8], axis=1)
+    assert np.allclose(q_norm, 1.0, atol=1e-9)
+    # the remaining samples of the same straight path interpolate to within a few mm of the clean run
+    assert np.abs(est[:, 1:4] - ref[:, 1:4]).max() < 0.02
+
+
+# ----------------------------------------------------------------------------- docs table
+def markdown_table(tmp: Path) -> str:
+    """Run every case and print what the user sees (paths shortened), for docs/reliability.md."""
+    import contextlib
+    import io
+
+    from phonepose.cli import main
+
+    good = tmp / "good.mcap"
+    write_test_session(good, duration_s=2.0)
+    rows = ["| bad input | command | exit | what the user sees (stderr) |", "|---|---|---|---|"]
+    for case in CASES:
+        d = tmp / case.id
+        d.mkdir()
+        argv = case.argv(good, d)
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                main(argv)
+                code = 0
+            except SystemExit as exc:
+                code = exc.code or 0
+        line = err.getvalue().strip().replace(str(d) + "/", "").replace(str(tmp) + "/", "").replace(str(d), "DIR")
+        if len(line) > 160:
+            line = line[:157] + "..."
+        rows.append(f"| {case.what} | `{argv[0]}` | {code} | `{line}` |")
+    for cid, what, fn, message in WARNING_CASES:
+        msg = message.replace("\\(", "(").replace("\\)", ")")
+        rows.append(f"| {what} | `playback` | 0 | `phonepose: warning: {msg}` (samples skipped) |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as t:
+        print(markdown_table(Path(t)))
