@@ -28,6 +28,7 @@ from phonepose.record.sim.world import (HEIGHT, MARKER_CENTER_IN_BODY, PHONE_HEI
 MARGIN = 48          # undistorted canvas margin (px) around the 640x480 pinhole image
 SS = 2               # supersampling factor of the phone rendering
 NOISE_BANK = 4
+GAIN_STEP = 0.005
 
 
 def _marker_texture(cfg: SimConfig) -> tuple[np.ndarray, float]:
@@ -78,6 +79,7 @@ class Renderer:
         # copy of the canvas so the maps need no per-frame offset
         self.map_fixed = cv2.convertMaps(self.map_x, self.map_y, cv2.CV_16SC2)
         self.work = self.bg_canvas.copy()
+        self._bg_cache: dict[int, np.ndarray] = {}
         self._f = np.diag(self.Kc)[:2].copy()
         self._c = self.Kc[:2, 2].copy()
         s = cfg.render.noise_sigma_dn
@@ -103,14 +105,15 @@ class Renderer:
 
         ``blur_px``: the marker's image displacement (dx, dy) during the exposure (None: no blur).
         """
-        frame = self.bg.copy()
+        # Brightness changes slowly: the gain is quantised to 0.5 % (< 1 DN) so the brightened
+        # background can be cached; only the phone's box is scaled per frame.
+        gain = round(gain / GAIN_STEP) * GAIN_STEP
+        frame = self._background_at(gain).copy()
         if isinstance(T_cam_ctrl, Pose):
             T_cam_ctrl = (T_cam_ctrl.rotation.as_matrix(), np.asarray(T_cam_ctrl.translation, dtype=float))
         R, t = T_cam_ctrl
         front = float(R[:, 2] @ -t) > 0
-        self._draw_phone(frame, T_cam_ctrl, front, blur_px)
-        if gain != 1.0:
-            cv2.convertScaleAbs(frame, frame, alpha=gain)
+        self._draw_phone(frame, T_cam_ctrl, front, blur_px, gain)
         if self.noise:
             pos, neg = self.noise[int(rng.integers(len(self.noise)))]
             oy, ox = (int(v) for v in rng.integers(0, 64, size=2))
@@ -118,11 +121,19 @@ class Renderer:
             cv2.subtract(frame, neg[oy:oy + HEIGHT, ox:ox + WIDTH], frame)
         return frame
 
+    def _background_at(self, gain: float) -> np.ndarray:
+        key = int(round(gain / GAIN_STEP))
+        bg = self._bg_cache.get(key)
+        if bg is None:
+            bg = self.bg if key == int(round(1 / GAIN_STEP)) else cv2.convertScaleAbs(self.bg, alpha=gain)
+            self._bg_cache[key] = bg
+        return bg
+
     def encode(self, frame: np.ndarray) -> bytes:
         ok, buf = cv2.imencode(".jpg", frame, self._encode_params)
         return buf.tobytes()
 
-    def _draw_phone(self, frame: np.ndarray, T: Pose, front: bool, blur_px) -> None:
+    def _draw_phone(self, frame: np.ndarray, T, front: bool, blur_px, gain: float) -> None:
         w2, h2 = PHONE_WIDTH_M / 2, PHONE_HEIGHT_M / 2
         outline_xy = np.array([[-w2, h2], [w2, h2], [w2, -h2], [-w2, -h2]])
         z = PHONE_THICKNESS_M / 2 if front else -PHONE_THICKNESS_M / 2
@@ -170,8 +181,11 @@ class Renderer:
             patch = _motion_blur(patch, blur_px)
         self.work[cy0:cy1, cx0:cx1] = patch
         m1, m2 = self.map_fixed
-        frame[y0:y1, x0:x1] = cv2.remap(self.work, m1[y0:y1, x0:x1], m2[y0:y1, x0:x1], cv2.INTER_LINEAR,
-                                        borderMode=cv2.BORDER_REPLICATE)
+        roi = cv2.remap(self.work, m1[y0:y1, x0:x1], m2[y0:y1, x0:x1], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+        if gain != 1.0:
+            cv2.convertScaleAbs(roi, roi, alpha=gain)
+        frame[y0:y1, x0:x1] = roi
         self.work[cy0:cy1, cx0:cx1] = self.bg_canvas[cy0:cy1, cx0:cx1]
 
     def _draw_marker(self, patch2: np.ndarray, T: Pose, z: float, local2) -> None:
