@@ -325,6 +325,15 @@ def test_cli_json_layout(capsys):
     assert d["rpe"]["num_samples"] == 72 and d["rpe"]["rmse"] == pytest.approx(0.060284, abs=5e-7)
 
 
+def test_cli_rpg_quirks(capsys):
+    args = ["--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est", str(DATA / "evo/fr2_desk_ORB.txt"),
+            "--align", "se3", "--lengths", "2.03", "--json"]
+    _, out, _ = run_cli(capsys, *args)
+    assert json.loads(out)["re"]["2.03"]["trans_m"]["rmse"] == pytest.approx(0.015502644, abs=5e-10)
+    _, out, _ = run_cli(capsys, *args, "--rpg-quirks")
+    assert json.loads(out)["re"]["2.03"]["trans_m"]["rmse"] == pytest.approx(0.016630469, abs=5e-10)
+
+
 def test_cli_table(capsys):
     code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
                            str(DATA / "evo/fr2_desk_ORB.txt"), "--metric", "ape", "--align", "se3")

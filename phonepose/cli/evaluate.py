@@ -84,6 +84,8 @@ def evaluate(
     pairs_from_reference: bool = typer.Option(False, "--pairs-from-reference", help="RPE: pairs from the GT poses."),
     max_diff: float = typer.Option(None, "--max-diff",
                                    help="Association window in s (default: 0.02 strict for rpg, 0.01 for ape/rpe)."),
+    rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
+                                    "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
 ) -> None:
     """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
@@ -105,7 +107,8 @@ def evaluate(
     est_traj = load_trajectory(est, est_fmt)
     if metric == "rpg":
         result = evaluate_rpg(gt_traj, est_traj, align or "posyaw", align_frames, lens,
-                              0.02 if max_diff is None else max_diff)
+                              0.02 if max_diff is None else max_diff, index_shift_quirk=rpg_quirks,
+                              scale_quirk=rpg_quirks)
     elif metric == "ape":
         result = evaluate_ape(gt_traj, est_traj, pose_relation, align or "none", align_frames,
                               0.01 if max_diff is None else max_diff)

@@ -10,7 +10,6 @@ where ``stats`` is ``{"rmse", "mean", "median", "std", "min", "max", "num_sample
 
 from __future__ import annotations
 
-import numpy as np
 
 from phonepose.errors import ConfigError
 from phonepose.evaluation.alignment import align
