@@ -79,7 +79,7 @@ def evaluate(
     pose_relation: str = typer.Option("trans", "--pose-relation",
                                       help="APE/RPE relation: trans | angle (deg) | angle_rad | rot_part | full."),
     lengths: str = typer.Option(None, "--lengths", help="RE sub-trajectory lengths in m, e.g. 1,2,5 "
-                                "(default: 10,20,30,40,50 %% of the GT path length)."),
+                                "(default: 10,20,30,40,50 % of the GT path length)."),
     all_pairs: bool = typer.Option(False, "--all-pairs", help="RPE: all (overlapping) pairs instead of consecutive."),
     pairs_from_reference: bool = typer.Option(False, "--pairs-from-reference", help="RPE: pairs from the GT poses."),
     max_diff: float = typer.Option(None, "--max-diff",
