@@ -42,6 +42,7 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     assert sorted(os.listdir(out / "trajectories")) == sorted(f"{n}.tum" for n in names)
     doc = json.loads((out / "metrics.json").read_text())
     assert list(doc) == ["session", "rate_hz", "trackers"]
+    assert r.metrics == doc
     assert doc["session"] == "s.mcap" and doc["rate_hz"] == 20
     assert list(doc["trackers"]) == names
     for name, m in doc["trackers"].items():
@@ -218,3 +219,23 @@ def test_simulator_session_plays_back(tmp_path):
     # the marker is far better than anchor-mapped VIO while it is in view (paper Table 4)
     assert doc["trackers"]["T4"]["inside"]["p_ate_m"] < 0.5 * doc["trackers"]["T1"]["inside"]["p_ate_m"]
     assert doc["trackers"]["T7"]["inside"]["p_ate_m"] == doc["trackers"]["T4"]["inside"]["p_ate_m"]
+
+
+def test_realtime_paces_ticks_and_otherwise_no_wall_clock(session, tmp_path):
+    import time
+
+    t0 = time.monotonic()
+    r = run_playback(session, trackers=["T1"], write_outputs=False, realtime=True, start_s=0.5, end_s=1.1)
+    took = time.monotonic() - t0
+    assert r.n_ticks == 13 and r.out_dir is None and r.files == {}
+    assert took >= 0.55                      # 12 periods of 50 ms, paced
+    fast = run_playback(session, trackers=["T1"], write_outputs=False, start_s=0.5, end_s=1.1)
+    np.testing.assert_array_equal(fast.trajectories["T1"].stamps_ns, r.trajectories["T1"].stamps_ns)
+    assert fast.metrics == r.metrics
+
+
+def test_progress_callback_counts_every_tick(session):
+    seen = []
+    r = run_playback(session, trackers=["T4"], write_outputs=False, progress=lambda done, total: seen.append((done, total)))
+    assert [d for d, _ in seen] == list(range(1, r.n_ticks + 1))
+    assert all(total == r.n_ticks for _, total in seen)

@@ -30,7 +30,7 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
 from phonepose.playback.context import has_camera, read_context
-from phonepose.playback.outputs import paper_metrics, write_metrics
+from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
 try:  # the evaluation module's TUM writer (same fixed format); ours only if it is missing
     from phonepose.evaluation.trajectory import write_tum
@@ -292,7 +292,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     gt_stamps = engine.gt.stamps()
     gt = engine.gt.poses()
     session_name = Path(session).name
-    metrics_doc = {"session": session_name, "rate_hz": rate_hz, "trackers": per_tracker}
+    metrics_doc = metrics_document(session_name, rate_hz, per_tracker)
     if out is not None:
         for name, traj in trajs.items():
             p = out / "trajectories" / f"{name}.tum"
@@ -303,9 +303,6 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             files["groundtruth.tum"] = str(out / "groundtruth.tum")
         metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker)
         files["metrics.json"] = str(out / "metrics.json")
-    else:
-        from phonepose.playback.outputs import normalise_metrics
-        metrics_doc["trackers"] = {k: normalise_metrics(v) for k, v in per_tracker.items()}
     return PlaybackResult(
         session=session, out_dir=out, rate_hz=rate_hz, n_ticks=engine.n_ticks, n_task_ticks=engine.n_task_ticks,
         frames_decoded=int(getattr(stages, "frames_decoded", 0)), trajectories=trajs, gt_stamps_ns=gt_stamps, gt=gt,

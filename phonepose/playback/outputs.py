@@ -110,10 +110,15 @@ def paper_metrics(stamps_s: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray)
     return normalise_metrics(real(np.asarray(stamps_s, dtype=float), gt, est, np.asarray(inside, dtype=bool)))
 
 
-def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict]) -> dict:
+def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict]) -> dict:
+    """The metrics.json document: ``{"session", "rate_hz", "trackers": {name: {scope: {...}}}}``."""
     rate = int(rate_hz) if float(rate_hz).is_integer() else float(rate_hz)
-    doc = {"session": session, "rate_hz": rate,
-           "trackers": {name: normalise_metrics(trackers[name]) for name in trackers}}
+    return {"session": session, "rate_hz": rate,
+            "trackers": {name: normalise_metrics(trackers[name]) for name in trackers}}
+
+
+def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict]) -> dict:
+    doc = metrics_document(session, rate_hz, trackers)
     try:
         Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
     except OSError as exc:
