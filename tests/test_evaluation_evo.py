@@ -136,3 +136,12 @@ def test_live_evo_association_and_sim3_ape_rpe():
     assert ours["num_samples"] == len(rpe.error)
     for k, v in rpe.get_all_statistics().items():
         assert ours[k] == pytest.approx(v, rel=RTOL)
+
+    rpe = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, 2.03, metrics.Unit.meters, 0.2, all_pairs=True,
+                      pairs_from_reference=True)
+    rpe.process_data((ref_s, est_al))
+    ours = evaluate_rpe(gt, es, "angle", 2.03, "m", all_pairs=True, pairs_from_reference=True, rel_delta_tol=0.2,
+                        align_method="sim3")["rpe"]
+    assert ours["num_samples"] == len(rpe.error)
+    for k, v in rpe.get_all_statistics().items():
+        assert ours[k] == pytest.approx(v, rel=RTOL)
