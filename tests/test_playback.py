@@ -10,6 +10,7 @@ import pytest
 
 from phonepose.cli import main
 from phonepose.errors import ConfigError, OutputError
+from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import tracker_names
 from phonepose.playback import rerun_log as paths
 from phonepose.playback.engine import run_playback
@@ -70,6 +71,14 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     assert counts[Topic.PIPELINE_MARKERS] > 0
     for n in names:
         assert counts[tracker_pose_topic(n)] >= r.trajectories[n].stamps_ns.size
+    # the poses in trackers.mcap are the trajectory's, stamped with the tick time
+    traj = r.trajectories["T7"]
+    with SessionReader(out / "trackers.mcap") as rd:
+        msgs = {m.log_time_ns: m.msg for m in rd.messages([tracker_pose_topic("T7")])}
+    for i in (0, traj.stamps_ns.size // 2, traj.stamps_ns.size - 1):
+        m = msgs[int(traj.stamps_ns[i])]
+        assert m.frame_id == "display_vio" and m.timestamp.ToNanoseconds() == traj.stamps_ns[i]
+        assert Pose.from_foxglove(m.pose).allclose(traj.poses[i], atol=1e-12)
 
 
 def test_determinism_byte_identical(session, tmp_path):

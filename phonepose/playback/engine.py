@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
@@ -39,7 +40,6 @@ except ImportError:  # pragma: no cover
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.sample import pose_in_frame
 
 
 @dataclass
@@ -100,6 +100,16 @@ class _Collector:
         if not self.t:
             return None
         return Pose.from_xyzw(np.vstack(self.trans), np.vstack(self.rot))
+
+
+def _pose_in_display_vio(pose: Pose, t_ns: int) -> PoseInFrame:
+    """``session.sample.pose_in_frame`` for display_vio, without its per-value conversions (hot path)."""
+    msg = PoseInFrame(frame_id=Frame.DISPLAY_VIO)
+    msg.timestamp.seconds, msg.timestamp.nanos = divmod(int(t_ns), 1_000_000_000)
+    p, o = msg.pose.position, msg.pose.orientation
+    p.x, p.y, p.z = np.asarray(pose.translation, dtype=float).tolist()
+    o.x, o.y, o.z, o.w = pose.rotation.as_quat(canonical=False).tolist()
+    return msg
 
 
 def _default_stages(context: SessionContext):
@@ -168,6 +178,7 @@ class PlaybackEngine:
         self.writer = writer
         self.rerun_logger = rerun_logger
         self.collectors = {t.name: _Collector() for t in trackers}
+        self._topics = {t.name: tracker_pose_topic(t.name) for t in trackers}
         self.gt = _Collector()
         self.n_ticks = 0
         self.n_task_ticks = 0
@@ -189,8 +200,7 @@ class PlaybackEngine:
                 self.writer.write(Topic.PIPELINE_MARKERS, _detections_message(self.stages, obs), tick.t_ns)
             for name, pose in poses.items():
                 if pose is not None:
-                    self.writer.write(tracker_pose_topic(name), pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns),
-                                      tick.t_ns)
+                    self.writer.write(self._topics[name], _pose_in_display_vio(pose, tick.t_ns), tick.t_ns)
         if self.rerun_logger is not None:
             self.rerun_logger.log_tick(tick, obs, poses)
         return obs, poses
