@@ -111,3 +111,25 @@ def test_sigint_sigterm_leave_a_complete_file(complete, tmp_path, sig):
     assert 0 < len(got) < len(full) and got == full[: len(got)]
     with SessionReader(out) as reader:
         assert reader.summary().message_count == len(got)
+
+
+def test_disk_full_while_recording_is_one_line_and_the_file_recovers(tmp_path):
+    """A real 2 MiB tmpfs (root with mount permission only; the ENOSPC double in test_reliability_session runs everywhere)."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        out = mnt / "s.mcap"
+        r = subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", *SCENARIO, "--out", str(out), "-q"],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 6
+        assert r.stderr.strip() == (f"phonepose: error: cannot write {out}: No space left on device "
+                                    "(the file written so far stays readable; run `phonepose recover`)")
+        report = salvage(out, tmp_path / "fixed.mcap")
+        assert report.messages > 500 and report.chunks_recovered >= 1
+        with SessionReader(tmp_path / "fixed.mcap") as reader:
+            assert reader.summary().has("/display/camera/image")
+    finally:
+        subprocess.run(["umount", str(mnt)], check=False)
