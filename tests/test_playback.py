@@ -177,7 +177,8 @@ def _rrd_columns(path):
     return found
 
 
-def test_rrd_read_back(session, tmp_path):
+def test_rrd_read_back(session, tmp_path, monkeypatch):
+    monkeypatch.setattr(paths, "SEGMENT_TICKS", 40)   # 50 ticks: one closed trajectory part + the open one
     rrd = tmp_path / "s.rrd"
     r = run_playback(session, trackers=["T1", "T7"], out_dir=tmp_path / "o", rerun_path=rrd)
     assert rrd.exists() and r.rerun_path == str(rrd)
@@ -199,7 +200,11 @@ def test_rrd_read_back(session, tmp_path):
     for p in (paths.GT_POSE, paths.tracker_pose_path("T1"), paths.tracker_pose_path("T7")):
         assert "Transform3D:translation" in found[p]["columns"] and "tick" in found[p]["timelines"], p
     for p in (paths.GT_TRAJECTORY, paths.tracker_trajectory_path("T7")):
-        assert "LineStrips3D:strips" in found[p]["columns"], p
+        closed, open_ = found[p + "/0000"], found[p + "/open"]
+        assert "LineStrips3D:strips" in closed["columns"] and "LineStrips3D:strips" in open_["columns"], p
+        assert "Clear:is_recursive" in open_["columns"]      # emptied when its points were closed
+        first = [x for b in closed["batches"] for x in b.column("LineStrips3D:strips").to_pylist() if x]
+        assert len(first) == 1 and len(first[0][0]) >= 30      # about 40 ticks of points, one strip
     assert "Scalars:scalars" in found["/errors/T7/position_m"]["columns"]
     assert "Scalars:scalars" in found["/errors/T1/rotation_deg"]["columns"]
     import rerun.chunk as rc

@@ -13,9 +13,9 @@ Entity paths (``/world`` is display_vio):
     /world/display/camera/image             Pinhole (static), EncodedImage (the recorded JPEG bytes)
     /world/display/camera/image/markers     LineStrips2D of the recognised marker, id as label
     /world/gt/pose                          GT controller pose (Transform3D + axes)
-    /world/gt/trajectory                    GT so far (LineStrips3D, every N ticks)
+    /world/gt/trajectory/{NNNN,open}        GT so far (LineStrips3D: closed parts + the open one)
     /world/trackers/<name>/pose             tracker estimate (Transform3D + axes)
-    /world/trackers/<name>/trajectory       its trajectory so far (LineStrips3D, every N ticks)
+    /world/trackers/<name>/trajectory/...   its trajectory so far (same layout)
     /world/task/targets | /world/task/path  experiment targets (Boxes3D) or path (LineStrips3D), static
     /errors/<name>/position_m, rotation_deg per-tracker error against GT (Scalars)
 """
@@ -34,6 +34,7 @@ from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick
 
 TRAJECTORY_EVERY_TICKS = 20   # trajectories so far are re-logged every 20 ticks (1 s at 20 Hz)
+SEGMENT_TICKS = 100           # ... and closed for good every 100 ticks (the size stays linear)
 # Buffered rows (images, poses, errors, markers) are sent as columns every this many ticks: to a
 # .rrd file in large batches (each send_columns has a fixed cost), to a live viewer promptly.
 COLUMNS_EVERY_TICKS_FILE = 100
@@ -189,6 +190,12 @@ class _PoseTrackLogger:
 
     Poses are buffered and sent as columns (``send_columns``) by the owner, which is many times
     cheaper than one ``log`` per tick; a missing pose clears the entity at once.
+
+    The trajectory so far is kept linear in size: the points of the last ``SEGMENT_TICKS`` ticks
+    are re-logged at ``<trajectory>/open`` (every ``TRAJECTORY_EVERY_TICKS``); then they are
+    logged once, for good, as ``<trajectory>/NNNN`` and the open part starts again from the last
+    point. At any time the viewer's latest-at shows the closed parts logged so far plus the open
+    one: the trajectory so far, without re-sending it all every second.
     """
 
     def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str):
@@ -197,7 +204,9 @@ class _PoseTrackLogger:
         self.trajectory_path = trajectory_path
         self.color = color
         self.label = label
-        self.segments: list[list[tuple]] = [[]]
+        self.segments: list[list[np.ndarray]] = [[]]   # the open part: strips broken where the pose was missing
+        self.open_ticks = 0
+        self.closed = 0
         self.shown = False
         self.dirty = 0
         self.rows_idx: list[int] = []
@@ -206,6 +215,7 @@ class _PoseTrackLogger:
         self.rows_p: list[np.ndarray] = []
 
     def log(self, tick: Tick, pose: Pose | None) -> None:
+        self.open_ticks += 1
         if pose is None:
             if self.shown:
                 self.flush_poses()
@@ -234,12 +244,25 @@ class _PoseTrackLogger:
                      *rr.TransformAxes3D.columns(axis_length=np.full(n, AXIS_LENGTH_M, dtype=np.float32))])
         self.rows_idx, self.rows_t, self.rows_q, self.rows_p = [], [], [], []
 
+    def _strips(self) -> rr.LineStrips3D | None:
+        strips = [np.asarray(s, dtype=np.float32) for s in self.segments if len(s) >= 2]
+        if not strips:
+            return None
+        return rr.LineStrips3D(strips, colors=[self.color], radii=0.002, labels=[self.label] * len(strips))
+
     def flush_trajectory(self) -> None:
         """The trajectory so far, at the current tick (the engine set the clock)."""
-        strips = [np.asarray(s, dtype=np.float32) for s in self.segments if len(s) >= 2]
-        if strips:
-            self.rec.log(self.trajectory_path, rr.LineStrips3D(strips, colors=[self.color], radii=0.002,
-                                                               labels=[self.label] if len(strips) == 1 else None))
+        strips = self._strips()
+        if self.open_ticks >= SEGMENT_TICKS:
+            if strips is not None:
+                self.rec.log(f"{self.trajectory_path}/{self.closed:04d}", strips)
+                self.closed += 1
+            self.rec.log(f"{self.trajectory_path}/open", rr.Clear(recursive=False))
+            last = self.segments[-1]
+            self.segments = [[last[-1]] if last else []]
+            self.open_ticks = 0
+        elif strips is not None:
+            self.rec.log(f"{self.trajectory_path}/open", strips)
         self.dirty = 0
 
 
