@@ -253,3 +253,12 @@ def test_progress_callback_counts_every_tick(session):
     r = run_playback(session, trackers=["T4"], write_outputs=False, progress=lambda done, total: seen.append((done, total)))
     assert [d for d, _ in seen] == list(range(1, r.n_ticks + 1))
     assert all(total == r.n_ticks for _, total in seen)
+
+
+def test_cli_rerun_option_and_spawn_conflict(session, tmp_path, capsys):
+    rrd = tmp_path / "x" / "s.rrd"
+    code, out, err = cli(capsys, session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd)
+    assert code == 0, err
+    assert rrd.exists() and rrd.stat().st_size > 10_000 and "rerun:" in out
+    code, out, err = cli(capsys, session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd, "--spawn")
+    assert code == ConfigError.exit_code and "exclusive" in err
