@@ -233,3 +233,77 @@ def test_sigkill_loses_at_most_about_one_second(tmp_path):
     readable_s = (max_t - T0_NS) / 1e9
     assert count > 1000
     assert readable_s >= last / 1e9 - 1.3, (readable_s, last / 1e9)
+
+
+# ---------------------------------------------------------------- the recorder on any Source
+class _ListSource:
+    """A minimal live-like source: what a phone bridge would implement."""
+
+    def __init__(self, records, static=()):
+        self._records, self._static = list(records), list(static)
+        self.start_ns, self.duration_ns = T0_NS, 1_000_000_000
+        self.closed = False
+
+    def static(self):
+        return self._static
+
+    def __iter__(self):
+        return iter(self._records)
+
+    def close(self):
+        self.closed = True
+
+
+def _log_record(t_ns, text="x"):
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+
+    from phonepose.record.source import Record
+    return Record(Topic.LOG, Log(message=text), t_ns, t_ns)
+
+
+def test_recorder_writes_any_source_and_refuses_out_of_order(tmp_path):
+    from phonepose.errors import SessionContentError
+    from phonepose.record.recorder import Recorder
+
+    src = _ListSource([_log_record(T0_NS + k * 1000, str(k)) for k in range(5)])
+    res = Recorder(src, tmp_path / "ok.mcap").run()
+    assert res.messages == 5 and not res.interrupted and src.closed
+    with SessionReader(tmp_path / "ok.mcap") as r:
+        assert [m.msg.message for m in r.messages()] == ["0", "1", "2", "3", "4"]
+    bad = _ListSource([_log_record(T0_NS + 10), _log_record(T0_NS + 5)])
+    with pytest.raises(SessionContentError, match="out of log-time order"):
+        Recorder(bad, tmp_path / "bad.mcap").run()
+
+
+def test_recorder_stop_finishes_a_valid_file(tmp_path):
+    from phonepose.record.recorder import Recorder
+
+    class Stopping(_ListSource):
+        def __iter__(self):
+            for k, rec in enumerate(self._records):
+                if k == 3:
+                    recorder.stop()          # what the SIGINT/SIGTERM handler does
+                yield rec
+
+    src = Stopping([_log_record(T0_NS + k) for k in range(10)])
+    recorder = Recorder(src, tmp_path / "stopped.mcap")
+    res = recorder.run()
+    assert res.interrupted and res.messages == 3
+    with SessionReader(tmp_path / "stopped.mcap") as r:
+        assert r.summary().message_count == 3
+
+
+def test_unwritable_rerun_path_is_an_output_error(tmp_path):
+    from phonepose.errors import OutputError
+    from phonepose.record.recorder import Recorder
+
+    with pytest.raises(OutputError, match="cannot write"):
+        Recorder(_ListSource([]), tmp_path / "x.mcap", rerun_path=tmp_path / "missing" / "x.rrd")
+
+
+def test_rerun_file_is_written(tmp_path):
+    rrd = tmp_path / "s.rrd"
+    record_sim(tmp_path / "s.mcap", scenario="exp2", path="TRI1", seed=0,
+               config=default_config().replace(camera=dict(rate_hz=2.0)), rerun_path=rrd)
+    data = rrd.read_bytes()
+    assert len(data) > 100_000 and data[:4] == b"RRF2"

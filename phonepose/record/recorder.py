@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from phonepose.errors import SessionContentError
+from phonepose.errors import OutputError, SessionContentError
 from phonepose.record.source import Record, Source
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionWriter
@@ -42,10 +42,16 @@ class RerunLogger:
 
         self.rr = rr
         self.rec = rr.RecordingStream(application_id)
-        if spawn:
-            self.rec.spawn()
-        elif rrd_path is not None:
-            self.rec.save(rrd_path)
+        try:
+            if spawn:
+                self.rec.spawn()
+            elif rrd_path is not None:
+                parent = os.path.dirname(os.path.abspath(rrd_path))
+                if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
+                    raise OutputError(f"cannot write {rrd_path}: directory {parent} does not exist or is not writable")
+                self.rec.save(rrd_path)
+        except RuntimeError as exc:   # rerun reports sink failures as RuntimeError
+            raise OutputError(f"cannot start Rerun logging ({rrd_path or 'viewer'}): {exc}") from None
         self.rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     def log(self, r: Record) -> None:
