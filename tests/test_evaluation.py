@@ -285,6 +285,43 @@ def test_paper_metrics_re_pairs_go_to_the_split_of_their_start():
     assert sum(len(r) for r in rel.values()) == starts.size
 
 
+def test_paper_re_ignores_orientation_error_and_world_offsets():
+    """The paper's p_RE (Table 5: T1 = T2 = T3) depends on positions only, after posyaw alignment."""
+    from scipy.spatial.transform import Rotation
+
+    from phonepose.evaluation.paper import relative_translation_pairs
+    from phonepose.evaluation.relative import relative_errors
+
+    n = 300
+    gt = random_traj(n, 7)
+    tilt = Rotation.from_rotvec([0.0, np.radians(11.0), 0.0])  # a hand-eye-like orientation offset
+    yaw = Rotation.from_rotvec([0.0, 0.0, 0.3])
+    est = Pose(gt.rotation * tilt, yaw.apply(gt.translation) + [0.04, -0.02, 0.01])
+    _, err = relative_translation_pairs(gt, est)
+    assert err.size > 0 and np.max(err) < 1e-9
+    # rpg's RE translation does see the orientation offset (the displacement is taken in the start pose frame)
+    rpg = relative_errors(gt, est, [1.0])
+    assert max(np.max(r.trans) for r in rpg.values()) > 0.05
+    # a known displacement error, exactly: one jump of 3 cm along z halfway, no rotation error
+    jump = np.zeros((n, 3))
+    jump[n // 2:, 2] = 0.03
+    est2 = Pose(gt.rotation, gt.translation + jump)
+    starts, err2 = relative_translation_pairs(gt, est2)
+    from phonepose.evaluation.alignment import align
+
+    a = align(gt, est2, "posyaw")
+    p = a.apply(est2).translation
+    from phonepose.evaluation.relative import accumulated_distances, default_lengths, find_pairs
+
+    d = accumulated_distances(gt.translation)
+    expected = []
+    for L in default_lengths(gt.translation):
+        s_, e_ = find_pairs(d, L)
+        if e_.size >= 2:
+            expected.append(np.linalg.norm((p[e_] - p[s_]) - (gt.translation[e_] - gt.translation[s_]), axis=1))
+    assert np.allclose(err2, np.concatenate(expected), atol=1e-12)
+
+
 def test_paper_metrics_empty_and_none():
     gt = random_traj(30, 1)
     m = paper_metrics(np.arange(30) * 0.1, gt, gt, np.ones(30, bool))

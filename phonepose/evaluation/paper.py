@@ -7,10 +7,17 @@
 - p_ATE [m] / r_ATE [deg]: RMSE of ``‖p_gt − p_est‖`` and of the rotation angle of
   ``R_est R_gtᵀ``, **without alignment** (both are in the display frame; the paper measures ATE
   without aligning).
-- p_RE [m]: RMSE of rpg's relative translation error, pooled over the default sub-trajectory
-  lengths (10..50 % of the GT path length, truncated to 2 decimals), pairs found on the GT path
-  distance with tolerance 0.2·L, each pair paired with its true start (no index-shift quirk).
-  posyaw alignment is used as rpg would, which changes nothing for RE (s = 1).
+- p_RE [m]: RMSE of the relative *position* error of sub-trajectories, pooled over the default
+  lengths (10..50 % of the GT path length, truncated to 2 decimals), pairs (i, j) found on the
+  GT path distance with rpg's rule (tolerance 0.2·L, each pair with its true start). The estimate
+  is first aligned to the GT with posyaw (translation + rotation about gravity, z up), as the
+  paper says ("translation and rotation around gravity were employed to align the RE"); the
+  error of a pair is ``‖(p_est,j − p_est,i) − (p_gt,j − p_gt,i)‖``. Unlike rpg's RE translation
+  (which expresses the displacement in the start pose's own frame), this does not mix the
+  orientation error into p_RE. It is the reading the paper's Table 5 supports: there T1, T2 and
+  T3 have the *same* p_RE in every sequence, which holds when p_RE depends on positions only
+  (eqs. 5-6 shift VIO positions by a constant) but not with rpg's formula, where the corrected
+  orientation would change it. rpg's full RE stays available in ``phonepose evaluate``.
 - inside/outside: a frame belongs to the split given by ``inside``; an RE pair belongs to the
   split of its **start** frame. "total" uses every frame and every pair.
 - ``None`` where a value cannot be computed (no frames in the split, no RE pair, path too short).
@@ -20,8 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from phonepose.evaluation.alignment import align
 from phonepose.evaluation.ate import absolute_errors
-from phonepose.evaluation.relative import accumulated_distances, default_lengths, find_pairs, pair_errors
+from phonepose.evaluation.relative import accumulated_distances, default_lengths, find_pairs
 from phonepose.evaluation.stats import rmse
 from phonepose.geometry import Pose
 
@@ -52,8 +60,11 @@ def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.nd
         return np.zeros(0, np.int64), np.zeros(0)
     starts = np.concatenate(starts_all)
     ends = np.concatenate(ends_all)
-    _, t_w, _ = pair_errors(gt, est, starts, ends, 1.0)
-    return starts, np.sqrt(np.sum(t_w * t_w, axis=1))
+    p_gt = np.atleast_2d(gt.translation)
+    a = align(gt, est, "posyaw")
+    p_est = np.atleast_2d(a.apply(est).translation)
+    err = (p_est[ends] - p_est[starts]) - (p_gt[ends] - p_gt[starts])
+    return starts, np.sqrt(np.sum(err * err, axis=1))
 
 
 def paper_metrics(stamps: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -> dict:
