@@ -28,9 +28,13 @@ More rows ("better trackers of our own") are added with :func:`register`.
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
 from enum import Enum
 from typing import Callable, Iterable
+
+import numpy as np
 
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
@@ -53,6 +57,24 @@ class CorrectionKind(str, Enum):
 
 
 # ----------------------------------------------------------------------------- correction sources
+log = logging.getLogger("phonepose")
+
+
+def _finite(pose: Pose | None) -> bool:
+    """A pose with no NaN/inf anywhere (broken inputs are skipped, never used: docs/reliability.md)."""
+    return pose is not None and bool(np.isfinite(pose.translation).all() and np.isfinite(pose.rotation.as_quat()).all())
+
+
+def _event_pose(fg) -> Pose | None:
+    """A CalibrationEvent pose, or None if it is unset, non-finite or its quaternion is not unit length."""
+    p, q = fg.position, fg.orientation
+    values = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+    n = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
+    if not all(math.isfinite(v) for v in values) or not math.isfinite(n) or abs(n - 1.0) > 1e-3:
+        return None
+    return Pose.from_foxglove(fg)
+
+
 class CorrectionSource:
     """Keeps the current offset of one correction method up to date, causally, tick by tick."""
 
@@ -78,9 +100,12 @@ class CM1Source(CorrectionSource):
     def update(self, obs: Observation) -> None:
         for event in obs.tick.events:
             if event.kind == pb.CalibrationEvent.CM1:
-                self.current = cm1_correction(Pose.from_foxglove(event.pose_fix_vio),
-                                              Pose.from_foxglove(event.pose_align_vio),
-                                              self.math, self.cm1_reading)
+                fix, align = _event_pose(event.pose_fix_vio), _event_pose(event.pose_align_vio)
+                if fix is None or align is None:
+                    log.warning("phonepose: warning: CM1 event at %d ns ignored: a pose is unset, NaN/inf or "
+                                "its quaternion is not unit length", obs.tick.t_ns)
+                    continue
+                self.current = cm1_correction(fix, align, self.math, self.cm1_reading)
 
 
 class CM2Source(CorrectionSource):
@@ -99,7 +124,8 @@ class CM2Source(CorrectionSource):
             self.pending = True
         # The marker must be recognised at the moment; if it is not on the event's tick, the
         # first tick after it on which it is (with VIO) is the calibration moment.
-        if self.pending and obs.marker is not None and obs.T_dvio_controller_vio is not None:
+        if self.pending and obs.marker is not None and _finite(obs.marker.T_dvio_controller) \
+                and _finite(obs.T_dvio_controller_vio):
             self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
             self.pending = False
 
@@ -108,7 +134,7 @@ class CM3Source(CorrectionSource):
     """CM3: the CM2 offset, renewed on every tick where the marker is recognised."""
 
     def update(self, obs: Observation) -> None:
-        if obs.marker is not None and obs.T_dvio_controller_vio is not None:
+        if obs.marker is not None and _finite(obs.marker.T_dvio_controller) and _finite(obs.T_dvio_controller_vio):
             self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
 
 
@@ -151,12 +177,14 @@ class CompositeTracker:
         self.correction.update(obs)
         method = self.spec.inside if obs.in_view else self.spec.outside
         if method is Method.MARKER:
-            return obs.marker.T_dvio_controller
-        vio = obs.T_dvio_controller_vio
-        if vio is None:
-            return None
-        offset = self.correction.current
-        return vio if offset is None else offset.apply(vio)
+            est = obs.marker.T_dvio_controller
+        else:
+            vio = obs.T_dvio_controller_vio
+            if not _finite(vio):
+                return None
+            offset = self.correction.current
+            est = vio if offset is None else offset.apply(vio)
+        return est if est is None or _finite(est) else None   # a non-finite input gives no estimate
 
     def __repr__(self) -> str:
         s = self.spec
