@@ -237,3 +237,10 @@ def test_marker_chain_through_the_display_vio_is_exact_without_errors(tri2_clean
                                        np.tile(T_DISPLAY_CAMERA.translation, (len(i), 1))) @ s.T_cam_ctrl[i]
     true = s.true_controller_in_dvio(s.t_cam[i])
     assert np.max(chain.distance_to(true)) < 1e-9 and np.max(chain.angle_to(true)) < 1e-9
+
+
+def test_trials_share_the_world_of_a_seed_but_not_the_motion():
+    a, b = SimSession("exp1", None, 1, seed=4), SimSession("exp1", None, 2, seed=4)
+    assert a.world.anchor_error_controller.allclose(b.world.anchor_error_controller, atol=0)
+    assert a.world.T_world_cvio.allclose(b.world.T_world_cvio, atol=0)
+    assert [t.index for t in a.plan.targets] != [t.index for t in b.plan.targets]

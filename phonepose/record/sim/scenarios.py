@@ -147,7 +147,7 @@ def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, tr
     once it knows where the VIO put the fixed CG object.
     """
     check_choice(scenario, path, trial)
-    rng = rng_for("plan")
+    rng = rng_for(f"plan_trial{trial}")   # the same world (seed) gives different human motion per trial
     pose = _Posing(world, cfg, rng)
     pace = 1 + cfg.human.speed_variation * rng.normal()
     keys: list[KeyPose] = []

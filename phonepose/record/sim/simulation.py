@@ -67,7 +67,7 @@ class SimSession:
         self.plan: Plan = build_plan(self.world, cfg, scenario, path, trial, rng_for)
         w, plan = self.world, self.plan
         h = cfg.human
-        self.oscillations = make_oscillations(rng_for("tremor"), h.tremor_m, h.tremor_deg, h.sway_m, h.sway_deg)
+        self.oscillations = make_oscillations(rng_for(f"tremor_trial{trial}"), h.tremor_m, h.tremor_deg, h.sway_m, h.sway_deg)
         end = plan.end
         self.duration_s = end
 
@@ -86,7 +86,7 @@ class SimSession:
         j_fix = int(np.argmin(np.abs(self.t_cvio - plan.t_fix)))
         fix_mapped = self.T_map @ self._cvio_estimate(traj0, self.t_cvio[j_fix:j_fix + 1], white_c[j_fix:j_fix + 1])[0]
         # The user puts the real phone where the CG object is (the fixed, anchor-mapped VIO pose).
-        ra = rng_for("cm1_alignment")
+        ra = rng_for(f"cm1_alignment_trial{trial}")
         human = Pose(Rotation.from_rotvec(ra.normal(size=3) * np.deg2rad(h.cm1_alignment_deg)),
                      ra.normal(size=3) * h.cm1_alignment_m)
         T_world_aligned = w.T_world_dvio @ fix_mapped @ human
