@@ -349,7 +349,7 @@ class PlaybackRerunLogger:
                     raise OutputError(f"cannot write {rrd_path}: is a directory")
                 self.rec.save(os.fspath(rrd_path), default_blueprint=self.blueprint)
         rec = self.rec
-        rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+        rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.camera = CameraLogger(rec, context)
         self.markers = MarkerLogger(rec)
         self.task = TaskLogger(rec, context)
