@@ -37,6 +37,41 @@ def fg_pose(pose) -> Pose:
     return Pose.from_foxglove(pose)
 
 
+def _check_pose(path: str, what: str, position, quat) -> None:
+    """Static poses must be finite with a unit (or unset, all-zero) quaternion: else one clear error."""
+    values = [float(v) for v in (*position, *quat)]
+    if not all(np.isfinite(values)):
+        raise SessionContentError(f"{path}: {what} has NaN/inf values")
+    n = float(np.linalg.norm(values[3:]))
+    if n != 0.0 and abs(n - 1.0) > 1e-3:
+        raise SessionContentError(f"{path}: {what} quaternion is not unit length (|q| = {n:.6g})")
+
+
+def _xyz(v):
+    return (v.x, v.y, v.z)
+
+
+def _xyzw(q):
+    return (q.x, q.y, q.z, q.w)
+
+
+def _check_camera(path: str, calib) -> None:
+    if calib.width <= 0 or calib.height <= 0:
+        raise SessionContentError(f"{path}: camera calibration has size {calib.width}x{calib.height}, expected > 0")
+    K = np.asarray(calib.K, dtype=float)
+    if not np.isfinite(K).all() or not np.isfinite(np.asarray(calib.D, dtype=float)).all():
+        raise SessionContentError(f"{path}: camera calibration has NaN/inf values")
+    if not (K[0] > 0 and K[4] > 0):
+        raise SessionContentError(f"{path}: camera calibration focal lengths fx={K[0]:g}, fy={K[4]:g}: expected > 0")
+
+
+def _check_marker(path: str, spec) -> None:
+    if not (np.isfinite(spec.size_m) and spec.size_m > 0):
+        raise SessionContentError(f"{path}: marker size {spec.size_m:g} m: expected a positive size")
+    _check_pose(path, f"marker pose on the body ({Topic.CONTROLLER_MARKER})", _xyz(spec.pose_in_body.position),
+                _xyzw(spec.pose_in_body.orientation))
+
+
 def _stamp_ns(ts) -> int | None:
     ns = ts.ToNanoseconds()
     return ns if ns != 0 else None
@@ -60,25 +95,33 @@ def read_context(reader: SessionReader) -> SessionContext:
             raise SessionContentError(f"{path}: camera images but no camera calibration ({Topic.CAMERA_CALIBRATION})")
         if len(calib.K) != 9:
             raise SessionContentError(f"{path}: camera calibration has {len(calib.K)} K values, expected 9")
+        _check_camera(path, calib)
         D = np.zeros(5)
         d = np.asarray(calib.D, dtype=float)[:5]
         D[: len(d)] = d
         ext = reader.first(Topic.CAMERA_EXTRINSICS)
+        if ext is not None:
+            _check_pose(path, f"camera extrinsics ({Topic.CAMERA_EXTRINSICS})", _xyz(ext.translation), _xyzw(ext.rotation))
         T_display_camera = transform_to_pose(ext) if ext is not None else Pose.identity()
         camera = CameraModel(K=np.asarray(calib.K, dtype=float).reshape(3, 3), D=D, width=int(calib.width),
                              height=int(calib.height), T_display_camera=T_display_camera)
         spec = reader.first(Topic.CONTROLLER_MARKER)
         if spec is None:
             raise SessionContentError(f"{path}: camera images but no marker spec ({Topic.CONTROLLER_MARKER})")
+        _check_marker(path, spec)
         marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
                              T_body_marker=fg_pose(spec.pose_in_body))
     else:
         spec = reader.first(Topic.CONTROLLER_MARKER)
         if spec is not None:
+            _check_marker(path, spec)
             marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
                                  T_body_marker=fg_pose(spec.pose_in_body))
 
     gt_calib = reader.first(Topic.GT_CALIBRATION) if summary.has(Topic.GT_CALIBRATION) else None
+    if gt_calib is not None:
+        _check_pose(path, f"ground-truth calibration ({Topic.GT_CALIBRATION})", _xyz(gt_calib.translation),
+                    _xyzw(gt_calib.rotation))
     info = reader.first(Topic.SESSION_INFO) if summary.has(Topic.SESSION_INFO) else None
     targets = reader.first(Topic.EXPERIMENT_TARGETS) if summary.has(Topic.EXPERIMENT_TARGETS) else None
     path_spec = reader.first(Topic.EXPERIMENT_PATH) if summary.has(Topic.EXPERIMENT_PATH) else None
