@@ -247,3 +247,10 @@ def test_pose_stream_rules():
     assert s.associate(150, 50) is not None and s.associate(150, 49) is None
     s.prune(210)
     assert list(s.times) == [200]
+
+
+def test_start_past_the_end_is_a_config_error(session):
+    from phonepose.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="select no tick"):
+        ticks_of(session, start_s=5.0)

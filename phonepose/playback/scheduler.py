@@ -273,6 +273,10 @@ class TickScheduler:
         if end_s is not None:
             last_limit = min(last_limit, start_ns + int(round(end_s * 1e9)))
         last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
+        if last < first and (start_s is not None or end_s is not None):
+            from phonepose.errors import ConfigError
+            raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
+                              f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
         self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
                                  session_start_ns=start_ns)
         # (topic, reason) -> samples skipped in the pass; reported as one warning line each
