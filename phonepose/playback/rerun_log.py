@@ -339,7 +339,11 @@ class PlaybackRerunLogger:
         else:
             self.rec = rr.RecordingStream("phonepose_playback", recording_id=f"playback-{session_name}")
             if spawn:
-                self.rec.spawn(default_blueprint=self.blueprint)
+                try:
+                    self.rec.spawn(default_blueprint=self.blueprint)
+                except Exception as exc:  # no viewer binary, no display, port in use, ...
+                    raise OutputError(f"cannot spawn the Rerun viewer ({exc}); save a recording with --rerun FILE.rrd "
+                                      "instead") from None
             elif rrd_path is not None:
                 try:
                     Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
