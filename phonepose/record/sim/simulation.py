@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import heapq
 import zlib
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from typing import Iterator
 
 import numpy as np
@@ -35,6 +37,7 @@ from phonepose.schemas.topics import Frame, Topic
 from phonepose.session.sample import frame_transform, pose_in_frame
 
 T0_NS = 1_700_000_000_000_000_000   # session start on the display's clock (fixed: no wall clock)
+IMAGE_LOOKAHEAD = 2                 # frames rendered ahead while earlier ones are JPEG-encoded
 
 
 def ns(t_s) -> np.ndarray | int:
@@ -287,14 +290,27 @@ class SimSource:
             yield rec
 
     def _images(self) -> Iterator[Record]:
+        """Rendered frames; JPEG encoding (which releases the GIL) runs in a worker thread while
+        the next frames render. Output is identical to encoding inline."""
         s = self.session
         rng = s.rng_for("render_frames")
-        for i, t in enumerate(s.t_cam):
-            t_ns = ns(t)
-            frame = s.render_frame(i, rng)
-            msg = CompressedImage(frame_id=Frame.DISPLAY_CAMERA, format="jpeg", data=s.renderer.encode(frame))
+
+        def record(i: int, jpeg: bytes) -> Record:
+            t_ns = ns(s.t_cam[i])
+            msg = CompressedImage(frame_id=Frame.DISPLAY_CAMERA, format="jpeg", data=jpeg)
             msg.timestamp.FromNanoseconds(t_ns)
-            yield Record(Topic.CAMERA_IMAGE, msg, t_ns, t_ns)
+            return Record(Topic.CAMERA_IMAGE, msg, t_ns, t_ns)
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            pending: deque = deque()
+            for i in range(len(s.t_cam)):
+                pending.append((i, pool.submit(s.renderer.encode, s.render_frame(i, rng))))
+                if len(pending) > IMAGE_LOOKAHEAD:
+                    j, fut = pending.popleft()
+                    yield record(j, fut.result())
+            while pending:
+                j, fut = pending.popleft()
+                yield record(j, fut.result())
 
     @staticmethod
     def _poses(topic: str, frame: str, stamp_s: np.ndarray, log_s: np.ndarray, poses: Pose) -> Iterator[Record]:
