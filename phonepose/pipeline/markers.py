@@ -158,11 +158,14 @@ class MarkerRecognizer:
         return _Detection(push_edges_outward(coarse), "contour")
 
     # ------------------------------------------------------------------ pose
-    def estimate_pose(self, corners: np.ndarray) -> tuple[Pose, float, int, float]:
-        """(T_camera_marker, RMS reprojection error px, chosen IPPE solution, ambiguity ratio)."""
+    def estimate_pose(self, corners: np.ndarray) -> tuple[Pose, float, int, float] | None:
+        """(T_camera_marker, RMS reprojection error px, chosen IPPE solution, ambiguity ratio), or None
+        when PnP finds no solution (e.g. a calibration with absurd distortion)."""
         image_points = np.ascontiguousarray(corners, dtype=np.float64).reshape(4, 1, 2)
         n, rvecs, tvecs, errors = cv2.solvePnPGeneric(self._object_points, image_points, self._K, self._D,
                                                       flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        if not n:
+            return None
         errors = np.asarray(errors, dtype=np.float64).reshape(-1)
         ratio = float(errors[1] / max(errors[0], 1e-12)) if n > 1 else float("inf")
         chosen = 0
@@ -192,7 +195,11 @@ class MarkerRecognizer:
             self._last_corners = None
             return None
         self.stats[detection.stage] += 1
-        T_camera_marker, rms, chosen, ratio = self.estimate_pose(detection.corners)
+        estimate = self.estimate_pose(detection.corners)
+        if estimate is None:
+            self._last_corners = None
+            return None
+        T_camera_marker, rms, chosen, ratio = estimate
         self._last_corners = detection.corners
         self._last_rotation = T_camera_marker.rotation
         self._last_seen_ns = t_ns
