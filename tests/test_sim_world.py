@@ -165,13 +165,14 @@ def test_same_seed_same_world_different_seed_different():
     a, b, c = (SimSession("exp2", "TRI1", 1, seed=k) for k in (5, 5, 6))
     assert np.array_equal(a.T_cam_ctrl.translation, b.T_cam_ctrl.translation)
     assert np.array_equal(a.gyro, b.gyro)
-    assert not np.allclose(a.T_cam_ctrl.translation[: len(c.t_cam)], c.T_cam_ctrl.translation[: len(a.t_cam)])
+    n = min(len(a.t_cam), len(c.t_cam))
+    assert not np.allclose(a.T_cam_ctrl.translation[:n], c.T_cam_ctrl.translation[:n])
 
 
 # ---------------------------------------------------------------- IMU
-def _integrate(gyro: np.ndarray, dt: float, R0: Rotation) -> Rotation:
+def _integrate(gyro: np.ndarray, dts: np.ndarray, R0: Rotation) -> Rotation:
     R = R0
-    for w in gyro:
+    for w, dt in zip(gyro, dts):
         R = R * Rotation.from_rotvec(w * dt)
     return R
 
@@ -180,14 +181,16 @@ def _integrate(gyro: np.ndarray, dt: float, R0: Rotation) -> Rotation:
 def test_imu_integrates_back_to_the_true_orientation_over_1_s(noisy):
     cfg = default_config() if noisy else default_config().replace(imu=NO_ERRORS["imu"])
     s = SimSession("exp2", "TRI1", 1, seed=3, config=cfg)
-    dt = 1.0 / cfg.imu.rate_hz
     i0 = int(np.searchsorted(s.t_imu, s.plan.task_start))   # during the path: the phone turns
-    n = int(round(1.0 / dt))
-    # gyro samples are instantaneous rates: integrate with the midpoint rate of each interval
+    n = int(np.searchsorted(s.t_imu, s.t_imu[i0] + 1.0)) - i0   # 1 s of samples (some may be dropped)
+    assert n > 190
+    # gyro samples are instantaneous rates: integrate with the midpoint rate of each interval,
+    # over the actual sample spacing
     mid = 0.5 * (s.gyro[i0:i0 + n] + s.gyro[i0 + 1:i0 + n + 1])
+    dts = np.diff(s.t_imu[i0:i0 + n + 1])
     R0 = s.traj(s.t_imu[i0:i0 + 1]).rotation[0]
     R1_true = s.traj(s.t_imu[i0 + n:i0 + n + 1]).rotation[0]
-    R1 = _integrate(mid, dt, R0)
+    R1 = _integrate(mid, dts, R0)
     err_deg = np.rad2deg((R1.inv() * R1_true).magnitude())
     turned = np.rad2deg((R0.inv() * R1_true).magnitude())
     assert turned > 2.0       # the test means something: the phone did rotate
@@ -244,3 +247,25 @@ def test_trials_share_the_world_of_a_seed_but_not_the_motion():
     assert a.world.anchor_error_controller.allclose(b.world.anchor_error_controller, atol=0)
     assert a.world.T_world_cvio.allclose(b.world.T_world_cvio, atol=0)
     assert [t.index for t in a.plan.targets] != [t.index for t in b.plan.targets]
+
+
+def test_relocalisation_jumps_step_the_controller_vio():
+    cfg = default_config().replace(controller_vio=dict(jump_rate_per_min=30.0, jump_median_m=0.05, jitter_m=0.0))
+    s = SimSession("exp2", "TRI1", 1, seed=2, config=cfg)
+    err = s.mapped_controller().translation - s.true_controller_in_dvio(s.t_cvio).translation
+    steps = np.linalg.norm(np.diff(err, axis=0), axis=1)
+    jumps = s.cvio_model.jump_times
+    assert len(jumps) >= 3
+    assert np.sum(steps > 0.004) >= len(jumps) // 2      # most jumps show as a step (tiny ones may not)
+    quiet = SimSession("exp2", "TRI1", 1, seed=2, config=default_config().replace(controller_vio=dict(jitter_m=0.0)))
+    q_err = quiet.mapped_controller().translation - quiet.true_controller_in_dvio(quiet.t_cvio).translation
+    assert np.max(np.linalg.norm(np.diff(q_err, axis=0), axis=1)) < 0.004
+
+
+def test_dropped_frames_and_samples():
+    cfg = default_config().replace(camera=dict(drop_rate=0.2), imu=dict(drop_rate=0.1))
+    s = SimSession("exp2", "TRI1", 1, seed=0, config=cfg)
+    full = SimSession("exp2", "TRI1", 1, seed=0)
+    assert 0.7 < len(s.t_cam) / len(full.t_cam) < 0.9
+    assert 0.85 < len(s.t_imu) / len(full.t_imu) < 0.95
+    assert np.max(np.diff(s.t_cam)) > 1.5 / cfg.camera.rate_hz

@@ -38,6 +38,7 @@ class CameraConfig:
     p2: float = _r(-0.05, 0.05)
     k3: float = _r(-0.5, 0.5)
     frame_jitter_s: float = _r(0, 0.01)
+    drop_rate: float = _r(0, 0.5)
     tilt_down_deg: float = _r(-45, 45)
 
 
@@ -76,6 +77,8 @@ class ControllerVioConfig:
     drift_per_path_length: float = _r(0, 0.5)
     yaw_drift_deg_per_sqrt_s: float = _r(0, 5)
     scale_error_sigma: float = _r(0, 0.3)
+    jump_rate_per_min: float = _r(0, 60)
+    jump_median_m: float = _r(0, 2)
     rate_hz: float = _r(1, 120)
 
 
@@ -101,6 +104,7 @@ class NetworkConfig:
 @dataclass(frozen=True)
 class ImuConfig:
     rate_hz: float = _r(50, 1000)
+    drop_rate: float = _r(0, 0.5)
     gyro_noise_density: float = _r(0, 0.01)
     accel_noise_density: float = _r(0, 0.1)
     gyro_bias_sigma: float = _r(0, 0.1)

@@ -80,7 +80,8 @@ class SimSession:
         self.t_cvio = _grid(cv.rate_hz, 0.0, end, r.uniform(0, 1 / cv.rate_hz))
         self.cvio_model = VioErrorModel(
             VioErrorParams(cv.jitter_m, cv.tilt_jitter_deg, cv.tilt_jitter_deg, cv.drift_m_per_sqrt_s,
-                           cv.drift_per_path_length, cv.yaw_drift_deg_per_sqrt_s, cv.scale_error_sigma),
+                           cv.drift_per_path_length, cv.yaw_drift_deg_per_sqrt_s, cv.scale_error_sigma,
+                           cv.jump_rate_per_min, cv.jump_median_m),
             end, rng_for("controller_vio"))
         white_c = rng_for("controller_vio_white").normal(size=(len(self.t_cvio), 6))
         self.T_map = w.T_dvio_anchor_resolved @ w.T_cvio_anchor_resolved.inv()   # cvio -> dvio via the anchors
@@ -127,7 +128,8 @@ class SimSession:
         # ---- IMU
         im = cfg.imu
         r = rng_for("imu_clock")
-        self.t_imu = _grid(im.rate_hz, 0.0, end, r.uniform(0, 1 / im.rate_hz))
+        t = _grid(im.rate_hz, 0.0, end, r.uniform(0, 1 / im.rate_hz))
+        self.t_imu = t[rng_for("imu_drops").random(len(t)) >= im.drop_rate]
         self.gyro, self.accel, self.imu_bias = simulate_imu(traj, self.t_imu, im, rng_for("imu"))
         self.arrive_imu = arrival_times(self.t_imu, net.controller_latency_s, net.wifi_jitter_s, rng_for("wifi_imu"))
 
@@ -150,7 +152,9 @@ class SimSession:
         r = rng_for("camera_clock")
         t = _grid(cam.rate_hz, 0.0, end)
         t = t + r.normal(size=len(t)) * cam.frame_jitter_s
-        self.t_cam = np.maximum.accumulate(np.clip(t, 0.0, end))
+        t = np.maximum.accumulate(np.clip(t, 0.0, end))
+        keep = rng_for("camera_drops").random(len(t)) >= cam.drop_rate
+        self.t_cam = t[keep]
         T_cw = w.T_world_camera.inv()
         self.T_cam_ctrl = T_cw @ traj(self.t_cam)
         self.in_view = marker_in_view(w, self.T_cam_ctrl, cfg.marker.size_m)

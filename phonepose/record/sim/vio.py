@@ -30,6 +30,8 @@ class VioErrorParams:
     drift_per_path_length: float
     yaw_drift_deg_per_sqrt_s: float
     scale_error_sigma: float
+    jump_rate_per_min: float = 0.0       # relocalisation jumps (Poisson)
+    jump_median_m: float = 0.03          # lognormal jump size: median, and 95 % below ~10x the median
 
 
 class VioErrorModel:
@@ -41,6 +43,15 @@ class VioErrorModel:
         steps = rng.normal(size=(n, 4)) * np.sqrt(dt)
         steps[0] = 0.0
         self.rw_pos = np.cumsum(steps[:, :3], axis=0) * params.drift_m_per_sqrt_s
+        # Relocalisation jumps: the estimate steps by a lognormal distance in a random direction.
+        # Drawn from a separate generator so that switching jumps on does not move other draws.
+        jr = np.random.default_rng(rng.integers(1 << 62))
+        n_jumps = jr.poisson(params.jump_rate_per_min * duration_s / 60.0)
+        self.jump_times = np.sort(jr.uniform(0, duration_s, n_jumps))
+        for t_jump in self.jump_times:
+            d = jr.normal(size=3)
+            size = params.jump_median_m * np.exp(jr.normal() * 1.4)
+            self.rw_pos[int(np.ceil(t_jump * GRID_HZ)):] += d / np.linalg.norm(d) * size
         self.rw_yaw = np.cumsum(steps[:, 3]) * np.deg2rad(params.yaw_drift_deg_per_sqrt_s)
         self.drift_dir = rng.normal(size=3)
         self.drift_dir /= np.linalg.norm(self.drift_dir)
