@@ -77,6 +77,24 @@ def _stamp_ns(ts) -> int | None:
     return ns if ns != 0 else None
 
 
+STATIC_TOPICS = (Topic.SESSION_INFO, Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS, Topic.CONTROLLER_MARKER,
+                 Topic.GT_CALIBRATION, Topic.EXPERIMENT_TARGETS, Topic.EXPERIMENT_PATH)
+
+
+def _first_messages(reader: SessionReader, summary) -> dict:
+    """The first message of every static topic the session has, in one pass that stops when all are found
+    (they come first in a session, so this reads the first chunk once instead of once per topic)."""
+    wanted = [t for t in STATIC_TOPICS if summary.has(t)]
+    found: dict = {}
+    if wanted:
+        for m in reader.messages(wanted):
+            if m.topic not in found:
+                found[m.topic] = m.msg
+                if len(found) == len(wanted):
+                    break
+    return found
+
+
 def read_context(reader: SessionReader) -> SessionContext:
     """The SessionContext of an open session; SessionContentError if it cannot be played back."""
     summary = reader.summary()
@@ -86,11 +104,12 @@ def read_context(reader: SessionReader) -> SessionContext:
     if not summary.has(Topic.CONTROLLER_VIO_POSE):
         raise SessionContentError(f"{path}: no controller VIO ({Topic.CONTROLLER_VIO_POSE}); nothing to play back")
     has_images = summary.has(Topic.CAMERA_IMAGE)
+    first = _first_messages(reader, summary).get
 
     camera = _NO_CAMERA
     marker = _NO_MARKER
     if has_images:
-        calib = reader.first(Topic.CAMERA_CALIBRATION)
+        calib = first(Topic.CAMERA_CALIBRATION)
         if calib is None:
             raise SessionContentError(f"{path}: camera images but no camera calibration ({Topic.CAMERA_CALIBRATION})")
         if len(calib.K) != 9:
@@ -99,32 +118,32 @@ def read_context(reader: SessionReader) -> SessionContext:
         D = np.zeros(5)
         d = np.asarray(calib.D, dtype=float)[:5]
         D[: len(d)] = d
-        ext = reader.first(Topic.CAMERA_EXTRINSICS)
+        ext = first(Topic.CAMERA_EXTRINSICS)
         if ext is not None:
             _check_pose(path, f"camera extrinsics ({Topic.CAMERA_EXTRINSICS})", _xyz(ext.translation), _xyzw(ext.rotation))
         T_display_camera = transform_to_pose(ext) if ext is not None else Pose.identity()
         camera = CameraModel(K=np.asarray(calib.K, dtype=float).reshape(3, 3), D=D, width=int(calib.width),
                              height=int(calib.height), T_display_camera=T_display_camera)
-        spec = reader.first(Topic.CONTROLLER_MARKER)
+        spec = first(Topic.CONTROLLER_MARKER)
         if spec is None:
             raise SessionContentError(f"{path}: camera images but no marker spec ({Topic.CONTROLLER_MARKER})")
         _check_marker(path, spec)
         marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
                              T_body_marker=fg_pose(spec.pose_in_body))
     else:
-        spec = reader.first(Topic.CONTROLLER_MARKER)
+        spec = first(Topic.CONTROLLER_MARKER)
         if spec is not None:
             _check_marker(path, spec)
             marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
                                  T_body_marker=fg_pose(spec.pose_in_body))
 
-    gt_calib = reader.first(Topic.GT_CALIBRATION) if summary.has(Topic.GT_CALIBRATION) else None
+    gt_calib = first(Topic.GT_CALIBRATION)
     if gt_calib is not None:
         _check_pose(path, f"ground-truth calibration ({Topic.GT_CALIBRATION})", _xyz(gt_calib.translation),
                     _xyzw(gt_calib.rotation))
-    info = reader.first(Topic.SESSION_INFO) if summary.has(Topic.SESSION_INFO) else None
-    targets = reader.first(Topic.EXPERIMENT_TARGETS) if summary.has(Topic.EXPERIMENT_TARGETS) else None
-    path_spec = reader.first(Topic.EXPERIMENT_PATH) if summary.has(Topic.EXPERIMENT_PATH) else None
+    info = first(Topic.SESSION_INFO)
+    targets = first(Topic.EXPERIMENT_TARGETS)
+    path_spec = first(Topic.EXPERIMENT_PATH)
     task_start = task_end = None
     if info is not None:
         task_start = _stamp_ns(info.task_start)
