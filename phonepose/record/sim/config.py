@@ -57,7 +57,7 @@ class RenderConfig:
 class MarkerConfig:
     dictionary: str = _choice("DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_5X5_50", "DICT_6X6_250")
     id: int = _r(0, 49)
-    size_m: float = _r(0.01, 0.065)
+    size_m: float = _r(0.01, 0.05)   # the marker and its quiet zone must fit on the 67 mm wide screen
 
 
 @dataclass(frozen=True)
