@@ -374,6 +374,16 @@ def test_bad_samples_are_reported_and_skipped(good, clean_run, tmp_path, cid, wh
 
 
 # ----------------------------------------------------------------------------- docs table
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _code(text: str) -> str:
+    """A markdown code span that may itself contain backticks and pipes."""
+    text = text.replace("|", "\\|")
+    return f"`` {text} ``" if "`" in text else f"`{text}`"
+
+
 def markdown_table(tmp: Path) -> str:
     """Run every case and print what the user sees (paths shortened), for docs/reliability.md."""
     import contextlib
@@ -398,10 +408,10 @@ def markdown_table(tmp: Path) -> str:
         line = err.getvalue().strip().replace(str(d) + "/", "").replace(str(tmp) + "/", "").replace(str(d), "DIR")
         if len(line) > 160:
             line = line[:157] + "..."
-        rows.append(f"| {case.what} | `{argv[0]}` | {code} | `{line}` |")
+        rows.append(f"| {_cell(case.what)} | `{argv[0]}` | {code} | {_code(line)} |")
     for cid, what, fn, message in WARNING_CASES:
         msg = message.replace("\\(", "(").replace("\\)", ")")
-        rows.append(f"| {what} | `playback` | 0 | `phonepose: warning: {msg}` (samples skipped) |")
+        rows.append(f"| {_cell(what)} | `playback` | 0 | {_code('phonepose: warning: ' + msg)} (samples skipped) |")
     return "\n".join(rows)
 
 
