@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from phonepose.cli import app
@@ -53,7 +54,7 @@ def sim(
     t0 = time.perf_counter()
     with Progress(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),
                   TextColumn("{task.fields[seconds]}"), TimeElapsedColumn(),
-                  transient=True, disable=quiet) as bar:
+                  transient=True, disable=quiet, console=Console(stderr=True)) as bar:
         task = bar.add_task(str(out), total=None, seconds="")
 
         def progress(done_ns: int, total_ns: int | None) -> None:
