@@ -209,7 +209,18 @@ def test_rrd_read_back(session, tmp_path, monkeypatch):
     assert "Scalars:scalars" in found["/errors/T1/rotation_deg"]["columns"]
     import rerun.chunk as rc
 
-    assert len(rc.RrdReader(str(rrd)).blueprints()) == 1
+    reader = rc.RrdReader(str(rrd))
+    assert len(reader.blueprints()) == 1
+    # the default blueprint: 3D view of /world, the camera view, one error plot per quantity
+    values = []
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        for n in batch.schema.names:
+            if n in ("ViewBlueprint:space_origin", "ViewContents:query"):
+                values += [str(v) for v in batch.column(n).to_pylist()]
+    text = " ".join(values)
+    assert "'/world'" in text and f"'{paths.IMAGE}'" in text
+    assert "/errors/T1/position_m" in text and "/errors/T7/rotation_deg" in text
 
 
 @pytest.mark.slow

@@ -77,9 +77,9 @@ def default_blueprint(tracker_names: list[str]) -> rrb.Blueprint:
             rrb.Vertical(
                 rrb.Spatial2DView(name="display camera", origin=IMAGE),
                 rrb.TimeSeriesView(name="position error (m)", origin=ERRORS,
-                                   contents=[f"{ERRORS}/*/position_m"]),
+                                   contents=[f"{ERRORS}/{n}/position_m" for n in tracker_names]),
                 rrb.TimeSeriesView(name="rotation error (deg)", origin=ERRORS,
-                                   contents=[f"{ERRORS}/*/rotation_deg"]),
+                                   contents=[f"{ERRORS}/{n}/rotation_deg" for n in tracker_names]),
                 row_shares=[3, 2, 2],
             ),
             column_shares=[3, 2],
