@@ -57,8 +57,10 @@ class RerunLogger:
                 if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
                     raise OutputError(f"cannot write {rrd_path}: directory {parent} does not exist or is not writable")
                 self.rec.save(rrd_path)
-        except RuntimeError as exc:   # rerun reports sink failures as RuntimeError
-            raise OutputError(f"cannot start Rerun logging ({rrd_path or 'viewer'}): {exc}") from None
+        except (RuntimeError, OSError) as exc:   # rerun reports sink failures as RuntimeError
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            hint = "; save a recording with --rerun FILE.rrd instead" if spawn else ""
+            raise OutputError(f"cannot start Rerun logging ({rrd_path or 'viewer'}): {first}{hint}") from None
         self.rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._anchors: dict[str, Pose] = {}
         # High-rate streams (poses, IMU) are sent as columns every BATCH_NS of log time: one
