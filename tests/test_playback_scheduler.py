@@ -254,3 +254,20 @@ def test_start_past_the_end_is_a_config_error(session):
 
     with pytest.raises(ConfigError, match="select no tick"):
         ticks_of(session, start_s=5.0)
+
+
+def test_buffers_stay_small_over_a_long_pass(tmp_path, monkeypatch):
+    """One streaming pass: the pose buffers hold a few samples, never the whole stream."""
+    p = tmp_path / "long.mcap"
+    write_streams(p, duration_ms=6000)
+    sizes = []
+    original = PoseStream.add
+
+    def add(self, t_ns, pose):
+        original(self, t_ns, pose)
+        sizes.append(len(self.times))
+
+    monkeypatch.setattr(PoseStream, "add", add)
+    ticks, _ = ticks_of(p)
+    assert len(ticks) == 120 and len(sizes) > 900     # 600 GT + 150 controller + 200 display samples
+    assert max(sizes) <= 12                             # about one tick period of the 100 Hz GT
