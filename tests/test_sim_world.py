@@ -269,3 +269,20 @@ def test_dropped_frames_and_samples():
     assert 0.7 < len(s.t_cam) / len(full.t_cam) < 0.9
     assert 0.85 < len(s.t_imu) / len(full.t_imu) < 0.95
     assert np.max(np.diff(s.t_cam)) > 1.5 / cfg.camera.rate_hz
+
+
+def test_imu_noise_and_bias_have_the_configured_size():
+    still = default_config().replace(human=dict(tremor_m=0.0, tremor_deg=0.0, sway_m=0.0, sway_deg=0.0),
+                                     imu=dict(gyro_bias_random_walk=0.0, accel_bias_random_walk=0.0, drop_rate=0.0))
+    s = SimSession("exp1", None, 1, seed=0, config=still)
+    im = still.imu
+    # the first hold of exp1 lasts 5 s: the phone is perfectly still
+    t0 = s.plan.targets[0].hold_start
+    sel = (s.t_imu > t0 + 0.1) & (s.t_imu < t0 + 4.9)
+    gyro, accel = s.gyro[sel], s.accel[sel]
+    sigma_g = im.gyro_noise_density * np.sqrt(im.rate_hz)
+    sigma_a = im.accel_noise_density * np.sqrt(im.rate_hz)
+    assert np.allclose(gyro.std(axis=0), sigma_g, rtol=0.15)
+    assert np.allclose(accel.std(axis=0), sigma_a, rtol=0.15)
+    g_bias, _ = s.imu_bias
+    assert np.allclose(gyro.mean(axis=0), g_bias[0], atol=4 * sigma_g / np.sqrt(sel.sum()))
