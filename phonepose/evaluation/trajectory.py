@@ -9,6 +9,7 @@ nanoseconds divided by 1e9), so that stamps compare bit for bit with theirs.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,9 @@ from phonepose.errors import ConfigError, InputFileError, OutputError
 from phonepose.geometry import Pose
 
 FORMATS = ("tum", "euroc", "kitti")
+QUAT_NORM_TOL = 1e-3   # as playback: a quaternion further than this from unit length is skipped, not normalised
+
+log = logging.getLogger("phonepose")
 
 
 @dataclass(frozen=True)
@@ -106,11 +110,34 @@ def _poses_from_xyzw(path, lines_offset, xyz, quat_xyzw) -> Pose:
     return Pose.from_xyzw(xyz, quat_xyzw)
 
 
+def _drop_bad_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """Rows to keep: those with a unit quaternion (within QUAT_NORM_TOL); the others are skipped.
+
+    Duplicate or backwards stamps are reported but kept: evo and rpg use them as they are (real
+    datasets have some, e.g. EuRoC V102), and our numbers must equal theirs (docs/evaluation.md).
+    Each is one warning line (docs/reliability.md).
+    """
+    norms = np.linalg.norm(quat_xyzw, axis=1)
+    keep = np.abs(norms - 1.0) <= QUAT_NORM_TOL
+    n_quat = int(np.count_nonzero(~keep))
+    n_time = int(np.count_nonzero(np.diff(stamps[keep]) <= 0))
+    if n_quat:
+        log.warning("phonepose: warning: %s: %d pose(s) skipped: non-unit quaternion", path, n_quat)
+    if n_time:
+        log.warning("phonepose: warning: %s: %d duplicate or non-monotonic timestamp(s), used as evo/rpg do",
+                    path, n_time)
+    if not keep.any():
+        raise InputFileError(f"{path}: no usable poses (every quaternion is off unit length)")
+    return keep
+
+
 def load_tum(path) -> Trajectory:
     """TUM: ``t tx ty tz qx qy qz qw`` per line, time in seconds, quaternion w last."""
     m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'")
     if m.shape[1] != 8:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 8 (TUM 't tx ty tz qx qy qz qw')")
+    _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the pose
+    m = m[_drop_bad_rows(path, m[:, 0], m[:, 4:8])]
     return Trajectory(m[:, 0].copy(), _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8]), str(path))
 
 
@@ -118,6 +145,9 @@ def load_euroc(path) -> Trajectory:
     """EuRoC/ASL csv: ``t[ns], px, py, pz, qw, qx, qy, qz[, ...]`` (as evo: stamps = t / 1e9)."""
     m = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'")
     quat_xyzw = m[:, [5, 6, 7, 4]]
+    _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the pose
+    keep = _drop_bad_rows(path, m[:, 0], quat_xyzw)
+    m, quat_xyzw = m[keep], quat_xyzw[keep]
     return Trajectory(np.divide(m[:, 0], 1e9), _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw), str(path))
 
 
