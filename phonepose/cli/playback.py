@@ -73,6 +73,7 @@ def playback(
                               progress=progress)
     Console().print(metrics_table(result.metrics))
     if not result.has_gt:
-        typer.echo("no ground truth in this session: accuracy metrics are unavailable (null in metrics.json)")
+        typer.echo("no usable ground truth (needs /gt/controller/pose and /gt/calibration within the task window): "
+                   "accuracy metrics are unavailable (null in metrics.json)")
     typer.echo(f"{result.n_ticks} ticks in {result.wall_s:.1f} s -> {result.out_dir}"
                + (f", rerun: {result.rerun_path}" if result.rerun_path else ""))
