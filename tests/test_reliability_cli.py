@@ -420,3 +420,32 @@ if __name__ == "__main__":
 
     with tempfile.TemporaryDirectory() as t:
         print(markdown_table(Path(t)))
+
+
+def test_evaluate_reports_bad_rows(clean_run, tmp_path):
+    """Trajectory files: a non-unit quaternion row is skipped and reported; duplicate stamps are reported."""
+    import json
+
+    gt = clean_run / "groundtruth.tum"
+    est = clean_run / "trajectories" / "T1.tum"
+    ok = _subprocess("evaluate", "--gt", str(gt), "--est", str(est), "--json")
+    assert ok.returncode == 0 and ok.stderr == ""
+    n = json.loads(ok.stdout)["n_matched"]
+    lines = est.read_text().splitlines()
+    rows = [i for i, line in enumerate(lines) if not line.startswith("#")]
+    bad = list(lines)
+    parts = bad[rows[5]].split()
+    parts[7] = "5.0"                                  # qw = 5: |q| far from 1
+    bad[rows[5]] = " ".join(parts)
+    (tmp_path / "q.tum").write_text("\n".join(bad) + "\n")
+    r = _subprocess("evaluate", "--gt", str(gt), "--est", str(tmp_path / "q.tum"), "--json")
+    assert r.returncode == 0
+    assert r.stderr.strip() == f"phonepose: warning: {tmp_path / 'q.tum'}: 1 pose(s) skipped: non-unit quaternion"
+    assert json.loads(r.stdout)["n_matched"] == n - 1
+    dup = list(lines)
+    dup.insert(rows[3], lines[rows[3]])
+    (tmp_path / "d.tum").write_text("\n".join(dup) + "\n")
+    r = _subprocess("evaluate", "--gt", str(gt), "--est", str(tmp_path / "d.tum"), "--json")
+    assert r.returncode == 0
+    assert r.stderr.strip() == (f"phonepose: warning: {tmp_path / 'd.tum'}: 1 duplicate or non-monotonic "
+                                "timestamp(s), used as evo/rpg do")
