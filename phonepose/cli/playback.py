@@ -12,6 +12,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.errors import ConfigError
+from phonepose.schemas.topics import Topic
 
 
 def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
@@ -73,7 +74,7 @@ def playback(
                               progress=progress)
     Console().print(metrics_table(result.metrics))
     if not result.has_gt:
-        typer.echo("no usable ground truth (needs /gt/controller/pose and /gt/calibration within the task window): "
-                   "accuracy metrics are unavailable (null in metrics.json)")
+        typer.echo(f"no usable ground truth (needs {Topic.GT_CONTROLLER_POSE} and {Topic.GT_CALIBRATION} within the "
+                   "task window): accuracy metrics are unavailable (null in metrics.json)")
     typer.echo(f"{result.n_ticks} ticks in {result.wall_s:.1f} s -> {result.out_dir}"
                + (f", rerun: {result.rerun_path}" if result.rerun_path else ""))
