@@ -18,10 +18,12 @@ from phonepose.session import SessionReader
 def info(
     file: Path = typer.Argument(..., help="Session file (.mcap)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
+    verify: bool = typer.Option(False, "--verify", help="Also read every chunk and check its CRC."),
 ) -> None:
     """Channels, schemas, message counts, duration and start time of a session."""
     with SessionReader(file) as reader:
         s = reader.summary()
+        chunks = reader.verify(deep=verify)   # damaged chunks: one error line pointing to `recover`
     start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.timezone.utc).isoformat() if s.message_count else None
     if as_json:
         typer.echo(json.dumps({
@@ -37,3 +39,5 @@ def info(
     for c in s.channels:
         table.add_row(c.topic, c.schema, c.encoding, str(c.count))
     console.print(table)
+    if verify:
+        typer.echo(f"verified: {chunks} chunks intact (CRC checked)")

@@ -113,6 +113,28 @@ class SessionReader:
             message_count=stats.message_count if stats else 0,
         )
 
+    def verify(self, deep: bool = False) -> int:
+        """Check the chunks the index lists; DamagedFileError (pointing to recover) if one is not intact.
+
+        Shallow (cheap, a few bytes per chunk): every chunk record is where the index says, with
+        the length it says. ``deep``: also decompress every chunk and check its CRC. Returns the
+        number of chunks checked.
+        """
+        chunks = sorted(self._summary_record.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        size = os.fstat(self._file.fileno()).st_size
+        for ci in chunks:
+            self._file.seek(ci.chunk_start_offset)
+            head = self._file.read(9)
+            ok = (len(head) == 9 and head[0] == 0x06 and ci.chunk_start_offset + ci.chunk_length <= size
+                  and int.from_bytes(head[1:9], "little") == ci.chunk_length - 9)
+            if not ok:
+                raise DamagedFileError(f"{self.path}: damaged MCAP file (chunk at byte {ci.chunk_start_offset} is not "
+                                       f"where the index says); run `phonepose recover {self.path} --out FIXED.mcap`")
+        if deep:
+            for _ in self.raw_messages():
+                pass
+        return len(chunks)
+
     def topics(self) -> set[str]:
         return {ch.topic for ch in self._summary_record.channels.values()}
 
