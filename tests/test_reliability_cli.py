@@ -130,6 +130,18 @@ def _truncate(src: Path, dst: Path) -> Path:
     return dst
 
 
+def _zero_chunk_header(src: Path, dst: Path) -> Path:
+    from mcap.reader import make_reader
+
+    with open(src, "rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    b = bytearray(src.read_bytes())
+    at = chunks[len(chunks) // 2].chunk_start_offset
+    b[at:at + 20] = bytes(20)
+    dst.write_bytes(bytes(b))
+    return dst
+
+
 def _corrupt_middle(src: Path, dst: Path) -> Path:
     b = bytearray(src.read_bytes())
     for k in range(100):
@@ -176,6 +188,12 @@ CASES = [
     Case("corrupt-chunk", "flipped bits inside a chunk, `playback` (info still reads the summary)",
          lambda g, d: ["playback", str(_corrupt_middle(g, d / "bad.mcap")), "-q", "--out", str(d / "o")], 3,
          r"bad\.mcap: damaged MCAP data \((CRCValidationError|ZstdError)\); run `phonepose recover"),
+    Case("corrupt-chunk-info", "flipped bits inside a chunk, `info --verify` (plain `info` reads only the summary)",
+         lambda g, d: ["info", "--verify", str(_corrupt_middle(g, d / "bad.mcap"))], 3,
+         r"bad\.mcap: damaged MCAP data \((CRCValidationError|ZstdError)\); run `phonepose recover"),
+    Case("chunk-header-info", "a chunk's header overwritten, `info` (checks every chunk is where the index says)",
+         lambda g, d: ["info", str(_zero_chunk_header(g, d / "hdr.mcap"))], 3,
+         r"hdr\.mcap: damaged MCAP file \(chunk at byte \d+ is not where the index says\); run `phonepose recover"),
     Case("empty-session", "valid MCAP without messages",
          lambda g, d: ["playback", str(_empty(g, d)), "-q", "--out", str(d / "o")], 4,
          r"empty\.mcap: empty session \(no messages\)$"),
