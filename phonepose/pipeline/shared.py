@@ -43,6 +43,7 @@ class SharedStages:
         self._last_image_t_ns: int | None = None
         self._last_marker: MarkerObservation | None = None
         self.frames_decoded = 0
+        self.frames_undecodable = 0   # reported once by the caller (docs/reliability.md)
 
     def _recognize(self, tick: Tick) -> MarkerObservation | None:
         if tick.image is None:
@@ -54,7 +55,9 @@ class SharedStages:
         gray = decode_gray(tick.image)
         self.frames_decoded += 1
         marker = None
-        if gray is not None:
+        if gray is None:
+            self.frames_undecodable += 1
+        else:
             t_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
             marker = self.recognizer.recognize(gray, tick.T_dvio_display, t_ns)
         self._last_image_t_ns = tick.image_t_ns

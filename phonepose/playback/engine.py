@@ -198,9 +198,14 @@ class PlaybackEngine:
         if self.writer is not None:
             if tick.image is not None and tick.image_is_new:
                 self.writer.write(Topic.PIPELINE_MARKERS, _detections_message(self.stages, obs), tick.t_ns)
+            encoded: dict[int, tuple] = {}   # trackers often return the very same Pose object (e.g. the marker's)
             for name, pose in poses.items():
                 if pose is not None:
-                    self.writer.write(self._topics[name], _pose_in_display_vio(pose, tick.t_ns), tick.t_ns)
+                    hit = encoded.get(id(pose))
+                    if hit is None:
+                        msg = _pose_in_display_vio(pose, tick.t_ns)
+                        hit = encoded[id(pose)] = (msg, msg.SerializeToString())
+                    self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
         if self.rerun_logger is not None:
             self.rerun_logger.log_tick(tick, obs, poses)
         return obs, poses
@@ -297,6 +302,12 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
                 writer.finish()
             if logger is not None:
                 logger.close()
+    undecodable = getattr(stages, "frames_undecodable", 0)
+    if undecodable:
+        import logging
+        logging.getLogger("phonepose").warning(
+            "phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
+            Topic.CAMERA_IMAGE, undecodable)
     trajs = engine.trajectories()
     per_tracker = engine.metrics()
     gt_stamps = engine.gt.stamps()
