@@ -124,6 +124,10 @@ def _size0(m):
     m.size_m = 0.0
 
 
+def _garbage_image(m):
+    m.data = b"this is not a jpeg"
+
+
 def _truncate(src: Path, dst: Path) -> Path:
     data = src.read_bytes()
     dst.write_bytes(data[: len(data) // 2])
@@ -370,6 +374,8 @@ WARNING_CASES = [
      r"/controller/vio/pose: 12 sample\(s\) skipped: duplicate or non-monotonic timestamp"),
     ("bad-quaternions", "controller VIO with NaN / |q| = 5 / inf position in every other sample",
      _bad_quaternions(), r"/controller/vio/pose: 30 sample\(s\) skipped: NaN/inf value or non-unit quaternion"),
+    ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
+     r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
 ]
 
 
