@@ -33,21 +33,19 @@ def exp2_summary_tables(result) -> list[Table]:
     for tracker, d in by.items():
         t5.add_row(tracker, *[f"{_f(d[k]['average'], d[k]['scale'])} / {d[k]['paper']}"
                               for k in ("p_ate_m", "r_ate_deg", "p_re_m")])
-    t6 = Table(title="Table 6 (TRI2 + REC2): ours / paper, average of 6 sequences")
+    t6 = Table(title="Table 6 (TRI2 + REC2, average of the sequences): ours / paper")
     t6.add_column("tracker", style="bold")
-    for scope in ("inside", "outside", "total"):
-        for label in ("p_ATE", "r_ATE", "p_RE"):
-            t6.add_column(f"{scope[:3]} {label}", justify="right")
+    t6.add_column("scope")
+    for label in ("p_ATE cm", "r_ATE deg", "p_RE cm"):
+        t6.add_column(label, justify="right")
     rows6 = {}
     for r in result.table6:
         rows6.setdefault(r["tracker"], {})[(r["scope"], r["key"])] = r
     for tracker, d in rows6.items():
-        cells = []
-        for scope in ("inside", "outside", "total"):
-            for k in ("p_ate_m", "r_ate_deg", "p_re_m"):
-                r = d[(scope, k)]
-                cells.append(f"{_f(r['average'], r['scale'])}/{r['paper']}")
-        t6.add_row(tracker, *cells)
+        for i, scope in enumerate(("inside", "outside", "total")):
+            cells = [f"{_f(d[(scope, k)]['average'], d[(scope, k)]['scale'])} / {d[(scope, k)]['paper']}"
+                     for k in ("p_ate_m", "r_ate_deg", "p_re_m")]
+            t6.add_row(tracker if i == 0 else "", scope, *cells, end_section=scope == "total")
     return [t5, t6]
 
 
