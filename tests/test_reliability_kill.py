@@ -85,6 +85,13 @@ def test_sigkill_at_random_moments_loses_at_most_a_second(complete, tmp_path):
                         round(lost_s, 3), report.chunks_skipped))
         assert lost_s <= 1.0 + PROGRESS_EVERY_S + 0.02, results[-1]
     print("SIGKILL (target s, recovered, complete, lost >= s, lost <= s, damaged chunks):", results)
+    # the recovered recording is a normal session again: it plays back
+    r = subprocess.run([sys.executable, "-m", "phonepose", "playback", str(fixed), "-q", "-t", "T1", "-t", "T7",
+                        "--out", str(tmp_path / "playback")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    ticks = int(r.stdout.split(" ticks in ")[0].split()[-1])
+    assert ticks >= 20 * (recovered_s - 1.0)          # a tick every 50 ms over what was recovered
+    assert (tmp_path / "playback" / "metrics.json").exists()
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
