@@ -15,8 +15,11 @@ def demo(
     out: Path = typer.Option(Path("phonepose-demo"), "--out", "-o", help="Output directory."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated session."),
 ) -> None:
-    """Record a simulated TRI2 session (partly outside the camera's view), replay it through
-    T1-T7, print the metrics, and save trajectories, a Fig. 11 plot and a Rerun recording."""
+    """Record a simulated TRI2 session, replay it through T1-T7, print the metrics, save a plot and a .rrd.
+
+    The session follows the paper's path TRI2 (partly outside the display camera's view). Outputs
+    go to --out: the session, TUM trajectories and metrics.json, a Fig. 11-style plot, demo.rrd.
+    """
     from phonepose.cli.playback import metrics_table
     from phonepose.experiments.exp2 import plot_sequence
     from phonepose.playback.engine import run_playback
