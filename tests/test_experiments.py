@@ -119,3 +119,17 @@ def test_experiment_bad_options_are_one_line():
     assert r.returncode == 5 and "--trials must be 1..3" in r.stderr and "Traceback" not in r.stderr
     r = run("experiment", "exp2", "--correction-math", "quaternion")
     assert r.returncode == 5 and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+def test_demo_runs_with_no_arguments_and_leaves_its_outputs(tmp_path):
+    r = run("demo", cwd=tmp_path)   # the README's first command, with its default output directory
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "phonepose-demo"
+    metrics = json.loads((out / "playback" / "metrics.json").read_text())
+    assert list(metrics["trackers"]) == paper.TRACKERS
+    assert metrics["trackers"]["T7"]["outside"]["frames"] > 0          # TRI2 leaves the view
+    assert metrics["trackers"]["T4"]["inside"]["p_ate_m"] < metrics["trackers"]["T1"]["inside"]["p_ate_m"]
+    assert sorted(p.name for p in (out / "playback" / "trajectories").iterdir()) == [f"{t}.tum" for t in paper.TRACKERS]
+    assert (out / "demo.rrd").stat().st_size > 100_000 and (out / "fig11_TRI2_01.png").exists()
+    assert "rerun " in r.stdout and "demo.rrd" in r.stdout
