@@ -204,8 +204,10 @@ class _Salvager:
         self.report = report
         self.schemas: dict[int, tuple[str, str, bytes]] = {}
         self.channels: dict[int, tuple[int, str, str, dict]] = {}
-        # (chunk start, chunk end, [(cid, seq, log, pub, data)]) of every good chunk, in file order
-        self.chunks: list[tuple[int, int, list]] = []
+        # every good chunk, in file order: (record start, record end, {channel id: (count, t_min, t_max)},
+        # t_min, t_max). Its messages are not kept: _write decompresses each chunk again, so memory
+        # stays at one chunk whatever the size of the file.
+        self.chunks: list[tuple[int, int, dict, int | None, int | None]] = []
         self.loose: list = []   # messages outside chunks (unchunked writers)
         self.metadata: list[tuple[str, dict]] = []
         self.bad_regions: list[tuple[int, int, int | None, int | None]] = []  # (from, to, t0, t1)
@@ -241,6 +243,20 @@ class _Salvager:
         return end
 
     def chunk(self, start: int, end: int) -> None:
+        msgs, schemas, channels = self.parse_chunk(start, end)
+        for k, v in schemas.items():
+            self.schemas.setdefault(k, v)
+        for k, v in channels.items():
+            self.channels.setdefault(k, v)
+        per_channel: dict[int, tuple[int, int, int]] = {}
+        for cid, _, log_time, _, _ in msgs:
+            n, lo, hi = per_channel.get(cid, (0, log_time, log_time))
+            per_channel[cid] = (n + 1, min(lo, log_time), max(hi, log_time))
+        times = [m[2] for m in msgs]
+        self.chunks.append((start - 9, end, per_channel, min(times) if times else None, max(times) if times else None))
+
+    def parse_chunk(self, start: int, end: int):
+        """(messages, schemas, channels) of the chunk record body [start, end); _Bad unless wholly intact."""
         t0, t1, usize, crc, comp, doff, dlen = _chunk_header(self.b, start, end)
         data = _decompress(comp, self.b[doff:doff + dlen], usize)
         if crc and zlib.crc32(data) != crc:
@@ -263,11 +279,7 @@ class _Salvager:
                 cid, sid, topic, enc, meta = _channel(data, s, e)
                 channels[cid] = (sid, topic, enc, meta)
             p = e
-        for k, v in schemas.items():
-            self.schemas.setdefault(k, v)
-        for k, v in channels.items():
-            self.channels.setdefault(k, v)
-        self.chunks.append((start - 9, end, msgs))
+        return msgs, schemas, channels
 
     def _plausible_chunk_at(self, pos: int) -> bool:
         b, n = self.b, self.n
@@ -381,19 +393,18 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike) -> RecoveryReport:
 
 def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
     counts: dict[str, int] = {}
-    kept = []  # (cid, seq, log, pub, data) in file order
     t_min = t_max = None
-    for _, _, msgs in sal.chunks:
-        kept.extend(msgs)
-    kept.extend(sal.loose)
-    for m in kept:
-        topic = _topic_of(sal.channels, m[0])
-        if topic is None:
-            report.orphan_messages += 1
-            continue
-        counts[topic] = counts.get(topic, 0) + 1
-        t_min = m[2] if t_min is None else min(t_min, m[2])
-        t_max = m[2] if t_max is None else max(t_max, m[2])
+    stats = [per_channel for _, _, per_channel, _, _ in sal.chunks]
+    stats += [{m[0]: (1, m[2], m[2])} for m in sal.loose]
+    for per_channel in stats:
+        for cid, (n, lo, hi) in per_channel.items():
+            topic = _topic_of(sal.channels, cid)
+            if topic is None:
+                report.orphan_messages += n
+                continue
+            counts[topic] = counts.get(topic, 0) + n
+            t_min = lo if t_min is None else min(t_min, lo)
+            t_max = hi if t_max is None else max(t_max, hi)
     report.chunks_recovered = len(sal.chunks)
     report.metadata_records = len(sal.metadata)
     report.start_ns, report.end_ns = t_min, t_max
@@ -421,10 +432,15 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
                     schema_ids[sid] = w.register_schema(name=name, encoding=senc, data=data)
                 channel_ids[cid] = w.register_channel(topic=topic, message_encoding=enc,
                                                       schema_id=schema_ids.get(sid, 0), metadata=meta)
-            for cid, seq, log, pub, data in kept:
-                new = channel_ids.get(cid)
-                if new is not None:
-                    w.add_message(channel_id=new, log_time=log, data=data, publish_time=pub, sequence=seq)
+            def write(msgs):
+                for cid, seq, log, pub, data in msgs:
+                    new = channel_ids.get(cid)
+                    if new is not None:
+                        w.add_message(channel_id=new, log_time=log, data=data, publish_time=pub, sequence=seq)
+
+            for start, end, _, _, _ in sal.chunks:   # one chunk in memory at a time
+                write(sal.parse_chunk(start + 9, end)[0])
+            write(sal.loose)
             for name, meta in sal.metadata:
                 w.add_metadata(name, meta)
             w.finish()
@@ -446,12 +462,7 @@ def _account_losses(sal: _Salvager, report: RecoveryReport) -> None:
     span its surviving chunk header tells (unknown when that header is gone too).
     """
     report.bytes_unreadable = sum(e - s for s, e, _, _ in sal.bad_regions)
-    good = []
-    for s, e, msgs in sal.chunks:
-        if msgs:
-            ts = [m[2] for m in msgs]
-            good.append((s, e, min(ts), max(ts)))
-    good.sort()
+    good = sorted((s, e, lo, hi) for s, e, _, lo, hi in sal.chunks if lo is not None)
     for s, e, t0, t1 in sal.bad_regions:
         before = [c for c in good if c[1] <= s]
         after = [c for c in good if c[0] >= e]
