@@ -473,3 +473,26 @@ def test_evaluate_reports_bad_rows(clean_run, tmp_path):
     assert r.returncode == 0
     assert r.stderr.strip() == (f"phonepose: warning: {tmp_path / 'd.tum'}: 1 duplicate or non-monotonic "
                                 "timestamp(s), used as evo/rpg do")
+
+
+def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
+    """A read-only mount (root with mount permission only): playback, record and recover say so in one line."""
+    import os
+
+    mnt = tmp_path / "ro"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mnt)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a read-only tmpfs here")
+    try:
+        for argv, pattern in [
+            (["playback", str(good), "-q", "-t", "T1", "--out", str(mnt / "out")],
+             r"cannot create output directory .*ro/out: Read-only file system$"),
+            (["recover", str(good), "--out", str(mnt / "fixed.mcap")], r"cannot write .*Read-only file system$"),
+            (["record", "sim", "-q", "--out", str(mnt / "s.mcap")], r"cannot write .*s\.mcap: Read-only file system$"),
+        ]:
+            code, _, err = run_inprocess(argv, capsys)
+            assert code == 6, err
+            assert len(err.strip().splitlines()) == 1 and re.search(pattern, err.strip()), err
+    finally:
+        subprocess.run(["umount", str(mnt)], check=False)
