@@ -51,13 +51,35 @@ def error(message: str, code: int = 1) -> None:
     sys.exit(code)
 
 
+def _usage_error(exc) -> None:
+    """A typer/click usage error as one line: a bad option value is exit 5 (as ConfigError), the rest 2."""
+    from typer._click.exceptions import BadParameter, MissingParameter, NoArgsIsHelpError
+
+    if isinstance(exc, NoArgsIsHelpError):   # typer has already printed the help
+        sys.exit(exc.exit_code)
+    ctx = getattr(exc, "ctx", None)
+    where = f"{ctx.command_path}: " if ctx is not None and ctx.command_path != "phonepose" else ""
+    hint = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
+    message = " ".join(exc.format_message().split())
+    code = 5 if isinstance(exc, BadParameter) and not isinstance(exc, MissingParameter) else exc.exit_code
+    error(f"{where.removeprefix('phonepose ')}{message}{hint}", code)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the console script: usage errors are typer's, everything else one line."""
+    """Entry point of the console script: every error is one line on stderr and its exit code."""
+    from typer._click.exceptions import ClickException
+    from typer.exceptions import Abort
+
     try:
-        app(args=argv)
+        rv = app(args=argv, standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
-    except KeyboardInterrupt:
+    except ClickException as exc:
+        _usage_error(exc)
+    except (KeyboardInterrupt, Abort):
         error("interrupted", 130)
     except BrokenPipeError:
         sys.exit(0)
+    except OSError as exc:   # an OS failure no module turned into a PhoneposeError: still one line
+        error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
+    sys.exit(rv if isinstance(rv, int) and not isinstance(rv, bool) else 0)
