@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
     from typer.exceptions import Abort
 
     try:
-        rv = app(args=argv, standalone_mode=False)
+        rv = app(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
     except ClickException as exc:
