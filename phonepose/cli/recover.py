@@ -43,7 +43,8 @@ def report_lines(r: RecoveryReport) -> list[str]:
     if r.orphan_messages:
         lines.append(f"  {r.orphan_messages} messages dropped: their channel definition was in a lost chunk")
     if not r.had_summary:
-        lines.append("  the file had no summary (recording interrupted?): anything not yet written to disk is gone")
+        lines.append("  the file ends before its footer (recording interrupted or file cut): "
+                     "anything not yet written to disk is gone")
     return lines
 
 
