@@ -9,6 +9,7 @@ quaternion, or raise a PhoneposeError. Nothing else may come out, and nothing no
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -22,7 +23,8 @@ from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import MarkerObservation, Observation, Tick
 from phonepose.schemas import phonepose_pb2 as pb
 
-FUZZ = settings(max_examples=150, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_EXAMPLES", "150")), deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow])
 
 SPECIAL = st.sampled_from([math.nan, math.inf, -math.inf, 0.0, 1e300, -1e-300])
 NUMBER = st.one_of(st.floats(-10, 10, allow_nan=False), SPECIAL)
