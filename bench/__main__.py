@@ -2,31 +2,89 @@
 
 Each ``bench/bench_<name>.py`` has ``main() -> dict`` that measures our code next to its
 floor or the tool a user would pick instead, in the same run, and prints ratios (machines
-are shared and noisy: compare within a run, never across runs). Figures go to
-docs/performance.md.
+are shared and noisy: compare within a run, never across runs). At the end, one table of
+every figure against its target; everything goes to bench/results.json, and the figures of a
+recent run to docs/performance.md.
 """
 
 from __future__ import annotations
 
 import importlib
 import json
+import os
 import pathlib
 import platform
 import sys
+import time
+
+
+def machine() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    out = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
+    for mod, attr in (("numpy", "__version__"), ("cv2", "__version__"), ("scipy", "__version__"), ("mcap", "__version__")):
+        try:
+            out[mod] = getattr(importlib.import_module(mod), attr)
+        except Exception:  # noqa: BLE001 - a missing module is just not reported
+            pass
+    try:
+        out["load_average"] = [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        pass
+    return out
+
+
+# (bench, key, what, target text, met(value) -> bool) for the summary table
+SUMMARY = [
+    ("playback", "ratio_no_rerun", "playback --tracker all vs decode+detect floor (wall)", "<= 1.3x", lambda v: v <= 1.3),
+    ("playback", "cpu_ratio_no_rerun", "  same, CPU time", "<= 1.3x", lambda v: v <= 1.3),
+    ("playback", "ratio_rerun", "playback --tracker all --rerun vs floor (wall)", "<= 1.6x", lambda v: v <= 1.6),
+    ("playback", "cpu_ratio_rerun", "  same, CPU time", "<= 1.6x", lambda v: v <= 1.6),
+    ("pipeline", "ratio_ours_sequence_vs_plain", "our recognition vs plain detectMarkers (sequence)", "cost of accuracy", None),
+    ("pipeline", "ratio_ours_cold_vs_plain", "our recognition vs plain detectMarkers (cold)", "cost of accuracy", None),
+    ("evaluation", "speedup_metrics", "evo APE+RPE time / ours (same numbers)", ">= 10x", lambda v: v >= 10),
+    ("evaluation", "speedup_incl_loading", "  same, including loading the files", ">= 10x", lambda v: v >= 10),
+    ("record", "x_real_time", "record sim, x real time (wall)", ">= 5x", lambda v: v >= 5),
+    ("record", "writer_vs_plain", "SessionWriter vs plain file, same bytes", "floor 1x", None),
+    ("memory", "peak_ratio_long_vs_short", "peak RSS, 10-min / 1-min session playback", "<= 1.1x", lambda v: v <= 1.1),
+]
+
+
+def print_summary(results: dict) -> None:
+    print("\n=== summary (ratios measured side by side in this run) ===")
+    for bench, key, what, target, met in SUMMARY:
+        value = results.get(bench, {}).get(key) if isinstance(results.get(bench), dict) else None
+        if value is None:
+            continue
+        verdict = "" if met is None else ("met" if met(value) else "MISSED")
+        print(f"  {what:<56} {value:8.2f}x  {target:<17} {verdict}")
 
 
 def main(argv: list[str]) -> int:
     here = pathlib.Path(__file__).parent
     names = argv or sorted(p.stem.removeprefix("bench_") for p in here.glob("bench_*.py"))
-    results = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
-                           "cores": __import__("os").cpu_count()}}
+    results = {"machine": machine(), "command": "python -m bench " + " ".join(argv)}
+    t0 = time.perf_counter()
     for name in names:
         print(f"\n=== {name} ===", flush=True)
         mod = importlib.import_module(f"bench.bench_{name}")
         results[name] = mod.main()
-    out = here / "results.json"
+    results["total_s"] = round(time.perf_counter() - t0, 1)
+    print_summary(results)
+    m = results["machine"]
+    print(f"\nmachine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m.get('numpy')}, "
+          f"OpenCV {m.get('cv2')}; load average at start {m.get('load_average')}; total {results['total_s']} s")
+    # a full run is the record; a partial one must not overwrite it
+    out = here / ("results.json" if not argv else "results_partial.json")
     out.write_text(json.dumps(results, indent=2))
-    print(f"\nwrote {out}")
+    print(f"wrote {out}")
     return 0
 
 
