@@ -15,7 +15,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from phonepose.pipeline.anchors import controller_in_display_vio
+from phonepose.pipeline.anchors import AnchorMap
 from phonepose.pipeline.markers import MarkerRecognizer
 from phonepose.pipeline.types import MarkerObservation, Observation, SessionContext, Tick
 from phonepose.schemas import phonepose_pb2 as pb
@@ -36,6 +36,7 @@ class SharedStages:
     def __init__(self, context: SessionContext):
         self.context = context
         self.recognizer = MarkerRecognizer(context.camera, context.marker)
+        self.anchor_map = AnchorMap()
         self.reset()
 
     def reset(self) -> None:
@@ -68,7 +69,7 @@ class SharedStages:
         marker = self._recognize(tick)
         if marker is not None and marker.T_dvio_controller is None:
             marker = None  # cannot be placed in display_vio without the display pose
-        vio = controller_in_display_vio(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)
+        vio = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)
         return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio)
 
 

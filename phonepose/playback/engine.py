@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import time
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -75,13 +76,15 @@ class PlaybackResult:
 
 
 class _Collector:
-    """Per-tick arrays of one tracker (or of the GT)."""
+    """Per-tick values of one tracker (or of the GT), packed: 8 bytes per number, so a playback's
+    memory grows by ~65 bytes per tick and tracker (the metrics need the whole trajectory), not by
+    the ~400 of a list of small numpy arrays."""
 
     def __init__(self) -> None:
-        self.t: list[int] = []
-        self.rot: list[np.ndarray] = []
-        self.trans: list[np.ndarray] = []
-        self.inside: list[bool] = []
+        self.t = array("q")
+        self.rot = array("d")      # x, y, z, w per tick
+        self.trans = array("d")    # x, y, z per tick
+        self.inside = array("b")
         self.none = 0
 
     def add(self, t_ns: int, pose: Pose | None, inside: bool) -> None:
@@ -89,17 +92,17 @@ class _Collector:
             self.none += 1
             return
         self.t.append(t_ns)
-        self.rot.append(pose.rotation.as_quat(canonical=False))
-        self.trans.append(np.asarray(pose.translation, dtype=float))
+        self.rot.extend(pose.rotation.as_quat(canonical=False).ravel().tolist())
+        self.trans.extend(np.asarray(pose.translation, dtype=float).ravel().tolist())
         self.inside.append(bool(inside))
 
     def stamps(self) -> np.ndarray:
-        return np.asarray(self.t, dtype=np.int64)
+        return np.array(self.t, dtype=np.int64)
 
     def poses(self) -> Pose | None:
         if not self.t:
             return None
-        return Pose.from_xyzw(np.vstack(self.trans), np.vstack(self.rot))
+        return Pose.from_xyzw(np.array(self.trans, dtype=float).reshape(-1, 3), np.array(self.rot, dtype=float).reshape(-1, 4))
 
 
 def _pose_in_display_vio(pose: Pose, t_ns: int) -> PoseInFrame:
@@ -216,12 +219,13 @@ class PlaybackEngine:
             out[name] = TrackerTrajectory(name, c.stamps(), c.poses(), np.asarray(c.inside, dtype=bool), c.none)
         return out
 
-    def metrics(self) -> dict[str, dict]:
-        """Per tracker, over the task-window ticks where both the tracker and the GT have a pose."""
+    def metrics(self, trajectories: dict[str, TrackerTrajectory] | None = None) -> dict[str, dict]:
+        """Per tracker, over the task-window ticks where both the tracker and the GT have a pose
+        (``trajectories``: those of :meth:`trajectories` when the caller has them already)."""
         gt_t = self.gt.stamps()
         gt_poses = self.gt.poses()
         out = {}
-        for name, traj in self.trajectories().items():
+        for name, traj in (trajectories if trajectories is not None else self.trajectories()).items():
             if gt_poses is None or traj.poses is None:
                 out[name] = paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))
                 continue
@@ -309,7 +313,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             "phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
             Topic.CAMERA_IMAGE, undecodable)
     trajs = engine.trajectories()
-    per_tracker = engine.metrics()
+    per_tracker = engine.metrics(trajs)
     gt_stamps = engine.gt.stamps()
     gt = engine.gt.poses()
     session_name = Path(session).name

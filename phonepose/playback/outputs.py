@@ -34,16 +34,22 @@ def _f(v: float) -> str:
 
 
 def write_tum(path: str | os.PathLike, stamps_ns, poses: Pose | None) -> None:
-    """``t tx ty tz qx qy qz qw`` per line; the quaternion sign is made canonical (qw >= 0)."""
-    lines = []
-    if poses is not None and len(stamps_ns):
-        t = np.atleast_2d(poses.translation)
-        q = np.atleast_2d(poses.rotation.as_quat(canonical=True))
-        for i, stamp in enumerate(stamps_ns):
-            lines.append(" ".join([format_stamp(stamp), *(_f(v) for v in t[i]), *(_f(v) for v in q[i])]))
-    text = "# timestamp tx ty tz qx qy qz qw\n" + "".join(line + "\n" for line in lines)
+    """``t tx ty tz qx qy qz qw`` per line; the quaternion sign is made canonical (qw >= 0).
+
+    Written in blocks of lines, so a long trajectory never exists as one string in memory."""
     try:
-        Path(path).write_text(text)
+        with open(path, "w") as f:
+            f.write("# timestamp tx ty tz qx qy qz qw\n")
+            if poses is not None and len(stamps_ns):
+                t = np.atleast_2d(poses.translation)
+                q = np.atleast_2d(poses.rotation.as_quat(canonical=True))
+                lines = []
+                for i, stamp in enumerate(stamps_ns):
+                    lines.append(" ".join([format_stamp(stamp), *(_f(v) for v in t[i]), *(_f(v) for v in q[i])]) + "\n")
+                    if len(lines) == 2048:
+                        f.write("".join(lines))
+                        lines.clear()
+                f.write("".join(lines))
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 

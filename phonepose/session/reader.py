@@ -7,11 +7,22 @@ loads the whole file), optionally filtered by topic and by a log-time range.
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
 from google.protobuf.message import DecodeError
+from mcap.data_stream import ReadDataStream
 from mcap.reader import SeekingReader, make_reader
+from mcap.records import Chunk
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
+
+try:
+    import zstandard
+except ImportError:  # pragma: no cover - mcap's zstd support is optional too
+    zstandard = None
 from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
@@ -21,6 +32,52 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 # protobuf schema name -> generated class, for every type a phonepose session uses
 _KNOWN_TYPES = {cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}
+
+
+def _order_key(m) -> tuple[int, int, int]:
+    return m.log_time, m.channel_id, m.sequence
+
+
+_RECORD_HEAD = struct.Struct("<BQ")       # opcode, record length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")    # channel id, sequence, log time, publish time
+_OP_MESSAGE = 0x05
+
+
+def _chunk_messages(chunk: Chunk, wanted: set[int] | None, start_ns: int | None, end_ns: int | None) -> list:
+    """The Message records of one chunk that pass the filters, in file order (CRC checked).
+
+    What ``mcap.stream_reader.breakup_chunk`` does, with one ``struct`` call per record instead
+    of a stream read per field, and no record built for the messages filtered out.
+    """
+    if chunk.compression == "zstd" and zstandard is not None:
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:  # lz4 or anything else: the mcap library's path
+        return [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, McapMessage)
+                and (wanted is None or r.channel_id in wanted)
+                and (start_ns is None or r.log_time >= start_ns) and (end_ns is None or r.log_time < end_ns)]
+    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
+    out = []
+    pos, n = 0, len(data)
+    head, msg_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    while pos < n:
+        op, length = head(data, pos)
+        pos += 9
+        end = pos + length
+        if end > n:
+            raise ValueError("record runs past the end of its chunk")
+        if op == _OP_MESSAGE:
+            if length < 22:
+                raise ValueError("message record too short")
+            cid, seq, log_time, publish_time = msg_head(data, pos)
+            if ((wanted is None or cid in wanted) and (start_ns is None or log_time >= start_ns)
+                    and (end_ns is None or log_time < end_ns)):
+                out.append(McapMessage(channel_id=cid, sequence=seq, log_time=log_time, publish_time=publish_time,
+                                       data=data[pos + 22:end]))
+        pos = end
+    return out
 
 
 @dataclass(frozen=True)
@@ -94,6 +151,7 @@ class SessionReader:
             self._file.close()
             raise DamagedFileError(f"{self.path}: MCAP file has no summary (truncated?); run `phonepose recover`")
         self._decoders: dict[int, object] = {}
+        self._file_order_chunks: list | None | bool = False  # False: not checked yet
         self._fallback = DecoderFactory()
 
     # ------------------------------------------------------------------ summary
@@ -170,14 +228,59 @@ class SessionReader:
         except DecodeError:
             raise SessionContentError(f"{self.path}: undecodable {schema.name} message on {channel.topic}") from None
 
+    def _chunks_in_order(self, topics: list[str] | None, start_ns: int | None, end_ns: int | None):
+        """The chunks to read, in file order, if their log-time ranges do not overlap (else None).
+
+        SessionWriter writes in log-time order, so its chunks follow each other in time: then
+        sorting each chunk's messages on its own gives the global order, one chunk in memory at
+        a time, without the mcap reader's per-message heap (its ``log_time_order=True`` path).
+        """
+        s = self._summary_record
+        if self._file_order_chunks is False:
+            chunks = sorted(s.chunk_indexes, key=lambda c: c.chunk_start_offset)
+            if chunks and all(b.message_start_time >= a.message_end_time for a, b in zip(chunks, chunks[1:])):
+                self._file_order_chunks = chunks
+            else:
+                self._file_order_chunks = None
+        chunks = self._file_order_chunks
+        if chunks is None:
+            return None
+        wanted = None if topics is None else {cid for cid, ch in s.channels.items() if ch.topic in topics}
+        out = []
+        for ci in chunks:
+            if start_ns is not None and ci.message_end_time < start_ns:
+                continue
+            if end_ns is not None and ci.message_start_time >= end_ns:
+                continue
+            if wanted is not None and ci.message_index_offsets and not wanted.intersection(ci.message_index_offsets):
+                continue
+            out.append(ci)
+        return out, wanted
+
+    def _iter_chunked(self, chunks, wanted, start_ns, end_ns) -> Iterator[tuple]:
+        s = self._summary_record
+        channels, schemas = s.channels, s.schemas
+        for ci in chunks:
+            self._file.seek(ci.chunk_start_offset + 1 + 8)
+            chunk = Chunk.read(ReadDataStream(self._file))
+            msgs = _chunk_messages(chunk, wanted, start_ns, end_ns)
+            msgs.sort(key=_order_key)
+            for r in msgs:
+                channel = channels[r.channel_id]
+                yield (schemas[channel.schema_id] if channel.schema_id else None), channel, r
+
     def raw_messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                      end_ns: int | None = None) -> Iterator[tuple]:
         """(schema, channel, mcap message) tuples in (log_time, channel id, sequence) order."""
         topics = list(topics) if topics is not None else None
         pending: list[tuple] = []
         try:
-            it = self._reader.iter_messages(topics=topics, starting_at=start_ns, ending_before=end_ns,
-                                            log_time_order=True)
+            plan = self._chunks_in_order(topics, start_ns, end_ns)
+            if plan is not None:
+                it = self._iter_chunked(*plan, start_ns, end_ns)
+            else:  # chunks overlap in time (not written by SessionWriter): the mcap reader's merge
+                it = self._reader.iter_messages(topics=topics, starting_at=start_ns, ending_before=end_ns,
+                                                log_time_order=True)
             for item in it:
                 if pending and item[2].log_time != pending[0][2].log_time:
                     if len(pending) > 1:
