@@ -39,7 +39,7 @@ def _chunk_messages(path, ci) -> set:
     with open(path, "rb") as f:
         r = make_reader(f)
         s = r.get_summary()
-        for _, ch, m in r.iter_messages(start_time=ci.message_start_time, end_time=ci.message_end_time + 1,
+        for _, ch, m in r.iter_messages(starting_at=ci.message_start_time, ending_before=ci.message_end_time + 1,
                                         log_time_order=False):
             out.add((ch.topic, m.log_time, m.sequence))
     del s
