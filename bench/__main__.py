@@ -54,6 +54,8 @@ SUMMARY = [
     ("record", "x_real_time", "record sim, x real time (wall)", ">= 5x", lambda v: v >= 5),
     ("record", "writer_vs_plain", "SessionWriter vs plain file, same bytes", "floor 1x", None),
     ("memory", "peak_ratio_long_vs_short", "peak RSS, 10-min / 1-min session playback", "<= 1.1x", lambda v: v <= 1.1),
+    ("memory", "ticks_peak_ratio_long_vs_short", "  same, up to the last tick (before the metrics)", "<= 1.1x",
+     lambda v: v <= 1.1),
 ]
 
 

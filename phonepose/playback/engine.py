@@ -313,6 +313,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             "phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
             Topic.CAMERA_IMAGE, undecodable)
     trajs = engine.trajectories()
+    for c in engine.collectors.values():
+        c.__init__()   # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
     per_tracker = engine.metrics(trajs)
     gt_stamps = engine.gt.stamps()
     gt = engine.gt.poses()
