@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROUNDS = 5
+ROUNDS = 8
 TARGET_NO_RERUN = 1.3
 TARGET_RERUN = 1.6
 
