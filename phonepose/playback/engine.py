@@ -34,10 +34,7 @@ from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
 from phonepose.playback.context import has_camera, read_context
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
-try:  # the evaluation module's TUM writer (same fixed format); ours only if it is missing
-    from phonepose.evaluation.trajectory import write_tum
-except ImportError:  # pragma: no cover
-    from phonepose.playback.outputs import write_tum
+from phonepose.evaluation.trajectory import write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
