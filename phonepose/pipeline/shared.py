@@ -70,7 +70,12 @@ class SharedStages:
         if marker is not None and marker.T_dvio_controller is None:
             marker = None  # cannot be placed in display_vio without the display pose
         vio = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)
-        return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio)
+        samples = []
+        for capture_ns, T_cvio_controller in tick.controller_vio_samples:
+            mapped = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, T_cvio_controller)
+            if mapped is not None:
+                samples.append((capture_ns, mapped))
+        return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio, controller_vio_samples_dvio=samples)
 
 
 def detections_message(obs: Observation) -> pb.MarkerDetections:

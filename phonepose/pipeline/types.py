@@ -66,6 +66,9 @@ class Tick:
     events: list = field(default_factory=list)  # phonepose.CalibrationEvent received since the last tick
     gt_T_dvio_controller: Pose | None = None  # ground truth in display_vio (None: no GT within tolerance)
     in_task: bool = True                      # inside [task_start, task_end]
+    # controller VIO samples received since the previous tick: (capture_ns from the message's
+    # timestamp, T_cvio_controller), in receipt order (used by T8; the rows above do not need it)
+    controller_vio_samples: list = field(default_factory=list)
 
 
 @dataclass
@@ -88,6 +91,8 @@ class Observation:
     tick: Tick
     marker: MarkerObservation | None          # None: the marker was not recognised (outside the FoV)
     T_dvio_controller_vio: Pose | None        # controller VIO mapped into display_vio through the anchors
+    # tick.controller_vio_samples mapped the same way: (capture_ns, T_dvio_controller) (used by T8)
+    controller_vio_samples_dvio: list = field(default_factory=list)
 
     @property
     def in_view(self) -> bool:

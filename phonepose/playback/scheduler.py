@@ -297,6 +297,7 @@ class TickScheduler:
         d_anchor: deque = deque()           # (log_time, Pose)
         c_anchor: deque = deque()
         imu: list = []                      # (log_time, row)
+        cvio_samples: list = []             # (log_time, capture_ns, raw): controller VIO with its capture stamp
         events: list = []                   # (log_time, CalibrationEvent)
         state = {"image": None, "image_t": None, "display_cache": (None, None), "d_anchor": None, "c_anchor": None}
         next_t = info.first_tick_ns
@@ -335,6 +336,11 @@ class TickScheduler:
                 k += 1
             evs = [e for _, e in events[:k]]
             del events[:k]
+            k = 0
+            while k < len(cvio_samples) and cvio_samples[k][0] <= t:
+                k += 1
+            vio_samples = [(c, to_pose(r)) for _, c, r in cvio_samples[:k]]
+            del cvio_samples[:k]
             image_t = state["image_t"]
             T_dvio_display = None
             if need_display:
@@ -362,7 +368,7 @@ class TickScheduler:
                 index=idx, t_ns=t, image=state["image"], image_t_ns=image_t, image_is_new=new_image,
                 T_dvio_display=T_dvio_display, T_cvio_controller=controller.at(t, self.max_gap_ns),
                 T_dvio_anchor=state["d_anchor"], T_cvio_anchor=state["c_anchor"], imu=rows, events=evs,
-                gt_T_dvio_controller=gt_pose, in_task=in_task,
+                gt_T_dvio_controller=gt_pose, in_task=in_task, controller_vio_samples=vio_samples,
             )
             # forget what no later tick can use
             controller.prune(t)
@@ -402,6 +408,8 @@ class TickScheduler:
                 display.add(now, raw)
             elif topic == Topic.CONTROLLER_VIO_POSE:
                 controller.add(now, raw)
+                if now > info.first_tick_ns - self.period_ns:   # else before the first tick's interval
+                    cvio_samples.append((now, msg.timestamp.ToNanoseconds() or now, raw))
             elif topic == Topic.GT_CONTROLLER_POSE:
                 if self.has_gt:
                     gt.add(now, raw)
