@@ -66,8 +66,12 @@ def observations(draw, index: int):
         marker = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(),
                                    T_dvio_controller=draw(poses()), reprojection_error_px=0.1,
                                    chosen_solution=0, ambiguity_ratio=2.0, id=7)
-    tick = Tick(index=index, t_ns=1_000_000_000 + index * 50_000_000, events=draw(cm_events()))
-    return Observation(tick=tick, marker=marker, T_dvio_controller_vio=draw(poses()))
+    t_ns = 1_000_000_000 + index * 50_000_000
+    tick = Tick(index=index, t_ns=t_ns, events=draw(cm_events()))
+    # VIO samples with capture stamps (T8): possibly bad poses, repeated or backwards stamps
+    samples = [(t_ns - draw(st.sampled_from([0, 20_000_000, 120_000_000, -5_000_000, 10**12])), p)
+               for p in draw(st.lists(poses(), max_size=3)) if p is not None]
+    return Observation(tick=tick, marker=marker, T_dvio_controller_vio=draw(poses()), controller_vio_samples_dvio=samples)
 
 
 def _finite_pose(p: Pose) -> bool:
@@ -78,7 +82,8 @@ def _finite_pose(p: Pose) -> bool:
 @FUZZ
 @given(data=st.data(), math_kind=st.sampled_from(["paper", "se3"]))
 def test_trackers_return_finite_poses_none_or_our_error(data, math_kind):
-    trackers = make_trackers("paper", math_kind)
+    trackers = make_trackers("all", math_kind)   # T1-T7 and ours (T8)
+    assert [t.name for t in trackers][-1] == "T8"
     for t in trackers:
         t.reset()
     for i in range(data.draw(st.integers(1, 8))):
@@ -109,6 +114,6 @@ def test_a_bad_cm1_event_is_ignored_not_used():
 
 @pytest.mark.parametrize("bad", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0])])
 def test_a_non_finite_input_pose_gives_no_estimate(bad):
-    for t in make_trackers("paper"):
+    for t in make_trackers("all"):
         est = t.step(Observation(Tick(index=0, t_ns=1), None, Pose(Rotation.identity(), bad)))
         assert est is None, t.name

@@ -339,8 +339,8 @@ class LatencyAwareCM3Tracker:
             else:
                 keep.append((image_ns, marker))
         self._pending = keep
-        if obs.in_view:
-            return obs.marker.T_dvio_controller
+        if obs.in_view:   # a non-finite marker pose gives no estimate, as for T1-T7
+            return obs.marker.T_dvio_controller if _finite(obs.marker.T_dvio_controller) else None
         vio = self._predict(tick.t_ns)
         if vio is None:
             vio = obs.T_dvio_controller_vio
