@@ -12,13 +12,9 @@ broadcasts like scipy's Rotation.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import numpy as np
+from foxglove_schemas_protobuf.Pose_pb2 import Pose as FgPose
 from scipy.spatial.transform import Rotation, Slerp
-
-if TYPE_CHECKING:  # pragma: no cover
-    from foxglove_schemas_protobuf.Pose_pb2 import Pose as FgPose
 
 
 @dataclass(frozen=True)
@@ -53,7 +49,7 @@ class Pose:
         return cls.from_rotvec(np.asarray(tvec, dtype=float).reshape(3), np.asarray(rvec, dtype=float).reshape(3))
 
     @classmethod
-    def from_foxglove(cls, pose: "FgPose") -> "Pose":
+    def from_foxglove(cls, pose: FgPose) -> "Pose":
         p, q = pose.position, pose.orientation
         return cls.from_xyzw([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
 
@@ -79,14 +75,12 @@ class Pose:
         """(rvec, tvec) as float64 column vectors for OpenCV."""
         return self.rotation.as_rotvec().reshape(3, 1), self.translation.reshape(3, 1).astype(float)
 
-    def to_foxglove(self, out: "FgPose | None" = None) -> "FgPose":
-        from foxglove_schemas_protobuf.Pose_pb2 import Pose as FgPose
-
+    def to_foxglove(self, out: FgPose | None = None) -> FgPose:
         msg = FgPose() if out is None else out
-        x, y, z = (float(v) for v in self.translation)
-        qx, qy, qz, qw = (float(v) for v in self.quat_xyzw)
-        msg.position.x, msg.position.y, msg.position.z = x, y, z
-        msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = qx, qy, qz, qw
+        # tolist() gives Python floats in one call (playback writes one per tracker per tick)
+        p, o = msg.position, msg.orientation
+        p.x, p.y, p.z = np.asarray(self.translation, dtype=float).tolist()
+        o.x, o.y, o.z, o.w = self.quat_xyzw.tolist()
         return msg
 
     # ----------------------------------------------------------------- algebra

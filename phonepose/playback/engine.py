@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
-from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
@@ -38,6 +37,7 @@ from phonepose.evaluation.trajectory import write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
+from phonepose.session.sample import pose_in_frame
 
 
 @dataclass
@@ -100,16 +100,6 @@ class _Collector:
         if not self.t:
             return None
         return Pose.from_xyzw(np.array(self.trans, dtype=float).reshape(-1, 3), np.array(self.rot, dtype=float).reshape(-1, 4))
-
-
-def _pose_in_display_vio(pose: Pose, t_ns: int) -> PoseInFrame:
-    """``session.sample.pose_in_frame`` for display_vio, without its per-value conversions (hot path)."""
-    msg = PoseInFrame(frame_id=Frame.DISPLAY_VIO)
-    msg.timestamp.seconds, msg.timestamp.nanos = divmod(int(t_ns), 1_000_000_000)
-    p, o = msg.pose.position, msg.pose.orientation
-    p.x, p.y, p.z = np.asarray(pose.translation, dtype=float).tolist()
-    o.x, o.y, o.z, o.w = pose.rotation.as_quat(canonical=False).tolist()
-    return msg
 
 
 def _default_stages(context: SessionContext):
@@ -203,7 +193,7 @@ class PlaybackEngine:
                 if pose is not None:
                     hit = encoded.get(id(pose))
                     if hit is None:
-                        msg = _pose_in_display_vio(pose, tick.t_ns)
+                        msg = pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns)
                         hit = encoded[id(pose)] = (msg, msg.SerializeToString())
                     self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
         if self.rerun_logger is not None:
