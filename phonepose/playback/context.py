@@ -20,21 +20,21 @@ _NO_CAMERA = CameraModel(K=np.eye(3), D=np.zeros(5), width=0, height=0, T_displa
 _NO_MARKER = MarkerModel(dictionary="", id=-1, size_m=0.0, T_body_marker=Pose.identity())
 
 
-def transform_to_pose(msg) -> Pose:
-    """A foxglove FrameTransform as the pose of its child in its parent."""
-    t, q = msg.translation, msg.rotation
+def _pose_or_identity_rotation(t, q) -> Pose:
+    """Position ``t`` and quaternion ``q``; an unset quaternion (all zeros, the protobuf default) reads as identity."""
     if q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0:
         return Pose.from_xyzw([t.x, t.y, t.z], [0.0, 0.0, 0.0, 1.0])
     return Pose.from_xyzw([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
 
 
+def transform_to_pose(msg) -> Pose:
+    """A foxglove FrameTransform as the pose of its child in its parent."""
+    return _pose_or_identity_rotation(msg.translation, msg.rotation)
+
+
 def fg_pose(pose) -> Pose:
-    """A foxglove Pose; an unset orientation (all zeros, the protobuf default) reads as identity."""
-    q = pose.orientation
-    if q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0:
-        p = pose.position
-        return Pose.from_xyzw([p.x, p.y, p.z], [0.0, 0.0, 0.0, 1.0])
-    return Pose.from_foxglove(pose)
+    """A foxglove Pose (unset orientation = identity)."""
+    return _pose_or_identity_rotation(pose.position, pose.orientation)
 
 
 def _check_pose(path: str, what: str, position, quat) -> None:
