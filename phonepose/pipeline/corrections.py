@@ -43,19 +43,24 @@ from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 
 
+def _parse_choice(cls, value, what: str):
+    """``value`` as a member of the str Enum ``cls`` (case-insensitive); ConfigError naming the allowed values."""
+    if isinstance(value, cls):
+        return value
+    try:
+        return cls(str(value).lower())
+    except ValueError:
+        allowed = ", ".join(m.value for m in cls)
+        raise ConfigError(f"unknown {what} {value!r}; allowed: {allowed}") from None
+
+
 class CorrectionMath(str, Enum):
     PAPER = "paper"   # equations (1)-(6): position difference + left-multiplied quaternion
     SE3 = "se3"       # rigid offset: T_CM = T_ref · T_vio^-1
 
     @classmethod
     def parse(cls, value: "CorrectionMath | str") -> "CorrectionMath":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            allowed = ", ".join(m.value for m in cls)
-            raise ConfigError(f"unknown correction math {value!r}; allowed: {allowed}") from None
+        return _parse_choice(cls, value, "correction math")
 
 
 class CM1Reading(str, Enum):
@@ -64,13 +69,7 @@ class CM1Reading(str, Enum):
 
     @classmethod
     def parse(cls, value: "CM1Reading | str") -> "CM1Reading":
-        if isinstance(value, cls):
-            return value
-        try:
-            return cls(str(value).lower())
-        except ValueError:
-            allowed = ", ".join(m.value for m in cls)
-            raise ConfigError(f"unknown CM1 reading {value!r}; allowed: {allowed}") from None
+        return _parse_choice(cls, value, "CM1 reading")
 
 
 @dataclass(frozen=True)
