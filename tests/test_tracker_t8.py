@@ -121,3 +121,28 @@ def test_causal_later_samples_never_change_earlier_estimates():
     for i in range(cut + 1):
         assert spoiled[i].allclose(clean[i], atol=0)
     assert not spoiled[-1].allclose(clean[-1], atol=1e-3)
+
+
+def test_vio_samples_are_mapped_only_when_a_tracker_reads_them(tmp_path):
+    """The shared stages map the stamped VIO samples for T8 only: a T1-T7 playback skips that work."""
+    from phonepose.pipeline.shared import SharedStages
+    from phonepose.playback.engine import run_playback
+    from phonepose.playback.testdata import write_test_session
+
+    session = tmp_path / "s.mcap"
+    write_test_session(session, duration_s=1.0)
+    seen = {}
+    for trackers in ("paper", "all"):
+        made, counts = [], []
+
+        def stages_factory(context):
+            stages = SharedStages(context)
+            process = stages.process
+            stages.process = lambda tick: counts.append(len((obs := process(tick)).controller_vio_samples_dvio)) or obs
+            made.append(stages)
+            return stages
+
+        run_playback(session, trackers=trackers, write_outputs=False, stages_factory=stages_factory)
+        seen[trackers] = (made[0].map_vio_samples, sum(counts))
+    assert seen["paper"] == (False, 0)
+    assert seen["all"][0] is True and seen["all"][1] >= 25   # ~30 Hz VIO over 1 s reaches T8

@@ -37,6 +37,10 @@ class SharedStages:
         self.context = context
         self.recognizer = MarkerRecognizer(context.camera, context.marker)
         self.anchor_map = AnchorMap()
+        # Map every received VIO sample into display_vio (Observation.controller_vio_samples_dvio).
+        # Only trackers with ``uses_vio_samples`` (T8) read them; the engine switches this off
+        # when none runs, since it costs ~0.2 ms per tick.
+        self.map_vio_samples = True
         self.reset()
 
     def reset(self) -> None:
@@ -71,7 +75,7 @@ class SharedStages:
             marker = None  # cannot be placed in display_vio without the display pose
         vio = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)
         samples = []
-        for capture_ns, T_cvio_controller in tick.controller_vio_samples:
+        for capture_ns, T_cvio_controller in (tick.controller_vio_samples if self.map_vio_samples else ()):
             mapped = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, T_cvio_controller)
             if mapped is not None:
                 samples.append((capture_ns, mapped))

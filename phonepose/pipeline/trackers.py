@@ -274,6 +274,7 @@ class LatencyAwareCM3Tracker:
     uncorrected VIO (as T7); without any stamped VIO sample it falls back to T7's VIO pose.
     """
 
+    uses_vio_samples = True             # reads obs.controller_vio_samples_dvio (the shared stages map them only then)
     velocity_window_ns = 100_000_000    # velocity from the newest sample and one ~0.1 s older
     max_prediction_ns = 500_000_000     # never predict further than this (scheduler's max gap)
     buffer_ns = 1_000_000_000           # VIO history kept

@@ -260,6 +260,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s)
         stages = (stages_factory or _default_stages)(context)
+        if hasattr(stages, "map_vio_samples"):
+            stages.map_vio_samples = any(getattr(t, "uses_vio_samples", False) for t in tracker_objs)
         logger = None   # first: a --rerun path that cannot be written fails before any file is opened
         if rerun_path is not None or spawn:
             from phonepose.playback.rerun_log import PlaybackRerunLogger
