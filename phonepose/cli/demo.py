@@ -21,6 +21,7 @@ def demo(
     go to --out: the session, TUM trajectories and metrics.json, a Fig. 11-style plot, demo.rrd.
     """
     from phonepose.cli.playback import metrics_table
+    from phonepose.experiments.common import sequence_arrays
     from phonepose.experiments.exp2 import plot_sequence
     from phonepose.playback.engine import run_playback
     from phonepose.record.sim import record_sim
@@ -36,13 +37,7 @@ def demo(
         result = run_playback(session, trackers="paper", out_dir=out / "playback", rerun_path=rrd)
     console.print(f"[green]2/3[/green] played back {result.n_ticks} ticks in {result.wall_s:.1f} s")
     console.print(metrics_table(result.metrics))
-    seq = {"name": "TRI2_01", "session": str(session),
-           "gt": None if not result.has_gt else {"stamps_ns": result.gt_stamps_ns, "translation": result.gt.translation,
-                                                 "quat": result.gt.quat_xyzw},
-           "trajectories": {n: {"stamps_ns": t.stamps_ns, "inside": t.inside,
-                                "translation": None if t.poses is None else t.poses.translation,
-                                "quat": None if t.poses is None else t.poses.quat_xyzw}
-                            for n, t in result.trajectories.items()}}
+    seq = {"name": "TRI2_01", **sequence_arrays(result, session)}
     png = plot_sequence(seq, out / "fig11_TRI2_01.png")
     console.print(f"[green]3/3[/green] plot: {png}")
     console.print(f"trajectories and metrics: {out / 'playback'}  (metrics.json, trajectories/*.tum)")

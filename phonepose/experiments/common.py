@@ -44,6 +44,12 @@ def run_sequence(job: SequenceJob) -> dict:
         rrd.parent.mkdir(parents=True, exist_ok=True)
     result = run_playback(session, trackers="paper", out_dir=out / "playback" / job.name,
                           correction_math=job.correction_math, rerun_path=rrd)
+    return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,
+            **sequence_arrays(result, session), "rerun": None if rrd is None else str(rrd)}
+
+
+def sequence_arrays(result, session: str | Path) -> dict:
+    """A PlaybackResult as plain arrays (picklable across processes; what the tables and plots read)."""
     trajectories = {
         name: {"stamps_ns": tr.stamps_ns, "translation": None if tr.poses is None else tr.poses.translation,
                "quat": None if tr.poses is None else tr.poses.quat_xyzw, "inside": tr.inside}
@@ -52,9 +58,7 @@ def run_sequence(job: SequenceJob) -> dict:
     gt = None
     if result.has_gt:
         gt = {"stamps_ns": result.gt_stamps_ns, "translation": result.gt.translation, "quat": result.gt.quat_xyzw}
-    return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed, "session": str(session),
-            "metrics": result.metrics, "trajectories": trajectories, "gt": gt,
-            "rerun": None if rrd is None else str(rrd)}
+    return {"session": str(session), "metrics": result.metrics, "trajectories": trajectories, "gt": gt}
 
 
 def run_jobs(jobs: list[SequenceJob], jobs_in_parallel: int = 1,
