@@ -44,6 +44,9 @@ from phonepose.cli import evaluate  # noqa: E402,F401
 from phonepose.cli import experiment  # noqa: E402,F401
 from phonepose.cli import demo  # noqa: E402,F401
 from phonepose.cli import recover  # noqa: E402,F401
+from phonepose.cli import calibrate  # noqa: E402,F401  (board, marker, calibrate-camera)
+from phonepose.cli import live  # noqa: E402,F401  (record live)
+from phonepose.cli import batch  # noqa: E402,F401
 
 
 def error(message: str, code: int = 1) -> None:

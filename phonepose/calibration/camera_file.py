@@ -1,0 +1,74 @@
+"""The camera calibration file: OpenCV FileStorage YAML, as OpenCV's own calibration samples write it.
+
+Keys: ``image_width``, ``image_height``, ``camera_matrix`` (3x3), ``distortion_coefficients``
+(plumb_bob k1 k2 p1 p2 k3), ``reprojection_error`` (RMS px) and, optionally, ``board`` (a text
+description of the board used). Any tool that reads OpenCV's sample format reads ours, and a file
+written by OpenCV's ``calibrate_camera_charuco`` sample loads here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from phonepose.errors import InputFileError, OutputError
+
+
+@dataclass(frozen=True)
+class CameraCalibrationFile:
+    K: np.ndarray                 # (3, 3)
+    D: np.ndarray                 # (5,) k1 k2 p1 p2 k3
+    width: int
+    height: int
+    reprojection_error_px: float = float("nan")
+    board: str = ""
+
+
+def save_calibration(path: "str | Path", calib: CameraCalibrationFile) -> None:
+    path = Path(path)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    except cv2.error as exc:
+        raise OutputError(f"cannot write {path}: {exc}") from None
+    if not fs.isOpened():
+        raise OutputError(f"cannot write {path}")
+    fs.write("image_width", int(calib.width))
+    fs.write("image_height", int(calib.height))
+    fs.write("camera_matrix", np.asarray(calib.K, dtype=np.float64).reshape(3, 3))
+    fs.write("distortion_coefficients", np.asarray(calib.D, dtype=np.float64).reshape(1, -1))
+    fs.write("reprojection_error", float(calib.reprojection_error_px))
+    if calib.board:
+        fs.write("board", calib.board)
+    fs.release()
+
+
+def load_calibration(path: "str | Path") -> CameraCalibrationFile:
+    """Read a calibration file; a missing or malformed one is an InputFileError (one line, exit 2)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such calibration file")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error:
+        fs = None
+    if fs is None or not fs.isOpened():
+        raise InputFileError(f"{path}: not an OpenCV YAML/XML calibration file")
+    try:
+        K = fs.getNode("camera_matrix").mat()
+        D = fs.getNode("distortion_coefficients").mat()
+        width, height = fs.getNode("image_width").real(), fs.getNode("image_height").real()
+        rms_node, board_node = fs.getNode("reprojection_error"), fs.getNode("board")
+        rms = rms_node.real() if not rms_node.empty() else float("nan")
+        board = board_node.string() if not board_node.empty() else ""
+    finally:
+        fs.release()
+    if K is None or K.shape != (3, 3) or D is None or D.size not in (4, 5, 8, 12, 14) or width <= 0 or height <= 0:
+        raise InputFileError(f"{path}: needs camera_matrix (3x3), distortion_coefficients, image_width, image_height")
+    if not (np.isfinite(K).all() and np.isfinite(D).all()):
+        raise InputFileError(f"{path}: camera_matrix or distortion_coefficients are not finite")
+    D5 = np.zeros(5)
+    D5[: min(5, D.size)] = D.ravel()[:5]
+    return CameraCalibrationFile(K.astype(float), D5, int(width), int(height), float(rms), board)
