@@ -1,1 +1,97 @@
-"""Placeholder: filled in by its issue."""
+"""``phonepose batch``: every (session, tracker, parameter) playback into one Parquet table (docs/batch.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from phonepose.cli import app
+
+
+def summary_table(summary: list[dict]) -> Table:
+    from phonepose.batch.driver import SUMMARY_METRICS
+
+    table = Table(title="batch summary: mean ± sd over sessions (total scope)")
+    table.add_column("tracker", style="bold")
+    if any(e["params"] is not None for e in summary):
+        table.add_column("params")
+    table.add_column("ok", justify="right")
+    table.add_column("errors", justify="right")
+    for _, label, _ in SUMMARY_METRICS:
+        table.add_column(label, justify="right")
+    for e in summary:
+        cells = [e["tracker"]] + ([e["params"]] if e["params"] is not None else []) + [str(e["ok"]), str(e["errors"])]
+        for col, _, scale in SUMMARY_METRICS:
+            mean, sd = e[col]
+            cells.append("n/a" if mean is None else f"{mean * scale:.2f} ±{sd * scale:.2f}")
+        table.add_row(*cells)
+    return table
+
+
+@app.command()
+def batch(
+    sessions: list[Path] = typer.Argument(..., help="Session files (.mcap); on a cluster every worker must see these paths."),
+    tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help="Tracker name (repeat), 'paper' (T1-T7) or 'all'."),
+    param: list[str] = typer.Option([], "--param", "-p",
+                                    help="KEY=V1,V2,... (repeat): rate_hz, correction_math, cm1_reading, start_s, end_s; "
+                                         "the batch runs the cross product."),
+    out: Path = typer.Option(..., "--out", "-o", help="Parquet table; rows already in it with status ok are skipped."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Local worker processes [default: one per core]."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address (tcp://host:8786) instead of local processes."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Play back every session x parameter combination with every tracker; one row per run into a Parquet table.
+
+    Exit 0 when every row is ok, 1 when some playbacks failed (their rows say why; they are
+    retried by the next run with the same --out).
+    """
+    from phonepose.batch import PARAMS, run_batch, summarize
+    from phonepose.batch.plan import params_label
+
+    console = Console(stderr=True)
+    out_console = Console()
+    with Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
+                  TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),
+                  TimeRemainingColumn(), console=console, disable=quiet, transient=True) as bar:
+        task = bar.add_task("units", total=None, rows=0, errors=0)
+        counts = {"rows": 0, "errors": 0}
+
+        varying: list[str] = []
+
+        def on_start(plan, executor: str) -> None:
+            varying.extend(k for k in PARAMS if any(p.startswith(f"{k}=") for p in param))
+            n_rows = len(plan.keys)
+            redo = f", {plan.retried} error rows retried" if plan.retried else ""
+            redo += f", {plan.stale} rows of changed sessions rerun" if plan.stale else ""
+            where = f"{len(plan.units)} playbacks on {executor}" if plan.units else "nothing to run"
+            bar.console.print(f"{plan.sessions} sessions x {plan.combinations} parameter combinations x "
+                              f"{len(plan.trackers)} trackers = {n_rows} rows; {plan.skipped} already in {out} (skipped)"
+                              f"{redo}; {where}", highlight=False)
+            bar.update(task, total=len(plan.units))
+
+        def progress(done: int, total: int, rows: list[dict]) -> None:
+            counts["rows"] += len(rows)
+            if rows and rows[0]["status"] != "ok":
+                counts["errors"] += len(rows)
+                params = params_label(json.loads(rows[0]["params"]), varying)
+                bar.console.print(f"[red]failed[/red] {rows[0]['session']}{' (' + params + ')' if params else ''}: "
+                                  f"{rows[0]['error']}",
+                                  highlight=False)
+            bar.update(task, completed=done, total=total, **counts)
+
+        result = run_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
+                           scheduler=scheduler, progress=progress, on_start=on_start)
+    out_console.print(summary_table(summarize(result.rows)))
+    rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
+    typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "
+               f"{result.skipped} rows skipped (already in the table) -> {result.out}")
+    if result.errors:
+        typer.echo(f"phonepose: error: {result.errors} of {len(result.rows)} rows failed (status error in {result.out}; "
+                   "the next run with the same --out retries them)", err=True)
+        raise typer.Exit(1)

@@ -1,0 +1,132 @@
+"""``run_batch``: plan, skip what the table has, run the rest on an executor, write after each unit."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+import time
+from concurrent.futures import as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+from phonepose.batch.executor import open_executor
+from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinations, params_label, parse_param_options
+from phonepose.batch.run import error_rows, one_line, run_unit
+from phonepose.batch.table import ResultTable, sort_key
+from phonepose.errors import ConfigError
+
+WRITE_INTERVAL_S = 1.0   # at most one rewrite of the table per second while units finish (and always at the end)
+SUMMARY_METRICS = (("p_ate_m_total", "p_ATE cm", 100.0), ("r_ate_deg_total", "r_ATE deg", 1.0),
+                   ("p_re_m_total", "p_RE cm", 100.0))
+
+
+@dataclass
+class BatchResult:
+    out: Path
+    plan: Plan
+    rows: list[dict]               # this batch's rows (run now or already in the table), sorted
+    units_run: int                 # playbacks run now
+    rows_run: int                  # rows they produced
+    errors: int                    # rows of this batch with status error
+    wall_s: float
+    executor: str
+    failures: list[tuple[str, str]] = field(default_factory=list)   # (session, error) per failed unit
+
+    @property
+    def skipped(self) -> int:
+        return self.plan.skipped
+
+
+def resolve_trackers(trackers: Sequence[str] | str) -> list[str]:
+    """Names as make_trackers resolves them (``all``, ``paper``, ``T1,T7``); unknown names: ConfigError."""
+    from phonepose.pipeline.trackers import make_trackers
+
+    names = [t.name for t in make_trackers(trackers)]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"tracker given twice: {', '.join(names)}")
+    return names
+
+
+def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, trackers: Sequence[str] | str = ("all",),
+              params: Sequence[str] | dict[str, list] = (), workers: int | None = None, scheduler: str | None = None,
+              progress: Callable[[int, int, list[dict]], None] | None = None,
+              on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
+    """Play every (session, parameter combination) back with every tracker; one row per tracker in ``out``.
+
+    ``params``: ``["rate_hz=10,20", ...]`` (the CLI's --param) or ``{"rate_hz": [10.0, 20.0]}``.
+    ``progress(done_units, total_units, rows_of_the_unit)`` after each finished unit;
+    ``on_start(plan, executor_description)`` once the plan is made and the executor is up.
+    Errors in the arguments raise before any playback (ConfigError, OutputError).
+    """
+    t0 = time.perf_counter()
+    if not sessions:
+        raise ConfigError("no session given")
+    names = resolve_trackers(trackers)
+    sweep = parse_param_options(params) if not isinstance(params, dict) else \
+        parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
+    combos = param_combinations(sweep)
+    table = ResultTable(out)
+    plan = make_plan(sessions, names, combos, table.rows)
+    units_run = rows_run = 0
+    failures: list[tuple[str, str]] = []
+    description = "nothing to run"
+    if plan.units:
+        with open_executor(workers, scheduler) as (executor, description):
+            if on_start is not None:
+                on_start(plan, description)
+            futures = {executor.submit(run_unit, unit): unit for unit in plan.units}
+            try:
+                for fut in as_completed(futures):
+                    unit: Unit = futures[fut]
+                    try:
+                        rows = fut.result()
+                    except Exception as exc:   # noqa: BLE001 - the worker died (crash, lost Dask worker)
+                        rows = error_rows(unit, f"worker failed: {one_line(exc)}")
+                    table.update(rows)
+                    table.write(WRITE_INTERVAL_S)
+                    units_run += 1
+                    rows_run += len(rows)
+                    if rows and rows[0]["status"] != "ok":
+                        failures.append((unit.session, rows[0]["error"]))
+                    if progress is not None:
+                        progress(units_run, len(plan.units), rows)
+            finally:
+                for fut in futures:
+                    fut.cancel()
+                table.write()   # what finished is kept, even when interrupted
+    elif on_start is not None:
+        on_start(plan, description)
+    table.write()
+    rows = sorted((table.rows[k] for k in plan.keys), key=sort_key)
+    errors = sum(1 for r in rows if r.get("status") != "ok")
+    return BatchResult(Path(out), plan, rows, units_run, rows_run, errors, time.perf_counter() - t0, description,
+                       failures)
+
+
+def _spread(values: list[float]) -> tuple[float | None, float | None]:
+    vals = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    if not vals:
+        return None, None
+    return statistics.fmean(vals), (statistics.stdev(vals) if len(vals) > 1 else 0.0)
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per tracker (and parameter combination, when the batch has several): runs ok / failed, and
+    mean and sample standard deviation over the sessions of each total metric (SUMMARY_METRICS)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["params"], r["tracker"]), []).append(r)
+    combos = [json.loads(p) for p in {p for p, _ in groups}]
+    varying = [k for k in PARAMS if len({json.dumps(c.get(k)) for c in combos}) > 1]
+    several = len(combos) > 1
+    out = []
+    for (params, tracker), rs in sorted(groups.items(), key=lambda kv: sort_key(kv[1][0])[1:]):
+        ok = [r for r in rs if r.get("status") == "ok"]
+        entry = {"tracker": tracker, "params": params_label(json.loads(params), varying) if several else None, "ok": len(ok), "errors": len(rs) - len(ok)}
+        for col, _, _ in SUMMARY_METRICS:
+            entry[col] = _spread([r.get(col) for r in ok])
+        out.append(entry)
+    return out

@@ -1,0 +1,61 @@
+"""Where a batch's units run: a local process pool, or a Dask distributed cluster.
+
+Both are a :class:`concurrent.futures.Executor`: the batch submits :func:`run_unit` and waits
+with :func:`concurrent.futures.as_completed` the same way on either. Locally a
+``ProcessPoolExecutor`` with the ``spawn`` start method (no fork of a process that may hold
+OpenCV's or Rerun's threads); with a scheduler address, ``distributed.Client(address).get_executor()``
+(Dask's own implementation of the interface; Dask does the scheduling).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import Executor, ProcessPoolExecutor
+from contextlib import contextmanager
+from typing import Iterator
+
+from phonepose.batch.run import init_worker
+from phonepose.errors import ConfigError
+
+CONNECT_TIMEOUT_S = 10
+
+
+def default_workers() -> int:
+    """One worker per core the process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def open_executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[tuple[Executor, str]]:
+    """``(executor, description)``; ``scheduler`` (``tcp://host:8786``) selects Dask, else a local pool."""
+    if scheduler is not None:
+        if workers is not None:
+            raise ConfigError("--workers and --scheduler are exclusive: the cluster's workers are set by `dask worker`")
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ConfigError("--scheduler needs Dask: pip install 'phonepose[cluster]'") from None
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise ConfigError(f"--scheduler {scheduler}: cannot connect within {CONNECT_TIMEOUT_S} s "
+                              f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+        try:
+            n = len(client.scheduler_info().get("workers", {}))
+            # pure=False: a rerun of the same unit is a new task, never a cached result
+            yield client.get_executor(pure=False), f"Dask cluster {scheduler} ({n} workers now)"
+        finally:
+            client.close()
+        return
+    n = default_workers() if workers is None else workers
+    if n < 1:
+        raise ConfigError(f"--workers must be >= 1 (got {n})")
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"), initializer=init_worker)
+    try:
+        yield pool, f"{n} local worker process{'es' if n != 1 else ''}"
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)

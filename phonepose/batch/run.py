@@ -1,0 +1,110 @@
+"""One unit of a batch → its rows. Runs in a worker process (local pool or Dask worker).
+
+:func:`run_unit` never raises for a bad session: whatever goes wrong in the playback becomes rows
+with ``status = "error"`` and a one-line ``error``, so one session cannot stop a batch.
+"""
+
+from __future__ import annotations
+
+import time
+
+from phonepose import __version__
+from phonepose.batch.plan import Unit, params_json, session_signature
+
+FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
+                 "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
+MAX_ERROR_CHARS = 400
+
+
+def init_worker() -> None:
+    """One OpenCV thread per worker: the pool's processes are the parallelism (idempotent, cheap)."""
+    try:
+        import cv2
+        cv2.setNumThreads(1)
+    except Exception:   # noqa: BLE001 - OpenCV missing is the playback's error to report, not ours
+        pass
+
+
+def one_line(exc: BaseException) -> str:
+    """The error column: a PhoneposeError's own message; anything else prefixed with its type."""
+    from phonepose.errors import PhoneposeError
+
+    text = str(exc) if isinstance(exc, PhoneposeError) else f"{type(exc).__name__}: {exc}"
+    text = " ".join(text.split()) or type(exc).__name__
+    return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 3] + "..."
+
+
+def flatten_tracker_metrics(metrics: dict) -> dict:
+    """A tracker's entry of metrics.json as flat columns, generically: ``{"total": {"p_ate_m": x}}``
+    → ``p_ate_m_total``; a scalar at the tracker's level keeps its name; deeper levels join with ``_``
+    (metric path first, scope last). New keys in metrics.json become new columns by themselves."""
+    out: dict = {}
+
+    def walk(path: list[str], value) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(path + [str(k)], v)
+            return
+        name = "_".join(path[1:] + path[:1]) if len(path) > 1 else path[0]
+        if name in FIXED_COLUMNS or name.startswith("param_"):
+            name = "metric_" + name
+        out[name] = value
+
+    for key, value in metrics.items():
+        walk([str(key)], value)
+    return out
+
+
+def base_row(unit: Unit, tracker: str) -> dict:
+    params = unit.params_dict
+    row = {"session": unit.session, "params": params_json(params), "tracker": tracker}
+    for k, v in params.items():
+        row[f"param_{k}"] = v
+    return row
+
+
+def error_rows(unit: Unit, exc: BaseException | str, runtime_s: float | None = None) -> list[dict]:
+    """Rows for a unit that failed (in the playback, or its worker died)."""
+    message = exc if isinstance(exc, str) else one_line(exc)
+    sig = session_signature(unit.path)
+    rows = []
+    for tracker in unit.trackers:
+        row = base_row(unit, tracker)
+        row.update(status="error", error=message, session_bytes=sig[0] if sig else None,
+                   session_mtime_ns=sig[1] if sig else None, n_ticks=None, n_task_ticks=None, frames_decoded=None,
+                   runtime_s=runtime_s, phonepose_version=__version__)
+        rows.append(row)
+    return rows
+
+
+def run_unit(unit: Unit) -> list[dict]:
+    """Play ``unit.path`` back once with every tracker of the unit (in memory, no files); one row per tracker.
+
+    ``runtime_s`` is the playback's wall time in the worker (run_playback's ``wall_s``: open, ticks,
+    metrics), the same in every row of the unit: the trackers share the playback.
+    """
+    init_worker()
+    from phonepose.pipeline.trackers import make_trackers
+    from phonepose.playback.engine import run_playback
+
+    params = unit.params_dict
+    cm1_reading = params.get("cm1_reading", "consistent")
+    t0 = time.perf_counter()
+    sig = session_signature(unit.path)
+    try:
+        result = run_playback(
+            unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
+            correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
+            end_s=params.get("end_s"), write_outputs=False,
+            tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
+    except Exception as exc:   # noqa: BLE001 - every failure of one session is that session's rows
+        return error_rows(unit, exc, time.perf_counter() - t0)
+    rows = []
+    for tracker in unit.trackers:
+        row = base_row(unit, tracker)
+        row.update(status="ok", error=None, session_bytes=sig[0] if sig else None,
+                   session_mtime_ns=sig[1] if sig else None, n_ticks=result.n_ticks, n_task_ticks=result.n_task_ticks,
+                   frames_decoded=result.frames_decoded, runtime_s=result.wall_s, phonepose_version=__version__)
+        row.update(flatten_tracker_metrics(result.metrics["trackers"][tracker]))
+        rows.append(row)
+    return rows
