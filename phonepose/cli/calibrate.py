@@ -1,1 +1,151 @@
-"""Placeholder: filled in by its issue."""
+"""``phonepose board``, ``phonepose marker``, ``phonepose calibrate-camera``: printables and camera
+calibration for real recordings (docs/calibration.md)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from phonepose.cli import app
+from phonepose.errors import OutputError
+
+DEFAULT_SPEC = "charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100"
+
+
+def _write(out: Path, data: bytes) -> None:
+    try:
+        out.write_bytes(data)
+    except OSError as exc:
+        raise OutputError(f"cannot write {out}: {exc.strerror or exc}") from None
+
+
+def _check_out_dir(out: Path) -> None:
+    """Fail before minutes of capture, not after, if the result cannot be written."""
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError(f"cannot write {out}: directory {parent} does not exist")
+    if out.is_dir():
+        raise OutputError(f"cannot write {out}: is a directory")
+
+
+@app.command("board")
+def board(
+    out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
+    spec: str = typer.Option(DEFAULT_SPEC, "--board", help="Board description: squares=CxR square_mm= marker_mm= "
+                             "dictionary= (keys left out keep the default)."),
+    dpi: int = typer.Option(300, "--dpi", help="Print resolution; the PNG records it."),
+    paper: str = typer.Option("a4", "--paper", help="a4, a3, letter (landscape) or fit (board + margin)."),
+) -> None:
+    """Write the ChArUco calibration board as a printable PNG, true sizes on the margin.
+
+    Print it at 100 % (no "fit to page") and check the squares with a ruler.
+
+    Example: [bold]phonepose board --out board.png[/bold]
+    """
+    from phonepose.calibration.board import board_png, board_spec, parse_board_spec, px_per_mm
+
+    b = parse_board_spec(spec)
+    data = board_png(b, dpi, paper.lower())
+    _write(out, data)
+    typer.echo(f"{out}: {board_spec(b)}, {b.size_mm[0]:g} x {b.size_mm[1]:g} mm on {paper.lower()} at {dpi} dpi "
+               f"(square = {b.square_mm * px_per_mm(dpi):.1f} px); print at 100 % and check a square measures "
+               f"{b.square_mm:g} mm")
+
+
+@app.command("marker")
+def marker(
+    out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ArUco dictionary (the simulator's: DICT_4X4_50)."),
+    marker_id: int = typer.Option(7, "--id", help="Marker id (the simulator's: 7)."),
+    pixels: int = typer.Option(400, "--pixels", help="Side of the marker (black border included) in pixels."),
+    quiet_zone: Optional[int] = typer.Option(None, "--quiet-zone", help="White margin in pixels (default: one bit cell)."),
+) -> None:
+    """Write the controller's ArUco marker as a PNG (what the phone shows on its screen).
+
+    Example: [bold]phonepose marker --out marker.png[/bold]
+    """
+    from phonepose.calibration.marker_image import marker_image
+
+    import cv2
+
+    image = marker_image(dictionary.upper(), marker_id, pixels, 1, quiet_zone)
+    ok, buf = cv2.imencode(".png", image)
+    _write(out, buf.tobytes())
+    margin = (image.shape[0] - pixels) // 2
+    typer.echo(f"{out}: {dictionary.upper()} id {marker_id}, marker {pixels} px + {margin} px white margin "
+               f"({image.shape[1]}x{image.shape[0]} px); its black square is what the session's marker size measures")
+
+
+@app.command("calibrate-camera")
+def calibrate_camera(
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (OpenCV YAML, read by "
+                             "`record live --calibration`)."),
+    device: Optional[int] = typer.Option(None, "--device", help="Capture live from camera N (cv2.VideoCapture index)."),
+    video: Optional[Path] = typer.Option(None, "--video", help="A video of the board."),
+    images: Optional[Path] = typer.Option(None, "--images", help="A directory of photos of the board."),
+    spec: str = typer.Option(DEFAULT_SPEC, "--board", help="The board that was filmed (as `phonepose board --board`)."),
+    max_views: int = typer.Option(40, "--max-views", help="Use at most this many views (evenly spread)."),
+    min_corners: int = typer.Option(8, "--min-corners", help="A frame is a view if it shows at least this many "
+                                    "board corners."),
+    seconds: float = typer.Option(120.0, "--seconds", help="--device: stop capturing after this long."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
+) -> None:
+    """Calibrate a camera (intrinsics + plumb_bob distortion) from views of the ChArUco board.
+
+    Give exactly one of --device N, --video FILE, --images DIR.
+
+    Example: [bold]phonepose calibrate-camera --video board.mp4 --out cam.yaml[/bold]
+    """
+    from phonepose.calibration.board import board_spec, parse_board_spec
+    from phonepose.calibration.calibrate import RECOMMENDED_VIEWS, calibrate_camera as run
+    from phonepose.calibration.camera_file import save_calibration
+
+    import numpy as np
+
+    err = Console(stderr=True)
+    b = parse_board_spec(spec)
+    _check_out_dir(out)
+    t0 = time.perf_counter()
+    result = run(images=images, video=video, device=device, board=b, max_views=max_views,
+                 min_corners=min_corners, device_seconds=seconds,
+                 progress=None if quiet else (lambda line: err.print(line, style="dim", markup=False, highlight=False)))
+    save_calibration(out, result.to_file())
+    wall = time.perf_counter() - t0
+
+    for line in result.skipped:
+        typer.echo(f"phonepose: warning: {line}", err=True)
+    K, D, s = result.K, result.D, result.std_intrinsics
+    table = Table(title=f"{out}: {result.width}x{result.height} px", title_justify="left")
+    table.add_column("")
+    table.add_column("value", justify="right")
+    table.add_column("± 1σ", justify="right")
+    pv = result.per_view_rms_px
+    worst = int(pv.argmax())
+    table.add_row("RMS reprojection error", f"{result.rms_px:.3f} px", "")
+    table.add_row("per-view RMS median / max", f"{float(np.median(pv)):.3f} / {pv.max():.3f} px",
+                  f"worst: {result.views[worst]}")
+    table.add_row("views used", f"{len(result.views)}",
+                  f"{result.frames_with_board} with board / {result.frames_examined} read")
+    table.add_row("corners per view (median)", f"{float(np.median(result.corners_per_view)):g}",
+                  f"of {b.n_corners}")
+    for name, value, sd in (("fx", K[0, 0], s[0]), ("fy", K[1, 1], s[1]), ("cx", K[0, 2], s[2]), ("cy", K[1, 2], s[3])):
+        table.add_row(f"{name} (px)", f"{value:.2f}", f"{sd:.2f}")
+    for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8])):
+        table.add_row(name, f"{value:+.5f}", f"{sd:.5f}")
+    table.caption = board_spec(b)
+    Console().print(table)
+    notes = []
+    if len(result.views) < RECOMMENDED_VIEWS:
+        notes.append(f"only {len(result.views)} views: {RECOMMENDED_VIEWS}-40 from different angles give a steadier result")
+    if result.rms_px > 1.0:
+        notes.append(f"RMS {result.rms_px:.2f} px is high (expect < 0.5 px): blurred frames or a wrong --board")
+    if s[0] > 0.01 * K[0, 0]:
+        notes.append(f"fx is uncertain (± {s[0]:.1f} px): add views with the board tilted and near the image corners")
+    for note in notes:
+        typer.echo(f"phonepose: warning: {note}", err=True)
+    typer.echo(f"{out}: written in {wall:.1f} s")

@@ -1,0 +1,179 @@
+"""The ChArUco calibration board: its definition, its one-line text description, and a printable PNG.
+
+The default board (7 x 5 squares of 30 mm, 22 mm markers, ``DICT_5X5_100``) is 210 x 150 mm, so it
+fits a landscape A4 sheet with margins. Its markers come from a 5x5 dictionary, so the phone's
+marker (``DICT_4X4_50`` id 7) is never mistaken for part of the board, nor a board marker for it.
+
+The text description (:func:`board_spec`, :func:`parse_board_spec`) is what ``--board`` takes and
+what the calibration file stores under ``board``::
+
+    charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from phonepose.errors import ConfigError
+
+MM_PER_INCH = 25.4
+
+# Paper sizes in mm, landscape (width, height); "fit" = the board plus a margin.
+PAPER_MM = {"a4": (297.0, 210.0), "a3": (420.0, 297.0), "letter": (279.4, 215.9)}
+FIT_MARGIN_MM = 15.0
+TEXT_BAND_MM = 12.0        # the printed description and the 50 mm check bar need this much below the board
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A ChArUco board: ``squares_x`` columns by ``squares_y`` rows of ``square_mm`` squares, with
+    ``marker_mm`` ArUco markers of ``dictionary`` in the white squares. ``legacy`` selects OpenCV's
+    pre-4.6 layout, which differs only for an even number of rows (boards printed by old OpenCV)."""
+
+    squares_x: int = 7
+    squares_y: int = 5
+    square_mm: float = 30.0
+    marker_mm: float = 22.0
+    dictionary: str = "DICT_5X5_100"
+    legacy: bool = False
+
+    def __post_init__(self) -> None:
+        if self.squares_x < 2 or self.squares_y < 2 or self.squares_x * self.squares_y < 6:
+            raise ConfigError(f"board squares {self.squares_x}x{self.squares_y}: need at least 2 x 2 and 6 squares")
+        if not (self.square_mm > 0 and 0 < self.marker_mm < self.square_mm):
+            raise ConfigError(f"board square {self.square_mm:g} mm, marker {self.marker_mm:g} mm: "
+                              "need 0 < marker < square")
+        n_markers = self.squares_x * self.squares_y // 2
+        dict_size = _dictionary(self.dictionary).bytesList.shape[0]
+        if n_markers > dict_size:
+            raise ConfigError(f"board {self.squares_x}x{self.squares_y} needs {n_markers} markers; "
+                              f"{self.dictionary} has only {dict_size}")
+
+    @property
+    def n_corners(self) -> int:
+        """Inner chessboard corners: what a view can show at most."""
+        return (self.squares_x - 1) * (self.squares_y - 1)
+
+    @property
+    def size_mm(self) -> tuple[float, float]:
+        return self.squares_x * self.square_mm, self.squares_y * self.square_mm
+
+    def opencv(self) -> cv2.aruco.CharucoBoard:
+        """OpenCV's board object, in metres (calibration extrinsics come out in metres)."""
+        board = cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_mm / 1000.0,
+                                       self.marker_mm / 1000.0, _dictionary(self.dictionary))
+        board.setLegacyPattern(self.legacy)
+        return board
+
+
+def _dictionary(name: str) -> cv2.aruco.Dictionary:
+    from phonepose.pipeline.markers import aruco_dictionary   # the one place that maps names (ConfigError if unknown)
+
+    return aruco_dictionary(name)
+
+
+DEFAULT_BOARD = BoardSpec()
+
+
+def board_spec(board: BoardSpec = DEFAULT_BOARD) -> str:
+    """The one-line description of ``board`` that :func:`parse_board_spec` reads back."""
+    text = (f"charuco squares={board.squares_x}x{board.squares_y} square_mm={board.square_mm:g} "
+            f"marker_mm={board.marker_mm:g} dictionary={board.dictionary}")
+    return text + (" legacy=1" if board.legacy else "")
+
+
+def parse_board_spec(text: str) -> BoardSpec:
+    """Read a description written by :func:`board_spec`. Keys may come in any order and any left
+    out keep the default board's value; a bad key or value is a ConfigError naming it."""
+    words = text.split()
+    if words and words[0].lower() == "charuco":
+        words = words[1:]
+    values: dict = {}
+    known = "squares, square_mm, marker_mm, dictionary, legacy"
+    for word in words:
+        key, sep, value = word.partition("=")
+        key = key.lower()
+        try:
+            if not sep:
+                raise ValueError
+            if key == "squares":
+                sx, sy = value.lower().split("x")
+                values["squares_x"], values["squares_y"] = int(sx), int(sy)
+            elif key in ("square_mm", "marker_mm"):
+                values[key] = float(value)
+            elif key == "dictionary":
+                values["dictionary"] = value.upper()
+            elif key == "legacy":
+                values["legacy"] = {"1": True, "true": True, "0": False, "false": False}[value.lower()]
+            else:
+                raise ConfigError(f"board spec {text!r}: unknown key {key!r} (known: {known})")
+        except (ValueError, KeyError):
+            raise ConfigError(f"board spec {text!r}: bad {word!r} (expected e.g. "
+                              f"'{board_spec(DEFAULT_BOARD)}')") from None
+    return replace(DEFAULT_BOARD, **values)
+
+
+def px_per_mm(dpi: float) -> float:
+    return dpi / MM_PER_INCH
+
+
+def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = "a4") -> np.ndarray:
+    """The printable page as a uint8 grayscale image of ``paper`` (landscape, or ``fit``) at ``dpi``.
+
+    The board is centred; below it a line states the true sizes and a 50 mm bar lets the user
+    check with a ruler that the printer did not scale the page.
+    """
+    if not 50 <= dpi <= 1200:
+        raise ConfigError(f"--dpi {dpi}: expected 50..1200")
+    scale = px_per_mm(dpi)
+    bw_mm, bh_mm = board.size_mm
+    if paper == "fit":
+        page_mm = (bw_mm + 2 * FIT_MARGIN_MM, bh_mm + 2 * FIT_MARGIN_MM + TEXT_BAND_MM)
+    elif paper in PAPER_MM:
+        page_mm = PAPER_MM[paper]
+    else:
+        raise ConfigError(f"--paper {paper!r}: expected one of {', '.join([*PAPER_MM, 'fit'])}")
+    margin_x, margin_y = (page_mm[0] - bw_mm) / 2, (page_mm[1] - bh_mm - TEXT_BAND_MM) / 2
+    if min(margin_x, margin_y) < 5.0:
+        raise ConfigError(f"a {bw_mm:g} x {bh_mm:g} mm board does not fit {paper} paper with margins; "
+                          "use --paper a3, --paper fit or smaller squares")
+    page = np.full((round(page_mm[1] * scale), round(page_mm[0] * scale)), 255, np.uint8)
+    # OpenCV draws the board; we only place it. Its size is rounded to whole pixels: at 300 dpi a
+    # 30 mm square is 354.33 px, drawn as 354 px (0.03 mm short), far below what a printer holds.
+    bw_px, bh_px = round(bw_mm * scale), round(bh_mm * scale)
+    image = board.opencv().generateImage((bw_px, bh_px), marginSize=0, borderBits=1)
+    x0, y0 = round(margin_x * scale), round(margin_y * scale)
+    page[y0:y0 + bh_px, x0:x0 + bw_px] = image
+
+    # The description and a 50 mm check bar under the board.
+    text = (f"phonepose {board_spec(board)}  |  board {bw_mm:g} x {bh_mm:g} mm, squares {board.square_mm:g} mm, "
+            f"markers {board.marker_mm:g} mm  |  print at 100 % (no 'fit to page'), {dpi} dpi")
+    ruler = "the bar must measure 50 mm:"
+    font, height_mm = cv2.FONT_HERSHEY_SIMPLEX, 2.5
+    font_scale = height_mm * scale / cv2.getTextSize("X", font, 1.0, 1)[0][1]
+    thick = max(1, round(0.25 * scale))
+    base_y = y0 + bh_px + round(6 * scale)
+    avail = page.shape[1] - 2 * x0
+    width = cv2.getTextSize(text, font, font_scale, thick)[0][0]
+    cv2.putText(page, text, (x0, base_y), font, font_scale * min(1.0, avail / width), 0, thick, cv2.LINE_AA)
+    base_y += round(5 * scale)
+    cv2.putText(page, ruler, (x0, base_y), font, font_scale, 0, thick, cv2.LINE_AA)
+    bar_x = x0 + cv2.getTextSize(ruler, font, font_scale, thick)[0][0] + round(3 * scale)
+    bar_h = round(1.5 * scale)
+    page[base_y - bar_h:base_y, bar_x:bar_x + round(50 * scale)] = 0
+    return page
+
+
+def board_png(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = "a4") -> bytes:
+    """:func:`render_board` as PNG bytes carrying its DPI (a pHYs chunk, which OpenCV's PNG writer
+    cannot set; Pillow does), so a print dialog at 100 % prints the true size."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(render_board(board, dpi, paper)).save(buf, format="PNG", dpi=(dpi, dpi), optimize=True)
+    return buf.getvalue()
