@@ -1,1 +1,80 @@
-"""Placeholder: filled in by its issue."""
+"""``phonepose record live``: record a webcam (the display camera) and a phone's page (the controller)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from phonepose.cli.record import record_app
+from phonepose.errors import ConfigError
+
+
+@record_app.command("live")
+def live(
+    out: Path = typer.Option(..., "--out", "-o", help="Session file to write (.mcap)."),
+    camera: str = typer.Option("0", "--camera", help="Camera device index (0, 1, ...) or a video file."),
+    calibration: Path = typer.Option(..., "--calibration", help="The camera's calibration file "
+                                     "(`phonepose calibrate-camera`, OpenCV YAML)."),
+    host: str = typer.Option("0.0.0.0", "--host", help="Address to listen on (0.0.0.0: every interface)."),
+    port: int = typer.Option(8443, "--port", help="HTTPS port the phone connects to (0: any free port)."),
+    tls_dir: Optional[Path] = typer.Option(None, "--tls-dir", help="Where the self-signed certificate is kept "
+                                           "(default ~/.config/phonepose/tls)."),
+    marker_size: Optional[float] = typer.Option(None, "--marker-size", help="The marker's side on the phone screen in "
+                                                "metres, measured with a ruler (default: what the page reports)."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--marker-dictionary", help="ArUco dictionary the page shows."),
+    marker_id: int = typer.Option(7, "--marker-id", help="Marker id the page shows."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    pace: bool = typer.Option(True, "--pace/--no-pace", help="Video file: read in real time (default) or as fast "
+                              "as possible (camera-only tests; a phone's samples only line up with a paced video)."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
+    spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer (live preview)."),
+    qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the page's URL as a QR code too."),
+) -> None:
+    """Record a live session: webcam frames and, from a phone's browser page (WebXR on ARCore
+    phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view.
+
+    Example: [bold]phonepose record live --camera 0 --calibration cam.yaml --out s.mcap --spawn[/bold]
+
+    Open the printed URL on the phone (same network; accept the certificate warning once), tap
+    [bold]Start AR[/bold], hold the phone's screen in the camera's view and tap [bold]Anchor[/bold].
+    Ctrl-C or SIGTERM stop the recording and leave a valid file. Guide: docs/recording-real-sessions.md.
+    """
+    from phonepose.record.live import LiveSession   # here: keeps `phonepose --help` fast
+
+    if rerun is not None and spawn:
+        raise ConfigError("use either --rerun FILE or --spawn, not both")
+
+    def echo(line: str) -> None:
+        typer.echo(f"[{time.strftime('%H:%M:%S')}] {line}", err=True)
+
+    session = LiveSession(out, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
+                          marker_id=marker_id, marker_size_m=marker_size, duration_s=duration, pace=pace,
+                          rerun_path=rerun, spawn=spawn, echo=echo)
+    url = session.start()
+    cert = session.certificate
+    typer.echo(f"{'created' if cert.created else 'using'} the self-signed certificate {cert.cert_path} "
+               f"(SHA-256 {cert.sha256})", err=True)
+    typer.echo(f"recording to {out}: open this page on the phone (same network; accept the certificate warning):")
+    typer.echo(f"  {url}")
+    if qr:
+        import segno
+
+        segno.make(url, error="m").terminal(out=sys.stdout, compact=True)
+    typer.echo("Ctrl-C stops the recording.", err=True)
+    sys.stdout.flush()
+    t0 = time.perf_counter()
+    result = session.run()
+    wall = time.perf_counter() - t0
+    r, c = result.record, result.counts
+    from phonepose.schemas.topics import Topic
+
+    status = "interrupted, file is valid" if r.interrupted else f"{result.stop_reason}, done"
+    typer.echo(f"{out}: {r.duration_ns / 1e9:.1f} s, {r.frames} frames, {c.get(Topic.CONTROLLER_VIO_POSE, 0)} poses, "
+               f"{c.get(Topic.CONTROLLER_IMU, 0)} IMU samples, {c.get(Topic.CONTROLLER_ANCHOR, 0)} anchors, "
+               f"{r.messages} messages in {wall:.1f} s; {status}")
+    for line in result.summary[1:]:
+        typer.echo(f"warning: {line}", err=True)

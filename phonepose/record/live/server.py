@@ -1,0 +1,402 @@
+"""The HTTPS + WebSocket server the phone's page talks to (aiohttp).
+
+Routes (the protocol, shared with the page in ``static/``; docs/recording-real-sessions.md):
+
+- ``GET /?token=T`` the page (``static/index.html``); ``/static/...`` its assets;
+  ``GET /marker.png?token=T`` the marker; ``GET /config?token=T`` ``{"marker": {"dictionary", "id"}}``.
+- ``GET /ws?token=T`` the WebSocket: JSON text messages ``hello``, ``marker``, ``pose``, ``imu``,
+  ``anchor``, ``pong`` from the page; ``ping``, ``status``, ``error`` from us.
+
+Every route but ``/static/`` needs the recording's token (``secrets.compare_digest``); without it
+the answer is 403 and nothing from that request reaches the session. One phone at a time: a new
+connection replaces the previous one (a reloaded page). A malformed message (not JSON, unknown
+type, missing or non-finite fields, a non-unit quaternion) is counted, logged once per kind and
+connection (terminal, ``/log``, an ``error`` message to the page) and ignored; the connection stays.
+
+Stamping: each connection has its own :class:`~phonepose.record.live.clock.OffsetEstimator`
+(5 pings at connect, then one a second). Samples that arrive before the 5 connect pings are answered wait
+for them (at most :data:`PENDING_TIMEOUT_S`; with no pong at all the offset is then taken from the
+first sample assuming zero network delay, and that is logged). ``capture = t - offset`` goes into the message ``timestamp``;
+the receipt time is the MCAP log time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import secrets
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from aiohttp import WSMsgType, web
+
+from phonepose.record.live.clock import OffsetEstimator
+
+if TYPE_CHECKING:   # pragma: no cover
+    from phonepose.record.live.session import LiveRecording
+
+STATIC_DIR = Path(__file__).parent / "static"
+PING_AT_CONNECT = 5
+PING_AT_CONNECT_SPACING_S = 0.05
+PING_PERIOD_S = 1.0
+PENDING_TIMEOUT_S = 0.5
+MAX_PENDING = 2000
+MAX_MESSAGE_BYTES = 1 << 16
+MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from its receipt is rejected
+OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
+QUAT_NORM_TOL = 1e-3                  # as playback (phonepose.playback.scheduler)
+
+
+class Malformed(ValueError):
+    """A message that does not follow the protocol; ``kind`` groups them for the logs."""
+
+    def __init__(self, kind: str, detail: str = ""):
+        super().__init__(kind + (f": {detail}" if detail else ""))
+        self.kind = kind
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _field(msg: dict, name: str):
+    if name not in msg:
+        raise Malformed(f"{msg['type']} without '{name}'")
+    return msg[name]
+
+
+def _number(msg: dict, name: str) -> float:
+    v = _field(msg, name)
+    if not _finite(v):
+        raise Malformed(f"{msg['type']} '{name}' is not a finite number", repr(v)[:40])
+    return float(v)
+
+
+def _vector(msg: dict, name: str, n: int) -> list[float]:
+    v = _field(msg, name)
+    if not isinstance(v, list) or len(v) != n or not all(_finite(x) for x in v):
+        raise Malformed(f"{msg['type']} '{name}' is not {n} finite numbers", repr(v)[:60])
+    return [float(x) for x in v]
+
+
+def _quaternion(msg: dict, name: str = "q") -> list[float]:
+    q = _vector(msg, name, 4)
+    n = math.sqrt(sum(x * x for x in q))
+    if abs(n - 1.0) > QUAT_NORM_TOL:
+        raise Malformed(f"{msg['type']} '{name}' is not a unit quaternion", f"|q| = {n:.6g}")
+    return q
+
+
+def parse_message(text: str) -> dict:
+    """One client message, checked against the protocol (raises :class:`Malformed`)."""
+    try:
+        msg = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise Malformed("not JSON", str(exc)[:60]) from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise Malformed("not a JSON object with a string 'type'")
+    kind = msg["type"]
+    if kind == "hello":
+        return {"type": kind, "user_agent": str(msg.get("user_agent", ""))[:300],
+                "webxr": bool(msg.get("webxr", False)), "message": str(msg.get("message", ""))[:300]}
+    if kind == "marker":
+        d, i = _field(msg, "dictionary"), _field(msg, "id")
+        if not isinstance(d, str) or not isinstance(i, int) or isinstance(i, bool):
+            raise Malformed("marker 'dictionary' must be a string and 'id' an integer")
+        size = _number(msg, "size_m")
+        if not 0.0 < size < 1.0:
+            raise Malformed("marker 'size_m' must be in (0, 1) m", repr(size))
+        return {"type": kind, "dictionary": d, "id": i, "size_m": size,
+                "ppi": float(msg["ppi"]) if _finite(msg.get("ppi")) else float("nan"),
+                "device_pixel_ratio": float(msg["device_pixel_ratio"]) if _finite(msg.get("device_pixel_ratio"))
+                else float("nan")}
+    if kind in ("pose", "anchor"):
+        return {"type": kind, "t": _number(msg, "t"), "p": _vector(msg, "p", 3), "q": _quaternion(msg)}
+    if kind == "imu":
+        return {"type": kind, "t": _number(msg, "t"), "gyro": _vector(msg, "gyro", 3), "accel": _vector(msg, "accel", 3)}
+    if kind == "pong":
+        pid = _field(msg, "id")
+        if not isinstance(pid, int) or isinstance(pid, bool):
+            raise Malformed("pong 'id' is not an integer")
+        return {"type": kind, "id": pid, "t": _number(msg, "t")}
+    raise Malformed("unknown message type", repr(kind)[:40])
+
+
+class Connection:
+    """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
+
+    def __init__(self, server: "LiveServer", ws: web.WebSocketResponse, peer: str, number: int):
+        self.server = server
+        self.rec = server.recording
+        self.ws = ws
+        self.peer = peer
+        self.name = f"phone #{number} ({peer})"
+        self.clock = OffsetEstimator()
+        self.fallback_offset_ns: int | None = None
+        self.settled = False                           # stamping has started (see settle())
+        self.pending: list[tuple[dict, int]] = []      # (message, receipt ns) waiting for the offset
+        self.malformed_kinds: set[str] = set()
+        self.logged_offset_ns: int | None = None
+        self.opened_ns = self.rec.clock.now_ns()
+        self.received = 0
+        self.tasks: set[asyncio.Task] = set()
+
+    # ------------------------------------------------------------------ sending
+    async def send(self, obj: dict) -> None:
+        if self.ws.closed:
+            return
+        try:
+            await self.ws.send_str(json.dumps(obj))
+        except (ConnectionError, RuntimeError):
+            pass   # the page went away; the receive loop ends on its own
+
+    def send_soon(self, obj: dict) -> None:
+        task = asyncio.ensure_future(self.send(obj))
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+
+    # ------------------------------------------------------------------ clock
+    @property
+    def offset_ns(self) -> int | None:
+        off = self.clock.offset_ns
+        return off if off is not None else self.fallback_offset_ns
+
+    def capture_ns(self, t_ms: float) -> int:
+        return int(round(t_ms * 1e6)) - self.offset_ns
+
+    def settle(self) -> None:
+        """Start stamping: after the connect pings were answered, or at the timeout with what there is.
+
+        With no pong at all, the offset is taken from the first waiting sample assuming zero network
+        delay (logged), until a pong arrives.
+        """
+        if self.settled:
+            return
+        self.settled = True
+        if self.clock.best() is not None:
+            self._log_offset(force=True)
+        elif self.pending:
+            msg, receipt = self.pending[0]
+            self.fallback_offset_ns = int(round(msg["t"] * 1e6)) - receipt
+            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s; samples stamped "
+                         f"assuming zero network delay until one arrives", level="warning")
+        self.flush_pending()
+
+    def flush_pending(self) -> None:
+        pending, self.pending = self.pending, []
+        for msg, receipt in pending:
+            self.dispatch(msg, receipt)
+
+    def _log_offset(self, force: bool = False) -> None:
+        best = self.clock.best()
+        if best is None:
+            return
+        if force or self.logged_offset_ns is None or abs(best.offset_ns - self.logged_offset_ns) >= OFFSET_LOG_CHANGE_NS:
+            self.logged_offset_ns = best.offset_ns
+            self.rec.log(f"{self.name}: page clock offset {best.offset_ns / 1e6:+.1f} ms (best round trip "
+                         f"{best.rtt_ns / 1e6:.1f} ms of {len(self.clock.exchanges)})", echo=force)
+
+    # ------------------------------------------------------------------ receiving
+    def handle_text(self, text: str, receipt_ns: int) -> None:
+        self.received += 1
+        self.rec.stats["messages"] += 1
+        try:
+            msg = parse_message(text)
+        except Malformed as exc:
+            self.malformed(exc)
+            return
+        kind = msg["type"]
+        if kind == "pong":
+            if self.clock.pong(msg["id"], msg["t"], receipt_ns) is None:
+                self.rec.stats["pongs rejected"] += 1
+                return
+            if not self.settled and len(self.clock.exchanges) >= PING_AT_CONNECT:
+                self.settle()
+            elif self.settled:
+                self._log_offset()
+            return
+        if kind in ("pose", "imu", "anchor") and not self.settled:
+            if len(self.pending) < MAX_PENDING:
+                self.pending.append((msg, receipt_ns))
+                return
+            self.settle()
+        self.dispatch(msg, receipt_ns)
+
+    def malformed(self, exc: Malformed) -> None:
+        self.rec.stats["malformed"] += 1
+        self.rec.malformed_kinds[exc.kind] += 1
+        if exc.kind not in self.malformed_kinds:   # once per kind and connection
+            self.malformed_kinds.add(exc.kind)
+            self.rec.log(f"{self.name}: ignored a malformed message ({exc}); further ones of this kind are only counted",
+                         level="warning")
+            self.send_soon({"type": "error", "message": f"ignored malformed message: {exc}"})
+
+    def dispatch(self, msg: dict, receipt_ns: int) -> None:
+        kind = msg["type"]
+        try:
+            if kind == "hello":
+                self.rec.on_hello(self.name, msg)
+            elif kind == "marker":
+                error = self.rec.on_marker(self.name, msg)
+                if error:
+                    self.send_soon({"type": "error", "message": error})
+                self.send_soon(self.rec.status())
+            elif kind in ("pose", "imu", "anchor"):
+                capture = self.capture_ns(msg["t"])
+                if abs(capture - receipt_ns) > MAX_CAPTURE_SKEW_NS:
+                    raise Malformed(f"{kind} 't' is not on the page's clock",
+                                    f"{(capture - receipt_ns) / 1e9:+.1f} s from its receipt")
+                if kind == "pose":
+                    self.rec.on_pose(capture, receipt_ns, msg["p"], msg["q"])
+                elif kind == "imu":
+                    self.rec.on_imu(capture, receipt_ns, msg["gyro"], msg["accel"])
+                else:
+                    task = asyncio.ensure_future(self._anchor(capture, msg))
+                    self.tasks.add(task)
+                    task.add_done_callback(self.tasks.discard)
+        except Malformed as exc:
+            self.malformed(exc)
+
+    async def _anchor(self, capture_ns: int, msg: dict) -> None:
+        ok, text = await self.rec.resolve_anchor(capture_ns, msg["p"], msg["q"])
+        if not ok:
+            await self.send({"type": "error", "message": text})
+        await self.send(self.rec.status())
+
+    # ------------------------------------------------------------------ lifetime
+    async def pinger(self) -> None:
+        """5 quick pings at connect, then one (and a status) every second; the pending-samples timeout."""
+        for _ in range(PING_AT_CONNECT):
+            await self.send(self.clock.ping(self.rec.clock.now_ns()))
+            await asyncio.sleep(PING_AT_CONNECT_SPACING_S)
+        await self.send(self.rec.status())
+        waited = PING_AT_CONNECT * PING_AT_CONNECT_SPACING_S
+        if waited < PENDING_TIMEOUT_S and not self.settled:
+            await asyncio.sleep(PENDING_TIMEOUT_S - waited)
+        self.settle()
+        while not self.ws.closed:
+            await asyncio.sleep(PING_PERIOD_S)
+            await self.send(self.clock.ping(self.rec.clock.now_ns()))
+            await self.send(self.rec.status())
+            self._log_offset()
+
+    async def finish(self) -> None:
+        """The page went away: stamp what still waits, let anchors in flight finish."""
+        self.settle()
+        if self.tasks:
+            await asyncio.gather(*list(self.tasks), return_exceptions=True)
+
+
+class LiveServer:
+    """The aiohttp application; :meth:`start` binds it (``port`` 0: any free port)."""
+
+    def __init__(self, recording: "LiveRecording", token: str, *, host: str = "0.0.0.0", port: int = 8443,
+                 ssl_context=None, marker_png: bytes = b"", static_dir: Path = STATIC_DIR):
+        self.recording = recording
+        self.token = token
+        self.host, self.port = host, port
+        self.ssl_context = ssl_context
+        self.marker_png = marker_png
+        self.static_dir = Path(static_dir)
+        self.current: Connection | None = None
+        self.connections = 0
+        self._runner: web.AppRunner | None = None
+        self.app = self._make_app()
+
+    # ------------------------------------------------------------------ HTTP
+    def _make_app(self) -> web.Application:
+        app = web.Application(client_max_size=MAX_MESSAGE_BYTES)
+        app.router.add_get("/", self._index)
+        app.router.add_get("/marker.png", self._marker)
+        app.router.add_get("/config", self._config)
+        app.router.add_get("/ws", self._websocket)
+        if self.static_dir.is_dir():
+            app.router.add_static("/static/", self.static_dir, follow_symlinks=False)
+        return app
+
+    def _authorised(self, request: web.Request) -> bool:
+        given = request.query.get("token", "")
+        ok = secrets.compare_digest(given.encode("utf-8", "replace"), self.token.encode())
+        if not ok:
+            self.recording.refused(request.remote or "?", request.path, bool(given))
+        return ok
+
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        if not self._authorised(request):
+            raise web.HTTPForbidden(text="phonepose: this page needs the link printed by `phonepose record live` "
+                                         "(its token is new for every recording)\n")
+        index = self.static_dir / "index.html"
+        if not index.is_file():
+            raise web.HTTPServiceUnavailable(text="phonepose: the phone page is not installed (static/index.html)\n")
+        return web.FileResponse(index, headers={"Cache-Control": "no-store"})
+
+    async def _marker(self, request: web.Request) -> web.Response:
+        if not self._authorised(request):
+            raise web.HTTPForbidden(text="wrong token\n")
+        return web.Response(body=self.marker_png, content_type="image/png", headers={"Cache-Control": "no-store"})
+
+    async def _config(self, request: web.Request) -> web.Response:
+        if not self._authorised(request):
+            raise web.HTTPForbidden(text="wrong token\n")
+        d, i = self.recording.marker_dictionary, self.recording.marker_id
+        return web.json_response({"marker": {"dictionary": d, "id": i}}, headers={"Cache-Control": "no-store"})
+
+    # ------------------------------------------------------------------ WebSocket
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        if not self._authorised(request):
+            raise web.HTTPForbidden(text="wrong token\n")
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES, heartbeat=None)
+        await ws.prepare(request)
+        self.connections += 1
+        conn = Connection(self, ws, request.remote or "?", self.connections)
+        previous, self.current = self.current, conn
+        if previous is not None and not previous.ws.closed:
+            self.recording.log(f"{previous.name}: replaced by {conn.name}", level="warning")
+            await previous.send({"type": "error", "message": "another page connected; this one is no longer recorded"})
+            await previous.ws.close()
+        self.recording.log(f"{conn.name}: connected")
+        pinger = asyncio.ensure_future(conn.pinger())
+        try:
+            async for msg in ws:
+                receipt = self.recording.clock.now_ns()
+                if conn is not self.current:
+                    break
+                if msg.type == WSMsgType.TEXT:
+                    conn.handle_text(msg.data, receipt)
+                elif msg.type == WSMsgType.BINARY:
+                    conn.received += 1
+                    self.recording.stats["messages"] += 1
+                    conn.malformed(Malformed("binary message (the protocol is JSON text)"))
+                elif msg.type == WSMsgType.ERROR:
+                    break
+        finally:
+            pinger.cancel()
+            await asyncio.gather(pinger, return_exceptions=True)
+            await conn.finish()
+            why = f"closed (code {ws.close_code})" if ws.close_code is not None else "disconnected"
+            self.recording.log(f"{conn.name}: {why} after {conn.received} messages")
+            if self.current is conn:
+                self.current = None
+        return ws
+
+    # ------------------------------------------------------------------ lifetime
+    async def start(self) -> int:
+        self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context, reuse_address=True)
+        await site.start()
+        sockets = getattr(site._server, "sockets", None) or []
+        if sockets:
+            self.port = sockets[0].getsockname()[1]
+        return self.port
+
+    async def stop(self) -> None:
+        conn = self.current
+        if conn is not None and not conn.ws.closed:
+            await conn.send({"type": "status", "recording": False, "anchor": self.recording.anchor_set,
+                             "marker_seen": False})
+            await conn.ws.close(message=b"recording finished")
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None

@@ -1,0 +1,324 @@
+"""``record live``: the server, the clock offset, the certificate, and whole recordings driven by a
+scripted phone (an aiohttp WebSocket client) with a video file as the camera.
+
+The video shows the marker at a known, slowly moving pose (drawn with a homography from the
+camera's intrinsics); the scripted phone sends the VIO poses of that same motion in its own
+frame (a fixed transform away from display_vio) on a clock offset by :data:`OFFSET_NS`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import os
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from phonepose.calibration.camera_file import CameraCalibrationFile, save_calibration
+from phonepose.geometry import Pose
+from phonepose.playback.engine import run_playback
+from phonepose.record.live import LiveSession
+from phonepose.record.live.clock import OffsetEstimator
+from phonepose.record.live.server import Malformed, parse_message
+from phonepose.record.live.session import T_DISPLAY_CAMERA
+from phonepose.record.live.tls import ensure_certificate
+from phonepose.schemas.topics import Frame, Topic
+from phonepose.session import SessionReader
+
+W, H, FPS = 640, 480, 30.0
+K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1]])
+MARKER_SIZE = 0.06
+VIDEO_S = 3.0
+OFFSET_NS = 1_234_567_890          # the phone clock runs this far ahead of the recorder's
+TAP_S = 1.0                        # when the scripted user taps "anchor" (video time)
+T_CVIO_DVIO = Pose.from_rotvec([0.4, -0.2, 1.1], [0.0, 0.0, 0.7])   # phone VIO world vs display_vio
+R_CAM_MARKER0 = Rotation.from_euler("x", 180, degrees=True)          # marker facing the camera
+
+
+def T_camera_marker(t_s: float) -> Pose:
+    """The marker's true pose in the camera at video time ``t``: a slow sway, a little rotation."""
+    rot = Rotation.from_euler("yx", [12 * math.sin(2 * math.pi * t_s / 2.5), 8 * math.sin(2 * math.pi * t_s / 3.1)],
+                              degrees=True)
+    pos = np.array([0.03 * math.sin(2 * math.pi * t_s / 2.0), 0.015 * math.cos(2 * math.pi * t_s / 2.7),
+                    0.32 + 0.02 * math.sin(2 * math.pi * t_s / 1.9)])
+    return Pose(rot * R_CAM_MARKER0, pos)
+
+
+def T_dvio_controller(t_s: float) -> Pose:
+    return T_DISPLAY_CAMERA @ T_camera_marker(t_s)          # controller body = marker frame
+
+
+def T_cvio_controller(t_s: float) -> Pose:
+    return T_CVIO_DVIO @ T_dvio_controller(t_s)
+
+
+def _draw(t_s: float, marker: np.ndarray, quiet: int, side: int) -> np.ndarray:
+    h = MARKER_SIZE / 2
+    corners = np.array([[-h, h, 0], [h, h, 0], [h, -h, 0], [-h, -h, 0]])
+    pose = T_camera_marker(t_s)
+    p = pose.apply(corners)
+    px = (K @ (p / p[:, 2:3]).T).T[:, :2]
+    src = np.array([[quiet, quiet], [quiet + side, quiet], [quiet + side, quiet + side], [quiet, quiet + side]],
+                   dtype=np.float32)
+    Hm = cv2.getPerspectiveTransform(src, px.astype(np.float32))
+    img = cv2.warpPerspective(marker, Hm, (W, H), flags=cv2.INTER_AREA, borderValue=255)
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+
+
+@pytest.fixture(scope="module")
+def media(tmp_path_factory):
+    d = tmp_path_factory.mktemp("live")
+    side, quiet = 600, 150
+    marker = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), 7, side)
+    marker = cv2.copyMakeBorder(marker, quiet, quiet, quiet, quiet, cv2.BORDER_CONSTANT, value=255)
+    video = d / "cam.avi"
+    vw = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), FPS, (W, H))
+    for i in range(int(VIDEO_S * FPS)):
+        vw.write(_draw(i / FPS, marker, quiet, side))
+    vw.release()
+    calib = d / "cam.yaml"
+    save_calibration(calib, CameraCalibrationFile(K, np.zeros(5), W, H, 0.2, "test"))
+    return d, video, calib
+
+
+# ---------------------------------------------------------------------------------------------- units
+def test_offset_estimator_takes_the_minimum_round_trip():
+    est = OffsetEstimator()
+    true_offset = 5_000_000_000
+    # (send, up delay, down delay): asymmetric slow exchanges, one fast symmetric one
+    for send, up, down in [(0, 40e6, 5e6), (1e9, 3e6, 30e6), (2e9, 1e6, 1e6), (3e9, 20e6, 2e6)]:
+        ping = est.ping(int(send))
+        t_client_ms = (send + up + true_offset) / 1e6
+        est.pong(ping["id"], t_client_ms, int(send + up + down))
+    assert est.best().rtt_ns == 2_000_000
+    assert est.offset_ns == true_offset
+    assert est.pong(999, 1.0, 10) is None and est.rejected == 1      # answers no ping of ours
+    assert est.to_recorder_ns((7e9 + true_offset) / 1e6) == 7_000_000_000
+
+
+def test_certificate_is_made_once_then_reused(tmp_path):
+    d = tmp_path / "tls"
+    a = ensure_certificate(d, ["localhost", "127.0.0.1", "192.168.1.20"])
+    assert a.created and stat.S_IMODE(os.stat(a.key_path).st_mode) == 0o600
+    b = ensure_certificate(d, ["localhost", "192.168.1.20"])
+    assert not b.created and b.sha256 == a.sha256
+    c = ensure_certificate(d, ["localhost", "10.0.0.5"])     # a new address: a new certificate
+    assert c.created and c.sha256 != a.sha256
+
+
+@pytest.mark.parametrize("text, kind", [
+    ("{not json", "not JSON"),
+    ("[1, 2]", "not a JSON object with a string 'type'"),
+    ('{"type": "teleport"}', "unknown message type"),
+    ('{"type": "pose", "p": [0, 0, 0], "q": [0, 0, 0, 1]}', "pose without 't'"),
+    ('{"type": "pose", "t": 1, "p": [0, 0], "q": [0, 0, 0, 1]}', "pose 'p' is not 3 finite numbers"),
+    ('{"type": "pose", "t": 1, "p": [0, 0, 0], "q": [0, 0, 0, 2]}', "pose 'q' is not a unit quaternion"),
+    ('{"type": "imu", "t": "x", "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}', "imu 't' is not a finite number"),
+    ('{"type": "imu", "t": 1, "gyro": [0, 0, NaN], "accel": [0, 0, 9.8]}', "imu 'gyro' is not 3 finite numbers"),
+    ('{"type": "marker", "dictionary": "DICT_4X4_50", "id": 7, "size_m": 5}', "marker 'size_m' must be in (0, 1) m"),
+    ('{"type": "pong", "id": "a", "t": 1}', "pong 'id' is not an integer"),
+])
+def test_malformed_messages_are_named(text, kind):
+    with pytest.raises(Malformed) as exc:
+        parse_message(text)
+    assert exc.value.kind == kind
+
+
+# ---------------------------------------------------------------------------------------------- phone
+class Phone:
+    """A scripted phone page: answers pings at once, streams poses (30 Hz) and IMU (60 Hz)."""
+
+    def __init__(self, session: LiveSession, port: int, token: str):
+        self.s = session
+        self.clock = session.source.clock
+        self.base = f"https://127.0.0.1:{port}"
+        self.token = token
+        self.sent: list[tuple[str, float, int]] = []     # (type, t ms, true capture ns on the recorder clock)
+        self.received: list[dict] = []
+
+    def phone_ms(self, rec_ns: int) -> float:
+        return (rec_ns + OFFSET_NS) / 1e6
+
+    async def _reader(self, ws) -> None:
+        async for msg in ws:
+            if msg.type != aiohttp.WSMsgType.TEXT:
+                break
+            m = json.loads(msg.data)
+            self.received.append(m)
+            if m["type"] == "ping":
+                await ws.send_str(json.dumps({"type": "pong", "id": m["id"], "server_ns": m["server_ns"],
+                                              "t": self.phone_ms(self.clock.now_ns())}))
+
+    async def connect(self, http: aiohttp.ClientSession):
+        ws = await http.ws_connect(f"{self.base}/ws?token={self.token}")
+        reader = asyncio.ensure_future(self._reader(ws))
+        return ws, reader
+
+    async def send_pose(self, ws, kind: str, start_ns: int, t_true_ns: int, t_ms: float | None = None) -> None:
+        pose = T_cvio_controller((t_true_ns - start_ns) / 1e9)
+        t_ms = self.phone_ms(t_true_ns) if t_ms is None else t_ms
+        await ws.send_str(json.dumps({"type": kind, "t": t_ms, "p": pose.translation.tolist(),
+                                      "q": pose.quat_xyzw.tolist()}))
+        self.sent.append((kind, t_ms, t_true_ns))
+
+    async def stream(self, ws, start_ns: int, until_s: float, tap_at_s: float | None = None) -> None:
+        """Poses every other IMU sample, on the video's timeline, until video time ``until_s``."""
+        k = 0
+        tapped = tap_at_s is None
+        while True:
+            now = self.clock.now_ns()
+            t_s = (now - start_ns) / 1e9
+            if t_s >= until_s:
+                return
+            t_ms = self.phone_ms(now)
+            await ws.send_str(json.dumps({"type": "imu", "t": t_ms, "gyro": [0.01, 0.02, 0.03],
+                                          "accel": [0.1, 9.8, 0.2]}))
+            self.sent.append(("imu", t_ms, now))
+            if k % 2 == 0:
+                await self.send_pose(ws, "pose", start_ns, now)
+            if not tapped and t_s >= tap_at_s:
+                await self.send_pose(ws, "anchor", start_ns, now)
+                tapped = True
+            k += 1
+            await asyncio.sleep(1 / 60)
+
+
+def _start(media, tmp_path, **kw) -> tuple[LiveSession, dict, threading.Thread, list[str]]:
+    _, video, calib = media
+    lines: list[str] = []
+    s = LiveSession(tmp_path / "s.mcap", str(video), calib, host="127.0.0.1", port=0, tls_dir=tmp_path / "tls",
+                    echo=lines.append, **kw)
+    s.start()
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.setdefault("result", s.run()), daemon=True)
+    th.start()
+    return s, out, th, lines
+
+
+def _wait_video_start(s: LiveSession) -> int:
+    for _ in range(200):
+        if s.source.camera.start_ns is not None and s.source.recording.latest_frame_ns is not None:
+            return s.source.camera.start_ns
+        time.sleep(0.01)
+    raise AssertionError("the camera did not start")
+
+
+def _messages(path):
+    with SessionReader(path) as r:
+        return list(r.messages())
+
+
+# ---------------------------------------------------------------------------------------------- whole sessions
+@pytest.mark.slow
+def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
+    s, out, th, lines = _start(media, tmp_path)
+    phone = Phone(s, s.port, s.token)
+    start = _wait_video_start(s)
+    statuses: dict = {}
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            # wrong or missing token: 403 on every route, nothing recorded from it
+            for url in (f"{phone.base}/?token=nope", f"{phone.base}/config", f"{phone.base}/marker.png?token=x"):
+                async with http.get(url) as r:
+                    statuses[url] = r.status
+            with pytest.raises(aiohttp.WSServerHandshakeError) as exc:
+                await http.ws_connect(f"{phone.base}/ws?token=wrong")
+            statuses["ws"] = exc.value.status
+            async with http.get(f"{phone.base}/config?token={s.token}") as r:
+                statuses["config"] = await r.json()
+            async with http.get(f"{phone.base}/marker.png?token={s.token}") as r:
+                statuses["png"] = (await r.read())[:8]
+
+            # first connection: hello, marker, samples, then it drops mid-session (no close frame)
+            ws, reader = await phone.connect(http)
+            await ws.send_str(json.dumps({"type": "hello", "user_agent": "scripted phone", "webxr": True, "message": ""}))
+            await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_4X4_50", "id": 7, "size_m": MARKER_SIZE,
+                                          "ppi": 400.0, "device_pixel_ratio": 2.625}))
+            await phone.stream(ws, start, 0.6)
+            # malformed messages: logged and ignored, the connection stays
+            for bad in ("{oops", '{"type": "teleport"}', '{"type": "pose", "t": 1}',
+                        '{"type": "imu", "t": 1, "gyro": [1, 2], "accel": [0, 0, 0]}'):
+                await ws.send_str(bad)
+            await ws.send_bytes(b"\x00\x01")
+            # out of order: a pose stamped 200 ms in the past
+            now = phone.clock.now_ns()
+            await phone.send_pose(ws, "pose", start, now - 200_000_000)
+            await phone.stream(ws, start, 0.8)
+            ws._response.connection.transport.abort()           # the phone vanishes
+            reader.cancel()
+            # a new connection (the page reloaded) carries on and taps "anchor"
+            ws, reader = await phone.connect(http)
+            await phone.stream(ws, start, VIDEO_S - 0.3, tap_at_s=TAP_S)
+            await asyncio.sleep(0.2)
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    th.join(timeout=30)
+    assert not th.is_alive()
+    result = out["result"]
+    assert result.stop_reason == "the video file ended"
+    assert all(v == 403 for k, v in statuses.items() if k not in ("config", "png"))
+    assert statuses["config"] == {"marker": {"dictionary": "DICT_4X4_50", "id": 7}}
+    assert statuses["png"] == b"\x89PNG\r\n\x1a\n"
+
+    msgs = _messages(tmp_path / "s.mcap")
+    by = {}
+    for m in msgs:
+        by.setdefault(m.topic, []).append(m)
+    n_frames = int(VIDEO_S * FPS)
+    assert len(by[Topic.CAMERA_IMAGE]) == n_frames and len(by[Topic.DISPLAY_VIO_POSE]) == n_frames
+    assert [m.topic for m in msgs[:3]] == [Topic.SESSION_INFO, Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS]
+    assert by[Topic.SESSION_INFO][0].msg.source == "live"
+    assert len(by[Topic.CONTROLLER_MARKER]) == 1 and by[Topic.CONTROLLER_MARKER][0].msg.size_m == MARKER_SIZE
+    # nothing received is lost: every pose and IMU sample sent is in the file, in receipt order
+    sent_poses = [x for x in phone.sent if x[0] == "pose"]
+    sent_imu = [x for x in phone.sent if x[0] == "imu"]
+    assert len(by[Topic.CONTROLLER_VIO_POSE]) == len(sent_poses)
+    assert len(by[Topic.CONTROLLER_IMU]) == len(sent_imu)
+    log_times = [m.log_time_ns for m in msgs]
+    assert log_times[3:] == sorted(log_times[3:])                # one time order across topics
+    # the page clock offset is recovered: capture stamps = true capture times within a few ms
+    errs = [m.msg.timestamp.ToNanoseconds() - true for m, (_, _, true) in zip(by[Topic.CONTROLLER_VIO_POSE], sent_poses)]
+    assert np.median(np.abs(errs)) < 1_000_000 and max(abs(e) for e in errs) < 3_000_000, \
+        (np.median(np.abs(errs)), max(abs(e) for e in errs))
+    # out of order: written as received, counted in the summary and /log
+    stamps = [m.msg.timestamp.ToNanoseconds() for m in by[Topic.CONTROLLER_VIO_POSE]]
+    assert sum(b <= a for a, b in zip(stamps, stamps[1:])) == 1
+    logs = [m.msg.message for m in by[Topic.LOG]]
+    assert any("/controller/vio/pose 1" in t for t in logs)
+    assert any("malformed messages ignored: 5" in t for t in logs)
+    assert any("refused" in t for t in logs) and any("replaced" in t or "disconnected" in t or "closed" in t
+                                                      for t in logs)
+    assert sum("ignored a malformed message" in t for t in logs) == 5
+    # the anchor: viewer pose at the tap / the marker pose drawn in the frame closest to it
+    (ca,), (da,) = by[Topic.CONTROLLER_ANCHOR], by[Topic.DISPLAY_ANCHOR]
+    frame_s = (da.msg.timestamp.ToNanoseconds() - start) / 1e9
+    tap_true = next(true for kind, _, true in phone.sent if kind == "anchor")
+    assert abs(da.msg.timestamp.ToNanoseconds() - tap_true) <= 1e9 / FPS / 2 + 3e6
+    drawn = T_dvio_controller(frame_s)
+    got = Pose.from_foxglove(da.msg.pose)
+    assert np.linalg.norm(got.translation - drawn.translation) < 0.005
+    assert float(got.angle_to(drawn)) < np.deg2rad(3)
+    assert da.msg.frame_id == Frame.DISPLAY_VIO and ca.msg.frame_id == Frame.CONTROLLER_VIO
+    # it plays back with every tracker giving poses (no ground truth: metrics null)
+    pb_result = run_playback(tmp_path / "s.mcap", trackers="all", write_outputs=False)
+    assert pb_result.trajectories and not pb_result.has_gt
+    for name, traj in pb_result.trajectories.items():
+        assert len(traj.stamps_ns) > 10, name
+    t1 = pb_result.trajectories["T1"]
+    truth = Pose.concatenate([T_dvio_controller((t - start) / 1e9) for t in t1.stamps_ns])
+    err = np.linalg.norm(t1.poses.translation - truth.translation, axis=1)
+    assert np.median(err) < 0.01, np.median(err)     # VIO mapped through the recorded anchors
