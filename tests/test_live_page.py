@@ -78,7 +78,7 @@ class LaptopSide:
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         if not self._authorised(request):
-            return web.Response(status=403, text="403: wrong or missing token; open the URL printed by phonepose record live")
+            return web.Response(status=403, text="403: wrong token; open the URL printed by phonepose record live")
         return web.FileResponse(STATIC / "index.html")
 
     async def _marker(self, request: web.Request) -> web.Response:
@@ -150,6 +150,14 @@ class LaptopSide:
 
         asyncio.run_coroutine_threadsafe(go(), self.loop).result(5)
 
+    def close_all(self, code: int, message: bytes = b"") -> None:
+        async def go() -> None:
+            for ws in self.sockets:
+                if not ws.closed:
+                    await ws.close(code=code, message=message)
+
+        asyncio.run_coroutine_threadsafe(go(), self.loop).result(5)
+
     def of_type(self, kind: str) -> list[dict]:
         return [m for m in list(self.messages) if m.get("type") == kind]
 
@@ -189,7 +197,8 @@ def page(browser):
 
 
 def rect(page, selector: str) -> dict:
-    return page.eval_on_selector(selector, "e => { const r = e.getBoundingClientRect(); return {x: r.x, y: r.y, w: r.width, h: r.height}; }")
+    js = "e => { const r = e.getBoundingClientRect(); return {x: r.x, y: r.y, w: r.width, h: r.height}; }"
+    return page.eval_on_selector(selector, js)
 
 
 def test_page_shows_marker_and_streams(server, page):
@@ -201,7 +210,8 @@ def test_page_shows_marker_and_streams(server, page):
     # hello: WebXR unavailable, with the same clear message in the DOM
     hello = wait_for(lambda: server.of_type("hello"), what="hello")[0]
     assert hello["webxr"] is False
-    assert hello["message"].startswith(NOT_AVAILABLE) and "ARCore" in hello["message"] and "IMU only" in hello["message"]
+    assert hello["message"].startswith(NOT_AVAILABLE)
+    assert "ARCore" in hello["message"] and "IMU only" in hello["message"]
     assert "Chrome" in hello["user_agent"]
     assert page.is_visible("#xr-message")
     assert page.inner_text("#xr-message") == hello["message"]
@@ -358,3 +368,22 @@ def test_marker_png_with_wide_border_and_no_quiet_zone(server, page):
         assert np.linalg.norm(c - np.roll(c, 1, axis=0), axis=1) == pytest.approx([w_css * DPR] * 4, abs=2.0)
     finally:
         server.png = original
+
+
+def test_reconnects_unless_closed_normally(server, page):
+    page.goto(f"http://127.0.0.1:{server.port}/?token={TOKEN}&ppi={PPI}")
+    page.wait_for_selector("body[data-ready=true]")
+    hellos = wait_for(lambda: len(server.of_type("hello")), what="hello")
+    markers = len(server.of_type("marker"))
+
+    # a broken connection (here: close code 4000) is retried; hello and marker are sent again
+    server.close_all(4000)
+    wait_for(lambda: len(server.of_type("hello")) == hellos + 1, what="hello after reconnecting")
+    wait_for(lambda: len(server.of_type("marker")) == markers + 1, what="marker after reconnecting")
+
+    # a normal close (recording finished, or another page replaced this one) is not fought back
+    server.close_all(1000, b"recording finished")
+    page.wait_for_selector("#error:not([hidden])")
+    assert "recording finished" in page.inner_text("#error") and "Reload" in page.inner_text("#error")
+    time.sleep(1.0)
+    assert len(server.of_type("hello")) == hellos + 1

@@ -125,15 +125,37 @@
       sendMarker(true);
     };
     ws.onmessage = (ev) => onServerMessage(ev.data);
-    ws.onclose = () => {
+    ws.onclose = (ev) => {
       if (state.ws !== ws) return;
       state.ws = null;
+      if (ev.code === 1000) {
+        // A normal close comes from the server on purpose: the recording finished, or another
+        // page connected and replaced this one. Reconnecting would take the session back from it.
+        setConn('closed by the laptop');
+        showError('The laptop closed this connection' + (ev.reason ? ' (' + ev.reason + ')' : '') +
+          ': the recording finished or another page took over. Reload this page to connect again.', 'ws');
+        return;
+      }
       const delay = state.reconnectDelay;
       state.reconnectDelay = Math.min(delay * 2, 8000);
       setConn('disconnected, retrying in ' + (delay / 1000).toFixed(1) + ' s');
       showError('Lost the connection to the laptop (is `phonepose record live` still running, and the phone on the same network?); reconnecting…', 'ws');
-      setTimeout(connect, delay);
+      setTimeout(reconnect, delay);
     };
+  }
+
+  // Before reconnecting, a refused token (a new recording has a new token) ends the attempts.
+  async function reconnect() {
+    try {
+      await fetchChecked('/config');
+    } catch (e) {
+      if (e instanceof AccessDenied) {
+        denyAccess();
+        return;
+      }
+      // laptop unreachable: the WebSocket attempt below fails too and schedules the next one
+    }
+    connect();
   }
 
   // The integer fields of a ping are echoed from the raw text, not through a JS number: a
@@ -226,6 +248,12 @@
 
   // ---------------------------------------------------------------- the marker
   class AccessDenied extends Error {}
+
+  function denyAccess() {
+    state.accessDenied = true;
+    showError('Access denied (HTTP 403): this link\'s token is wrong or out of date. Open the URL or QR code that `phonepose record live` prints now.', 'access');
+    setConn('not connected');
+  }
 
   async function fetchChecked(path) {
     const r = await fetch(path + '?token=' + encodeURIComponent(token), { cache: 'no-store' });
@@ -333,6 +361,14 @@
       side = Math.floor(avail * 0.8); // unknown grid: a 10 % quiet zone on each side
     }
     if (side <= 0) return;
+    // Pinch zoom (possible despite user-scalable=no with Android's "force enable zoom") magnifies
+    // the marker without changing devicePixelRatio: its size would be wrong, so say so.
+    const zoom = window.visualViewport ? window.visualViewport.scale : 1;
+    if (Math.abs(zoom - 1) > 0.01) {
+      showError('The page is zoomed in (×' + zoom.toFixed(2) + '): pinch back out, or the marker size is wrong.', 'zoom');
+    } else {
+      clearError('zoom');
+    }
     canvas.width = side;
     canvas.height = side;
     // Placed on whole device pixels (the marker area starts at the viewport's corner), so one
@@ -573,6 +609,7 @@
     // Taps on the controls during the AR session are page input, not XR "select" events.
     $('controls').addEventListener('beforexrselect', (ev) => ev.preventDefault());
     window.addEventListener('resize', layoutMarker);
+    if (window.visualViewport) window.visualViewport.addEventListener('resize', layoutMarker);
     if (typeof ResizeObserver === 'function') new ResizeObserver(layoutMarker).observe($('marker-area'));
     window.addEventListener('devicemotion', onDeviceMotion);
     setInterval(updateCounts, 250);
@@ -592,9 +629,7 @@
         layoutMarker();
       } catch (e) {
         if (e instanceof AccessDenied) {
-          state.accessDenied = true;
-          showError('Access denied (HTTP 403): this link\'s token is wrong or out of date. Open the URL or QR code that `phonepose record live` prints now.', 'access');
-          setConn('not connected');
+          denyAccess();
         } else {
           showError('Could not load the marker: ' + e.message, 'marker');
         }
