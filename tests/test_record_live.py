@@ -322,3 +322,101 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     truth = Pose.concatenate([T_dvio_controller((t - start) / 1e9) for t in t1.stamps_ns])
     err = np.linalg.norm(t1.poses.translation - truth.translation, axis=1)
     assert np.median(err) < 0.01, np.median(err)     # VIO mapped through the recorded anchors
+
+
+def test_bad_camera_or_calibration_fail_before_anything_is_written(media, tmp_path):
+    from phonepose.errors import ConfigError, InputFileError
+
+    _, video, calib = media
+    other = tmp_path / "other.yaml"
+    save_calibration(other, CameraCalibrationFile(K, np.zeros(5), 1280, 720))
+    with pytest.raises(ConfigError, match="gives 640x480 frames but the calibration is for 1280x720"):
+        LiveSession(tmp_path / "a.mcap", str(video), other, port=0, tls_dir=tmp_path / "tls")
+    with pytest.raises(InputFileError, match="no such video file"):
+        LiveSession(tmp_path / "a.mcap", str(tmp_path / "nope.avi"), calib, port=0, tls_dir=tmp_path / "tls")
+    with pytest.raises(ConfigError, match="--marker-size"):
+        LiveSession(tmp_path / "a.mcap", str(video), calib, port=0, tls_dir=tmp_path / "tls", marker_size_m=5.0)
+    assert not (tmp_path / "a.mcap").exists()
+
+
+def test_anchor_without_the_marker_in_view_is_refused(media, tmp_path):
+    s, out, th, lines = _start(media, tmp_path, marker_size_m=MARKER_SIZE)
+    phone = Phone(s, s.port, s.token)
+    start = _wait_video_start(s)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            await asyncio.sleep(0.3)
+            # a tap 2 s before the video started: no camera frame near it
+            await phone.send_pose(ws, "anchor", start, start - 2_000_000_000)
+            for _ in range(100):
+                if any(m["type"] == "error" for m in phone.received):
+                    break
+                await asyncio.sleep(0.02)
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    th.join(timeout=30)
+    errors = [m["message"] for m in phone.received if m["type"] == "error"]
+    assert errors and errors[0].startswith("anchor refused: the marker was not recognised")
+    assert any("anchor refused" in line for line in lines)
+    topics = {m.topic for m in _messages(tmp_path / "s.mcap")}
+    assert Topic.DISPLAY_ANCHOR not in topics and Topic.CONTROLLER_ANCHOR not in topics
+    assert Topic.CONTROLLER_MARKER in topics          # --marker-size: written at the start
+    assert out["result"].stop_reason == "test done"
+
+
+@pytest.mark.slow
+def test_cli_prints_the_url_and_sigint_finishes_a_valid_file(media, tmp_path):
+    _, video, calib = media
+    out = tmp_path / "cli.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "phonepose", "record", "live", "--camera", str(video),
+                             "--calibration", str(calib), "--out", str(out), "--host", "127.0.0.1", "--port", "0",
+                             "--tls-dir", str(tmp_path / "tls")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        for _ in range(50):
+            line = proc.stdout.readline()
+            if line.strip().startswith("https://"):
+                url = line.strip()
+                break
+        assert url is not None
+        sent = 0
+
+        async def script():
+            nonlocal sent
+            async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+                ws = await http.ws_connect(url.replace("/?token=", "/ws?token="))
+
+                async def pong():
+                    async for msg in ws:
+                        m = json.loads(msg.data)
+                        if m["type"] == "ping":
+                            await ws.send_str(json.dumps({"type": "pong", "id": m["id"], "t": time.time_ns() / 1e6}))
+
+                reader = asyncio.ensure_future(pong())
+                for _ in range(40):
+                    await ws.send_str(json.dumps({"type": "imu", "t": time.time_ns() / 1e6, "gyro": [0, 0, 0],
+                                                  "accel": [0, 9.8, 0]}))
+                    sent += 1
+                    await asyncio.sleep(0.01)
+                await asyncio.sleep(0.2)
+                proc.send_signal(signal.SIGINT)        # stop while the phone is still connected
+                await asyncio.sleep(0.5)
+                reader.cancel()
+
+        asyncio.run(script())
+        stdout, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "interrupted, file is valid" in stdout
+    assert "Traceback" not in stderr
+    msgs = _messages(out)
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in msgs) == sent
+    assert any(m.topic == Topic.CAMERA_IMAGE for m in msgs)

@@ -26,7 +26,10 @@ What is written (docs/format.md topics; docs/recording-real-sessions.md for the 
   identity): the offset between the viewer origin (the phone's camera) and the screen centre is
   unknown to the page; it costs ``|(I - R) x|`` of position error on the VIO path after a rotation
   R since the tap (x: that offset, a few cm), nothing right at the tap.
-- ``/controller/marker`` with the page's ``size_m`` (or ``--marker-size`` when given, which wins).
+- ``/controller/marker``: ``--marker-size`` when given (written first); else the page's ``size_m``
+  in effect at the first anchor (written then; at the end if no anchor was set). The page reports
+  a new size whenever its layout changes; a change after the size is fixed is reported (terminal,
+  ``/log``, the page) and counted, since playback has one marker size per session.
 - ``/session/info`` and ``/log`` (connections, clock offsets, anchors, refused requests,
   malformed messages, the closing summary).
 
@@ -128,6 +131,7 @@ class LiveRecording:
         self.marker_id = marker_id
         self.marker_size_m = marker_size_m
         self.marker_size_from_cli = marker_size_m is not None
+        self.marker_spec_written = self.marker_size_from_cli    # written in static() then
         self.echo = echo
         self.stats: Counter = Counter()
         self.malformed_kinds: Counter = Counter()
@@ -199,19 +203,33 @@ class LiveRecording:
             return text
         size = msg["size_m"]
         detail = f"{size * 1000:.1f} mm (ppi {msg['ppi']:g}, device pixel ratio {msg['device_pixel_ratio']:g})"
-        if self.marker_size_m is None:
+        if not self.marker_spec_written:      # the size in effect until the anchor fixes it
             self.marker_size_m = size
-            spec = pb.MarkerSpec(dictionary=self.marker_dictionary, id=self.marker_id, size_m=size)
-            t = self.clock.now_ns()
-            spec.timestamp.FromNanoseconds(t)
-            T_BODY_MARKER.to_foxglove(spec.pose_in_body)
-            self.emit(Topic.CONTROLLER_MARKER, spec, t)
             self.log(f"{who}: marker side {detail}")
-        elif abs(size - self.marker_size_m) > SIZE_MISMATCH * self.marker_size_m:
-            source = "--marker-size" if self.marker_size_from_cli else "the page's first report"
-            self.log(f"{who}: the page reports a marker side of {detail}; the session keeps "
-                     f"{self.marker_size_m * 1000:.1f} mm ({source})", level="warning")
-        return None
+            return None
+        if abs(size - self.marker_size_m) <= SIZE_MISMATCH * self.marker_size_m:
+            return None
+        self.stats["marker size changes ignored"] += 1
+        if self.marker_size_from_cli:
+            self.log(f"{who}: the page reports a marker side of {detail}; the session uses --marker-size "
+                     f"{self.marker_size_m * 1000:.1f} mm", level="warning")
+            return None
+        text = (f"the marker's size changed to {size * 1000:.1f} mm after the anchor; the session keeps "
+                f"{self.marker_size_m * 1000:.1f} mm, so marker poses from now on are off: restore the layout "
+                f"(controls, rotation) the phone had when anchoring")
+        self.log(f"{who}: {text}", level="warning")
+        return text
+
+    def write_marker_spec(self, t_ns: int | None = None) -> None:
+        """Fix the session's marker size (the one in effect now): at the first anchor, or at the end."""
+        if self.marker_spec_written or self.marker_size_m is None:
+            return
+        t = self.clock.now_ns() if t_ns is None else t_ns
+        spec = pb.MarkerSpec(dictionary=self.marker_dictionary, id=self.marker_id, size_m=self.marker_size_m)
+        spec.timestamp.FromNanoseconds(t)
+        T_BODY_MARKER.to_foxglove(spec.pose_in_body)
+        self.emit(Topic.CONTROLLER_MARKER, spec, t)
+        self.marker_spec_written = True
 
     def _check_order(self, topic: str, capture_ns: int) -> None:
         last = self._last_capture.get(topic)
@@ -290,6 +308,7 @@ class LiveRecording:
             return False, text
         T_dvio_controller = obs.T_dvio_controller
         t = self.clock.now_ns()
+        self.write_marker_spec(t)
         self.emit(Topic.CONTROLLER_ANCHOR, pose_in_frame(Pose.from_xyzw(p, q), F.CONTROLLER_VIO, capture_ns), t)
         self.emit(Topic.DISPLAY_ANCHOR, pose_in_frame(T_dvio_controller, F.DISPLAY_VIO, frame.t_ns), t)
         self.anchor_set = True
@@ -488,6 +507,7 @@ class LiveSource:
 
     def _closing_logs(self) -> list[Record]:
         rec = self.recording
+        rec.write_marker_spec()   # no anchor: the last size the page reported
         lines = [f"recording stopped: {self.stop_reason}"]
         if rec.backwards:
             lines.append("samples whose capture time did not increase (written as received; playback skips them): "
@@ -495,6 +515,9 @@ class LiveSource:
         if rec.stats["malformed"]:
             lines.append(f"malformed messages ignored: {rec.stats['malformed']} ("
                          + ", ".join(f"{k}: {n}" for k, n in rec.malformed_kinds.most_common()) + ")")
+        if rec.stats["marker size changes ignored"]:
+            lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "
+                         f"the session's size ({rec.marker_size_m * 1000:.1f} mm) was fixed")
         if rec.stats["refused"]:
             lines.append(f"requests refused without the right token: {rec.stats['refused']}")
         if self.camera.reencoded:
