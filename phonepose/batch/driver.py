@@ -50,18 +50,28 @@ def resolve_trackers(trackers: Sequence[str] | str) -> list[str]:
     return names
 
 
-def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, trackers: Sequence[str] | str = ("all",),
-              params: Sequence[str] | dict[str, list] = (), workers: int | None = None, scheduler: str | None = None,
-              progress: Callable[[int, int, list[dict]], None] | None = None,
-              on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
-    """Play every (session, parameter combination) back with every tracker; one row per tracker in ``out``.
+@dataclass
+class PreparedBatch:
+    """A checked batch: its plan, the table it resumes, and where it will run (nothing has run yet)."""
 
-    ``params``: ``["rate_hz=10,20", ...]`` (the CLI's --param) or ``{"rate_hz": [10.0, 20.0]}``.
-    ``progress(done_units, total_units, rows_of_the_unit)`` after each finished unit;
-    ``on_start(plan, executor_description)`` once the plan is made and the executor is up.
-    Errors in the arguments raise before any playback (ConfigError, OutputError).
-    """
+    out: Path
+    plan: Plan
+    table: ResultTable
+    workers: int | None
+    scheduler: str | None
+    t0: float
+
+
+def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
+                  trackers: Sequence[str] | str = ("all",), params: Sequence[str] | dict[str, list] = (),
+                  workers: int | None = None, scheduler: str | None = None) -> PreparedBatch:
+    """Check every argument and make the plan against what ``out`` holds already; raises ConfigError /
+    OutputError (one line) before any playback."""
     t0 = time.perf_counter()
+    if scheduler is not None and workers is not None:
+        raise ConfigError("--workers and --scheduler are exclusive: the cluster's workers are set by `dask worker`")
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1 (got {workers})")
     if not sessions:
         raise ConfigError("no session given")
     names = resolve_trackers(trackers)
@@ -70,11 +80,19 @@ def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, tra
     combos = param_combinations(sweep)
     table = ResultTable(out)
     plan = make_plan(sessions, names, combos, table.rows)
+    return PreparedBatch(Path(out), plan, table, workers, scheduler, t0)
+
+
+def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]], None] | None = None,
+                  on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
+    """Run the plan's units on the executor; merge and write the table as they finish (at most once per
+    ``WRITE_INTERVAL_S``, and at the end, also when interrupted)."""
+    plan, table = batch.plan, batch.table
     units_run = rows_run = 0
     failures: list[tuple[str, str]] = []
     description = "nothing to run"
     if plan.units:
-        with open_executor(workers, scheduler) as (executor, description):
+        with open_executor(batch.workers, batch.scheduler) as (executor, description):
             if on_start is not None:
                 on_start(plan, description)
             futures = {executor.submit(run_unit, unit): unit for unit in plan.units}
@@ -102,8 +120,23 @@ def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, tra
     table.write()
     rows = sorted((table.rows[k] for k in plan.keys), key=sort_key)
     errors = sum(1 for r in rows if r.get("status") != "ok")
-    return BatchResult(Path(out), plan, rows, units_run, rows_run, errors, time.perf_counter() - t0, description,
-                       failures)
+    return BatchResult(batch.out, plan, rows, units_run, rows_run, errors, time.perf_counter() - batch.t0,
+                       description, failures)
+
+
+def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, trackers: Sequence[str] | str = ("all",),
+              params: Sequence[str] | dict[str, list] = (), workers: int | None = None, scheduler: str | None = None,
+              progress: Callable[[int, int, list[dict]], None] | None = None,
+              on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
+    """Play every (session, parameter combination) back with every tracker; one row per tracker in ``out``.
+
+    ``params``: ``["rate_hz=10,20", ...]`` (the CLI's --param) or ``{"rate_hz": [10.0, 20.0]}``.
+    ``workers``: local processes (default one per core); ``scheduler``: a Dask scheduler address instead.
+    ``progress(done_units, total_units, rows_of_the_unit)`` after each finished unit;
+    ``on_start(plan, executor_description)`` once the executor is up.
+    Errors in the arguments raise before any playback (ConfigError, OutputError).
+    """
+    return execute_batch(prepare_batch(sessions, out, trackers, params, workers, scheduler), progress, on_start)
 
 
 def _spread(values: list[float]) -> tuple[float | None, float | None]:

@@ -179,6 +179,7 @@ class Plan:
     sessions: int
     combinations: int
     trackers: list[str]
+    varying: list[str]           # parameters with more than one value (what tells combinations apart)
 
 
 def make_plan(sessions: Sequence[str | os.PathLike], trackers: Sequence[str], combos: list[dict],
@@ -215,4 +216,5 @@ def make_plan(sessions: Sequence[str | os.PathLike], trackers: Sequence[str], co
                 todo.append(tracker)
             if todo:
                 units.append(Unit(session, path, tuple(combo.items()), tuple(todo)))
-    return Plan(units, keys, skipped, retried, stale, len(seen), len(combos), list(trackers))
+    varying = [k for k in PARAMS if len({json.dumps(c.get(k)) for c in combos}) > 1]
+    return Plan(units, keys, skipped, retried, stale, len(seen), len(combos), list(trackers), varying)

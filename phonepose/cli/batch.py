@@ -51,28 +51,32 @@ def batch(
     Exit 0 when every row is ok, 1 when some playbacks failed (their rows say why; they are
     retried by the next run with the same --out).
     """
-    from phonepose.batch import PARAMS, run_batch, summarize
+    from phonepose.batch import summarize
+    from phonepose.batch.driver import execute_batch, prepare_batch
     from phonepose.batch.plan import params_label
 
+    prepared = prepare_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
+                             scheduler=scheduler)
     console = Console(stderr=True)
     out_console = Console()
     with Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
                   TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),
-                  TimeRemainingColumn(), console=console, disable=quiet, transient=True) as bar:
+                  TimeRemainingColumn(), console=console, disable=quiet or not console.is_terminal,
+                  transient=True) as bar:
         task = bar.add_task("units", total=None, rows=0, errors=0)
         counts = {"rows": 0, "errors": 0}
 
         varying: list[str] = []
 
         def on_start(plan, executor: str) -> None:
-            varying.extend(k for k in PARAMS if any(p.startswith(f"{k}=") for p in param))
+            varying.extend(plan.varying)
             n_rows = len(plan.keys)
             redo = f", {plan.retried} error rows retried" if plan.retried else ""
             redo += f", {plan.stale} rows of changed sessions rerun" if plan.stale else ""
             where = f"{len(plan.units)} playbacks on {executor}" if plan.units else "nothing to run"
             bar.console.print(f"{plan.sessions} sessions x {plan.combinations} parameter combinations x "
                               f"{len(plan.trackers)} trackers = {n_rows} rows; {plan.skipped} already in {out} (skipped)"
-                              f"{redo}; {where}", highlight=False)
+                              f"{redo}; {where}", highlight=False, soft_wrap=True)
             bar.update(task, total=len(plan.units))
 
         def progress(done: int, total: int, rows: list[dict]) -> None:
@@ -81,12 +85,10 @@ def batch(
                 counts["errors"] += len(rows)
                 params = params_label(json.loads(rows[0]["params"]), varying)
                 bar.console.print(f"[red]failed[/red] {rows[0]['session']}{' (' + params + ')' if params else ''}: "
-                                  f"{rows[0]['error']}",
-                                  highlight=False)
+                                  f"{rows[0]['error']}", highlight=False, soft_wrap=True)
             bar.update(task, completed=done, total=total, **counts)
 
-        result = run_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
-                           scheduler=scheduler, progress=progress, on_start=on_start)
+        result = execute_batch(prepared, progress=progress, on_start=on_start)
     out_console.print(summary_table(summarize(result.rows)))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "

@@ -1,0 +1,261 @@
+"""``phonepose batch``: same rows whatever runs it (1 worker, 2 workers, a Dask cluster), failures in
+their rows, resuming, parameter sweeps, and the CLI's exit codes."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from phonepose.batch import RUNTIME_COLUMNS, run_batch
+from phonepose.batch.run import flatten_tracker_metrics
+from phonepose.batch.table import to_arrow
+from phonepose.errors import ConfigError
+from phonepose.pipeline.trackers import PAPER_TRACKERS
+from phonepose.playback import run_playback
+from phonepose.record.sim import default_config, record_sim
+
+PATHS = ("TRI1", "REC1", "TRI2")
+# a cheap camera rate keeps the sessions short to simulate and to play back (~1 s each)
+FAST = default_config().replace(camera=dict(rate_hz=5.0))
+WINDOW = ["start_s=2", "end_s=6"]     # a 4 s window: sweeps stay fast
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sessions")
+    out = []
+    for i, path in enumerate(PATHS):
+        p = d / f"{path}_01.mcap"
+        record_sim(p, scenario="exp2", path=path, trial=1, seed=i, config=FAST)
+        out.append(str(p))
+    return out
+
+
+@pytest.fixture(scope="module")
+def one_worker(sessions, tmp_path_factory):
+    """The reference: all three sessions x T1-T7 with one local worker process."""
+    out = tmp_path_factory.mktemp("ref") / "ref.parquet"
+    result = run_batch(sessions, out, trackers="paper", workers=1)
+    return out, result
+
+
+def table_without_runtime(path) -> pa.Table:
+    return pq.read_table(path).drop_columns(list(RUNTIME_COLUMNS))
+
+
+def test_one_worker_rows_are_the_playbacks_metrics(sessions, one_worker):
+    out, result = one_worker
+    assert (result.units_run, result.rows_run, result.skipped, result.errors) == (3, 21, 0, 0)
+    table = pq.read_table(out)
+    rows = table.to_pylist()
+    # sorted by session, then tracker; one row per (session, tracker)
+    assert [(r["session"], r["tracker"]) for r in rows] == [(s, t) for s in sorted(sessions) for t in PAPER_TRACKERS]
+    assert {r["status"] for r in rows} == {"ok"} and {r["error"] for r in rows} == {None}
+    assert {r["param_rate_hz"] for r in rows} == {20.0} and {r["param_correction_math"] for r in rows} == {"paper"}
+    assert {r["param_cm1_reading"] for r in rows} == {"consistent"} and {r["param_start_s"] for r in rows} == {None}
+    assert table.schema.field("p_ate_m_total").type == pa.float64()
+    assert table.schema.field("frames_inside").type == pa.int64()
+    # every value of the metrics document, as the playback itself computes it
+    direct = run_playback(sessions[1], trackers="paper", write_outputs=False)
+    mine = [r for r in rows if r["session"] == sessions[1]]
+    for r in mine:
+        m = direct.metrics["trackers"][r["tracker"]]
+        for scope in ("inside", "outside", "total"):
+            for key, value in m[scope].items():
+                assert r[f"{key}_{scope}"] == value, (r["tracker"], scope, key)
+        assert r["n_ticks"] == direct.n_ticks and r["frames_decoded"] == direct.frames_decoded
+        assert r["session_bytes"] == os.path.getsize(sessions[1])
+    # runtime: the shared playback's wall time, the same in every row of one session
+    assert len({r["runtime_s"] for r in mine}) == 1 and mine[0]["runtime_s"] > 0
+
+
+@pytest.mark.slow
+def test_two_workers_give_the_same_table(sessions, one_worker, tmp_path):
+    out = tmp_path / "two.parquet"
+    result = run_batch(list(reversed(sessions)), out, trackers="paper", workers=2)
+    assert result.units_run == 3 and result.errors == 0
+    assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))
+
+
+@pytest.mark.slow
+def test_dask_local_cluster_gives_the_same_table(sessions, one_worker, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    out = tmp_path / "dask.parquet"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        result = run_batch(sessions, out, trackers="paper", scheduler=cluster.scheduler_address)
+    assert result.executor.startswith(f"Dask cluster {cluster.scheduler_address}")
+    assert result.units_run == 3 and result.errors == 0
+    assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))
+
+
+def test_failing_sessions_are_rows_and_do_not_stop_the_batch(sessions, tmp_path):
+    not_mcap = tmp_path / "not_mcap.mcap"
+    not_mcap.write_bytes(b"this is not an MCAP file")
+    truncated = tmp_path / "truncated.mcap"
+    truncated.write_bytes(open(sessions[0], "rb").read()[:20_000])
+    missing = tmp_path / "missing.mcap"
+    out = tmp_path / "r.parquet"
+    result = run_batch([str(not_mcap), sessions[0], str(truncated), str(missing)], out, trackers="paper",
+                       params=WINDOW, workers=2)
+    assert result.units_run == 4 and result.errors == 21
+    rows = pq.read_table(out).to_pylist()
+    by_session = {}
+    for r in rows:
+        by_session.setdefault(r["session"], []).append(r)
+    assert {r["status"] for r in by_session[sessions[0]]} == {"ok"}
+    assert len(by_session[sessions[0]]) == 7
+    expected = {str(not_mcap): f"{not_mcap}: not an MCAP file",
+                str(missing): f"{missing}: no such file",
+                str(truncated): f"{truncated}: damaged MCAP file"}
+    for session, message in expected.items():
+        rs = by_session[session]
+        assert [r["tracker"] for r in rs] == list(PAPER_TRACKERS)
+        assert {r["status"] for r in rs} == {"error"}
+        assert len({r["error"] for r in rs}) == 1 and rs[0]["error"].startswith(message)
+        assert "\n" not in rs[0]["error"]
+        assert rs[0]["p_ate_m_total"] is None and rs[0]["n_ticks"] is None
+    assert sorted(s for s, _ in result.failures) == sorted(expected)
+
+
+def test_rerun_skips_done_rows_retries_errors_and_reruns_changed_sessions(sessions, tmp_path):
+    session = tmp_path / "s.mcap"
+    shutil.copy(sessions[2], session)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"junk")
+    out = tmp_path / "r.parquet"
+    first = run_batch([str(session), str(bad)], out, trackers="paper", params=WINDOW, workers=1)
+    assert (first.units_run, first.skipped, first.errors) == (2, 0, 7)
+    before = pq.read_table(out)
+
+    again = run_batch([str(session), str(bad)], out, trackers="paper", params=WINDOW, workers=1)
+    assert (again.units_run, again.rows_run, again.skipped, again.plan.retried) == (1, 7, 7, 7)   # only the bad one
+    after = pq.read_table(out)
+    good = pa.compute.equal(before["session"], str(session))
+    assert after.filter(good).equals(before.filter(good))      # the ok rows were not played again: same runtime_s
+
+    # nothing to do at all: no executor is even started
+    bad.unlink()
+    none = run_batch([str(session)], out, trackers="paper", params=WINDOW, workers=1)
+    assert (none.units_run, none.skipped, none.executor) == (0, 7, "nothing to run")
+
+    # a new tracker subset / parameter value runs only what is missing
+    more = run_batch([str(session)], out, trackers="paper", params=WINDOW + ["rate_hz=20,10"], workers=1)
+    assert (more.units_run, more.rows_run, more.skipped) == (1, 7, 7)
+
+    # the session file changed (mtime): its rows are stale and run again
+    st = os.stat(session)
+    os.utime(session, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    changed = run_batch([str(session)], out, trackers="paper", params=WINDOW, workers=1)
+    assert (changed.units_run, changed.plan.stale, changed.skipped) == (1, 7, 0)
+    assert pq.read_table(out).num_rows == 7 + 7 + 7        # bad, 20 Hz, 10 Hz: replaced, never duplicated
+
+
+def test_param_sweep_is_the_cross_product(sessions, tmp_path):
+    out = tmp_path / "sweep.parquet"
+    result = run_batch([sessions[1]], out, trackers=["T1", "T5"],
+                       params=WINDOW + ["rate_hz=20,10", "correction_math=se3,paper", "cm1_reading=paper-literal"],
+                       workers=2)
+    assert (result.units_run, result.rows_run, result.errors) == (4, 8, 0)
+    rows = pq.read_table(out).to_pylist()
+    assert [(r["param_rate_hz"], r["param_correction_math"], r["tracker"]) for r in rows] == [
+        (rate, math, t) for rate in (10.0, 20.0) for math in ("paper", "se3") for t in ("T1", "T5")]
+    assert {(r["param_cm1_reading"], r["param_start_s"], r["param_end_s"]) for r in rows} == {("paper-literal", 2.0, 6.0)}
+    # one combination checked against the playback itself (cm1_reading goes to the trackers)
+    from phonepose.pipeline.trackers import make_trackers
+
+    direct = run_playback(sessions[1], trackers=["T1", "T5"], rate_hz=10, correction_math="se3", start_s=2, end_s=6,
+                          write_outputs=False, tracker_factory=lambda n, m: make_trackers(n, m, "paper-literal"))
+    for r in rows:
+        if (r["param_rate_hz"], r["param_correction_math"]) == (10.0, "se3"):
+            assert r["p_ate_m_total"] == direct.metrics["trackers"][r["tracker"]]["total"]["p_ate_m"]
+            assert r["n_ticks"] == direct.n_ticks
+    n_ticks = {r["param_rate_hz"]: r["n_ticks"] for r in rows}
+    assert n_ticks[20.0] == 2 * n_ticks[10.0] - 1 or n_ticks[20.0] == 2 * n_ticks[10.0]
+
+
+@pytest.mark.parametrize("params,message", [
+    (["speed=1"], "unknown key 'speed'"),
+    (["rate_hz=fast"], "'fast' is not a number"),
+    (["rate_hz=0"], "must be > 0"),
+    (["correction_math=quat"], "unknown correction math 'quat'"),
+    (["rate_hz=10", "rate_hz=20"], "given twice"),
+    (["start_s=5", "end_s=3"], "must be after start_s"),
+])
+def test_bad_params_are_config_errors(params, message, tmp_path):
+    with pytest.raises(ConfigError, match=message):
+        run_batch(["x.mcap"], tmp_path / "r.parquet", trackers="paper", params=params)
+    assert not (tmp_path / "r.parquet").exists()
+
+
+def test_metrics_are_flattened_generically_and_new_keys_become_columns():
+    m = {"inside": {"frames": 3, "p_ate_m": 0.1}, "total": {"frames": 5, "p_ate_m": 0.2, "boundary_jump_max_m": 0.04,
+                                                           "boundary_jump_rms_m": None}, "note": "x"}
+    assert flatten_tracker_metrics(m) == {"frames_inside": 3, "p_ate_m_inside": 0.1, "frames_total": 5,
+                                          "p_ate_m_total": 0.2, "boundary_jump_max_m_total": 0.04,
+                                          "boundary_jump_rms_m_total": None, "note": "x"}
+    base = {"params": "{}", "status": "ok", "tracker": "T1"}
+    table = to_arrow([{**base, "session": "b", "boundary_jump_max_m_total": 0, "frames_total": 4},
+                      {**base, "session": "a", "boundary_jump_max_m_total": 0.5},
+                      {**base, "session": "c", "status": "error", "error": "x"}])
+    assert table.column("session").to_pylist() == ["a", "b", "c"]
+    assert table.schema.field("boundary_jump_max_m_total").type == pa.float64()
+    assert table.column("boundary_jump_max_m_total").to_pylist() == [0.5, 0.0, None]
+    assert table.schema.field("frames_total").type == pa.int64()
+    assert table.column("frames_total").to_pylist() == [None, 4, None]
+
+
+@pytest.mark.parametrize("args,code,message", [
+    (["--param", "speed=1,2"], 5, "--param: unknown key 'speed'; valid: rate_hz, correction_math, cm1_reading"),
+    (["--out", "{tmp}/no/such/dir/r.parquet"], 6, "does not exist"),
+    (["--out", "{tmp}"], 6, "is a directory"),
+    (["--out", "{tmp}/not.parquet"], 6, "is not a readable Parquet table"),
+    (["--workers", "0"], 5, "--workers must be >= 1"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], 5, "exclusive"),
+    (["-t", "T99"], 5, "T99"),
+])
+def test_cli_errors_are_one_line_with_exit_code(args, code, message, tmp_path, capsys):
+    from phonepose.cli import main
+
+    (tmp_path / "not.parquet").write_text("not parquet")
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "r.parquet")]
+    if "-t" not in args:
+        args += ["-t", "paper"]
+    with pytest.raises(SystemExit) as exit_:     # in-process: the same main() as the console script
+        main(["batch", "x.mcap", *args])
+    err = capsys.readouterr().err
+    assert exit_.value.code == code, err
+    assert err.count("\n") == 1 and err.startswith("phonepose: error: ") and message in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_cli_runs_reports_failures_and_resumes(sessions, tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"junk")
+    out = tmp_path / "r.parquet"
+    args = ["batch", sessions[0], str(bad), "-t", "paper", "-p", "start_s=2", "-p", "end_s=5", "--out", str(out),
+            "--workers", "2"]
+    r = run(*args)
+    assert r.returncode == 1, r.stderr
+    assert f"failed {bad}: {bad}: not an MCAP file" in r.stderr
+    assert "2 sessions x 1 parameter combinations x 7 trackers = 14 rows; 0 already in" in " ".join(r.stderr.split())
+    assert "phonepose: error: 7 of 14 rows failed" in r.stderr
+    assert "2 playbacks (14 rows) run in" in r.stdout and "batch summary" in r.stdout
+    assert "│ T7 " in r.stdout
+    assert pq.read_table(out).num_rows == 14
+    r2 = run(*args[:2], *args[3:])       # the good session only: everything is in the table already
+    assert r2.returncode == 0, r2.stderr
+    assert "0 playbacks (0 rows) run in" in r2.stdout and "7 rows skipped" in r2.stdout
+    assert "nothing to run" in r2.stderr
