@@ -56,6 +56,8 @@ SUMMARY = [
     ("memory", "peak_ratio_long_vs_short", "peak RSS, 10-min / 1-min session playback", "<= 1.1x", lambda v: v <= 1.1),
     ("memory", "ticks_peak_ratio_long_vs_short", "  same, up to the last tick (before the metrics)", "<= 1.1x",
      lambda v: v <= 1.1),
+    ("batch", "speedup_2_vs_1", "batch, 2 local workers vs 1 (wall, same rows)", "report (~1.6-1.9x)", None),
+    ("batch", "dask_overhead_vs_local_2", "  same batch on a Dask LocalCluster (2) vs local 2", "report", None),
 ]
 
 

@@ -1,0 +1,113 @@
+"""``phonepose batch`` throughput: the same batch with 1 and 2 local workers, and on a Dask cluster.
+
+Batch: ``SESSIONS`` simulator sessions (exp2 TRI1/TRI2/REC1/REC2, default world: 30 Hz 640x480
+camera) x the paper's seven trackers (``--tracker paper``), one parameter combination: one unit
+(playback) per session, seven rows each. Measured side by side in one run, alternating, best of
+``ROUNDS``, wall clock from the call to the table written (pool start-up included: it is part of
+what a user waits for):
+
+* 1 local worker process, 2 local worker processes: the speed-up is the figure (target: report it;
+  ~1.6-1.9x is what 2 cores can give, the parent process and the pool's start-up are serial);
+* a ``dask.distributed.LocalCluster`` (2 worker processes, 1 thread each) started beforehand, through
+  ``--scheduler``: its overhead against the local 2-worker pool (the cluster's start is reported apart).
+
+    python -m bench batch         or         python bench/bench_batch.py
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+ROUNDS = 2
+SESSIONS = (("TRI1", 1), ("TRI2", 1), ("REC1", 1), ("REC2", 1), ("TRI1", 2), ("TRI2", 2))
+
+
+def _record(tmp: Path) -> list[str]:
+    from phonepose.record.sim import record_sim
+
+    out = []
+    for i, (path, trial) in enumerate(SESSIONS):
+        p = tmp / f"{path}_{trial:02d}.mcap"
+        record_sim(p, scenario="exp2", path=path, trial=trial, seed=i)
+        out.append(str(p))
+    return out
+
+
+def _batch(sessions: list[str], out: Path, **where) -> tuple[float, object]:
+    from phonepose.batch import run_batch
+
+    if out.exists():
+        out.unlink()
+    t0 = time.perf_counter()
+    result = run_batch(sessions, out, trackers="paper", **where)
+    wall = time.perf_counter() - t0
+    assert result.errors == 0 and result.units_run == len(sessions), result.failures
+    return wall, result
+
+
+def _same_table(a: Path, b: Path) -> bool:
+    import pyarrow.parquet as pq
+
+    from phonepose.batch import RUNTIME_COLUMNS
+
+    return pq.read_table(a).drop_columns(list(RUNTIME_COLUMNS)).equals(pq.read_table(b).drop_columns(list(RUNTIME_COLUMNS)))
+
+
+def main() -> dict:
+    with tempfile.TemporaryDirectory(prefix="bench-batch-") as d:
+        tmp = Path(d)
+        t0 = time.perf_counter()
+        sessions = _record(tmp)
+        print(f"recorded {len(sessions)} simulator sessions in {time.perf_counter() - t0:.1f} s")
+        best = {1: float("inf"), 2: float("inf")}
+        rows = 0
+        playback_s = {}
+        for k in range(ROUNDS):
+            for n in ((1, 2) if k % 2 == 0 else (2, 1)):
+                wall, res = _batch(sessions, tmp / f"w{n}.parquet", workers=n)
+                best[n] = min(best[n], wall)
+                rows = res.rows_run
+                playback_s[n] = sum(r["runtime_s"] for r in res.rows if r["tracker"] == "T1")
+                print(f"  round {k + 1}: {n} worker{'s' if n > 1 else ' '} {wall:6.1f} s")
+        same_local = _same_table(tmp / "w1.parquet", tmp / "w2.parquet")
+        dask = {}
+        try:
+            from distributed import LocalCluster
+        except ImportError:
+            print("dask.distributed not installed: no cluster figure")
+        else:
+            t0 = time.perf_counter()
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+                start = time.perf_counter() - t0
+                walls = []
+                for _ in range(ROUNDS):
+                    wall, _res = _batch(sessions, tmp / "dask.parquet", scheduler=cluster.scheduler_address)
+                    walls.append(wall)
+            dask = {"cluster_start_s": start, "dask_2_workers_s": min(walls),
+                    "dask_overhead_vs_local_2": min(walls) / best[2],
+                    "dask_same_table": _same_table(tmp / "w1.parquet", tmp / "dask.parquet")}
+    result = {
+        "sessions": len(sessions), "trackers": 7, "rows": rows,
+        "workers_1_s": best[1], "workers_2_s": best[2],
+        "rows_per_s_1": rows / best[1], "rows_per_s_2": rows / best[2],
+        "speedup_2_vs_1": best[1] / best[2],
+        "playback_s_per_unit_1": playback_s[1] / len(sessions), "playback_s_per_unit_2": playback_s[2] / len(sessions),
+        "same_table_1_2": same_local,
+        **dask,
+    }
+    print(f"batch: {len(sessions)} sessions x T1-T7 = {rows} rows (best of {ROUNDS}, pool start-up included)")
+    print(f"  1 worker   {best[1]:6.1f} s  {result['rows_per_s_1']:5.1f} rows/s  "
+          f"(playback {result['playback_s_per_unit_1']:.2f} s per session in the worker)")
+    print(f"  2 workers  {best[2]:6.1f} s  {result['rows_per_s_2']:5.1f} rows/s  speed-up {result['speedup_2_vs_1']:.2f}x  "
+          f"(playback {result['playback_s_per_unit_2']:.2f} s per session; same table: {same_local})")
+    if dask:
+        print(f"  Dask LocalCluster, 2 worker processes: {dask['dask_2_workers_s']:.1f} s = "
+              f"{dask['dask_overhead_vs_local_2']:.2f}x the local 2-worker pool (cluster start {start:.1f} s apart; "
+              f"same table: {dask['dask_same_table']})")
+    return result
+
+
+if __name__ == "__main__":
+    main()
