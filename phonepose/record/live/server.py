@@ -45,6 +45,8 @@ MAX_PENDING = 2000
 MAX_MESSAGE_BYTES = 1 << 16
 MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from its receipt is rejected
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
+DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
+DRAIN_MAX_S = 2.0
 QUAT_NORM_TOL = 1e-3                  # as playback (phonepose.playback.scheduler)
 
 
@@ -140,6 +142,7 @@ class Connection:
         self.logged_offset_ns: int | None = None
         self.opened_ns = self.rec.clock.now_ns()
         self.received = 0
+        self.last_receipt_ns = self.opened_ns
         self.tasks: set[asyncio.Task] = set()
 
     # ------------------------------------------------------------------ sending
@@ -200,6 +203,7 @@ class Connection:
     # ------------------------------------------------------------------ receiving
     def handle_text(self, text: str, receipt_ns: int) -> None:
         self.received += 1
+        self.last_receipt_ns = receipt_ns
         self.rec.stats["messages"] += 1
         try:
             msg = parse_message(text)
@@ -392,10 +396,21 @@ class LiveServer:
         return self.port
 
     async def stop(self) -> None:
+        """Tell the page, let the receive loop take what is already on its way (until the socket has been
+        quiet for :data:`DRAIN_QUIET_S`, at most :data:`DRAIN_MAX_S`), then close."""
         conn = self.current
         if conn is not None and not conn.ws.closed:
             await conn.send({"type": "status", "recording": False, "anchor": self.recording.anchor_set,
                              "marker_seen": False})
+            loop = asyncio.get_running_loop()
+            t_end = loop.time() + DRAIN_MAX_S
+            while not conn.ws.closed and loop.time() < t_end:
+                quiet = (self.recording.clock.now_ns() - conn.last_receipt_ns) / 1e9
+                if quiet >= DRAIN_QUIET_S:
+                    break
+                await asyncio.sleep(0.02)
+            if conn.pending or not conn.settled:
+                conn.settle()
             await conn.ws.close(message=b"recording finished")
         if self._runner is not None:
             await self._runner.cleanup()
