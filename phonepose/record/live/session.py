@@ -447,6 +447,7 @@ class LiveSource:
 
     def __iter__(self):
         self.camera.restart_clock()
+        t_begin = self.clock.now_ns()
         self._camera_thread = threading.Thread(target=self._camera_loop, name="phonepose-live-camera", daemon=True)
         self._camera_thread.start()
         heap: list = []
@@ -472,7 +473,7 @@ class LiveSource:
             except queue.Empty:
                 pass
             now = self.clock.now_ns()
-            if self.max_duration_ns is not None and now - self.start_ns >= self.max_duration_ns:
+            if self.max_duration_ns is not None and now - t_begin >= self.max_duration_ns:
                 self.request_stop(f"--duration {self.max_duration_ns / 1e9:g} s reached")
             if self._stop.is_set():
                 break
@@ -627,6 +628,7 @@ class LiveSession:
         except BaseException:
             self.source.close()
             raise
+        self.source.start_ns = self.source.clock.now_ns()   # the session starts now (static part's stamp)
         result = recorder.run()
         result.interrupted = self.source.interrupted
         return LiveResult(result, dict(self.source.counts), self.source.summary, self.source.stop_reason)
