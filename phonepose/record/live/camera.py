@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass
@@ -50,6 +51,20 @@ def encode_jpeg(image: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
     return buf.tobytes()
 
 
+@contextlib.contextmanager
+def _opencv_quiet():
+    try:
+        old = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    except AttributeError:   # pragma: no cover - builds without the logging utils
+        yield
+        return
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(old)
+
+
 class Camera:
     """One VideoCapture; :meth:`read` returns the next :class:`Frame` or None at the end of a file."""
 
@@ -59,7 +74,8 @@ class Camera:
         self.pace = pace
         self.is_device = isinstance(spec, int) or self.spec.isdigit()
         if self.is_device:
-            cap = cv2.VideoCapture(int(self.spec))
+            with _opencv_quiet():   # a missing device is our one-line error, not OpenCV's warnings
+                cap = cv2.VideoCapture(int(self.spec))
             if not cap.isOpened():
                 raise InputFileError(f"camera {self.spec}: cannot open it (no such device, or another program uses it)")
             cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*"MJPG"))
