@@ -8,8 +8,8 @@ standard deviations of the intrinsics. What is ours is which frames become views
 - ``--images DIR``: every image in which the board shows at least ``min_corners`` non-collinear corners;
 - ``--video FILE``: every k-th frame (k chosen so about ``3 * max_views`` frames are examined),
   skipping frames in which the board has barely moved since the last kept view;
-- ``--device N``: one frame every ``interval_s`` seconds, the same way, until ``max_views`` views,
-  ``seconds`` elapsed or Ctrl-C.
+- ``--device N``: MJPG at ``--size`` (the mode ``record live`` records in), one frame every
+  ``interval_s`` seconds, the same way, until ``max_views`` views, ``seconds`` elapsed or Ctrl-C.
 
 and, if more than ``max_views`` views remain, an evenly spaced subset of them (more views of the
 same poses add run time but no information).
@@ -164,9 +164,17 @@ def _quiet_opencv() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(level)
 
 
-def _open_device(index: int) -> cv2.VideoCapture:
+def _open_device(index: int, size: tuple[int, int] | None = None) -> cv2.VideoCapture:
+    """Camera ``index`` in the mode ``record live --camera`` records with: MJPG, at ``size`` if given
+    (a webcam may crop its sensor differently in another mode, which changes the intrinsics)."""
     with _quiet_opencv():
-        return cv2.VideoCapture(int(index))
+        cap = cv2.VideoCapture(int(index))
+        if cap.isOpened():
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*"MJPG"))
+            if size is not None:
+                cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[0])
+                cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[1])
+        return cap
 
 
 def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, every: int = 1,
@@ -230,10 +238,16 @@ def views_from_video(path: "str | Path", finder: BoardFinder, max_views: int = 4
 
 
 def views_from_device(index: int, finder: BoardFinder, max_views: int = 40, interval_s: float = 0.5,
-                      seconds: float = 120.0, progress: Progress | None = None) -> _Collected:
-    cap = _open_device(index)
+                      seconds: float = 120.0, size: tuple[int, int] | None = None,
+                      progress: Progress | None = None) -> _Collected:
+    cap = _open_device(index, size)
     if not cap.isOpened():
         raise InputFileError(f"camera device {index} cannot be opened (no such camera, or in use)")
+    got = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    if size is not None and got != tuple(size):
+        cap.release()
+        raise ConfigError(f"--size {size[0]}x{size[1]}: camera device {index} gives {got[0]}x{got[1]}; "
+                          "use a size the camera supports")
     if progress:
         progress(f"camera {index}: move the board through the whole image, tilted in every direction; "
                  f"stops after {max_views} views or {seconds:g} s (Ctrl-C to stop earlier)")
@@ -270,7 +284,8 @@ def calibrate_views(views: list[View], image_size: tuple[int, int], board: Board
 def calibrate_camera(*, images: "str | Path | None" = None, video: "str | Path | None" = None,
                      device: int | None = None, board: BoardSpec = DEFAULT_BOARD, max_views: int = 40,
                      min_corners: int = MIN_CORNERS, min_views: int = MIN_VIEWS, device_seconds: float = 120.0,
-                     device_interval_s: float = 0.5, progress: Progress | None = None) -> CalibrationResult:
+                     device_interval_s: float = 0.5, device_size: tuple[int, int] | None = None,
+                     progress: Progress | None = None) -> CalibrationResult:
     """Calibrate from exactly one source. Too few views is a SessionContentError (exit 4) saying how
     many frames showed the board; unreadable inputs are InputFileErrors (exit 2)."""
     given = [name for name, value in (("--device", device), ("--video", video), ("--images", images))
@@ -286,7 +301,8 @@ def calibrate_camera(*, images: "str | Path | None" = None, video: "str | Path |
     elif video is not None:
         got, what = views_from_video(video, finder, max_views, progress), f"{video}: of {{n}} frames examined"
     else:
-        got = views_from_device(int(device), finder, max_views, device_interval_s, device_seconds, progress)
+        got = views_from_device(int(device), finder, max_views, device_interval_s, device_seconds, device_size,
+                                progress)
         what = f"camera device {device}: of {{n}} frames examined"
     where = what.format(n=got.examined)
     if got.with_board == 0:

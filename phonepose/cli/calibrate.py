@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.errors import OutputError
+from phonepose.errors import ConfigError, OutputError
 
 DEFAULT_SPEC = "charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100"
 
@@ -93,6 +93,8 @@ def calibrate_camera(
     min_corners: int = typer.Option(8, "--min-corners", help="A frame is a view if it shows at least this many "
                                     "board corners."),
     seconds: float = typer.Option(120.0, "--seconds", help="--device: stop capturing after this long."),
+    size: Optional[str] = typer.Option(None, "--size", help="--device: ask for WxH frames (e.g. 1280x720); "
+                                       "calibrate at the resolution you record at."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
 ) -> None:
     """Calibrate a camera (intrinsics + plumb_bob distortion) from views of the ChArUco board.
@@ -109,10 +111,21 @@ def calibrate_camera(
 
     err = Console(stderr=True)
     b = parse_board_spec(spec)
+    device_size = None
+    if size is not None:
+        try:
+            w, h = (int(v) for v in size.lower().split("x"))
+            if w <= 0 or h <= 0:
+                raise ValueError
+        except ValueError:
+            raise ConfigError(f"--size {size!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
+        if device is None:
+            raise ConfigError("--size applies to --device only (a video or photos have their own size)")
+        device_size = (w, h)
     _check_out_dir(out)
     t0 = time.perf_counter()
     result = run(images=images, video=video, device=device, board=b, max_views=max_views,
-                 min_corners=min_corners, device_seconds=seconds,
+                 min_corners=min_corners, device_seconds=seconds, device_size=device_size,
                  progress=None if quiet else (lambda line: err.print(line, style="dim", markup=False, highlight=False)))
     save_calibration(out, result.to_file())
     wall = time.perf_counter() - t0
