@@ -16,11 +16,12 @@ what a user waits for):
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from pathlib import Path
 
-ROUNDS = 2
+ROUNDS = 3
 SESSIONS = (("TRI1", 1), ("TRI2", 1), ("REC1", 1), ("REC2", 1), ("TRI1", 2), ("TRI2", 2))
 
 
@@ -61,6 +62,7 @@ def main() -> dict:
         t0 = time.perf_counter()
         sessions = _record(tmp)
         print(f"recorded {len(sessions)} simulator sessions in {time.perf_counter() - t0:.1f} s")
+        load = [os.getloadavg()[0]]
         best = {1: float("inf"), 2: float("inf")}
         rows = 0
         playback_s = {}
@@ -70,7 +72,8 @@ def main() -> dict:
                 best[n] = min(best[n], wall)
                 rows = res.rows_run
                 playback_s[n] = sum(r["runtime_s"] for r in res.rows if r["tracker"] == "T1")
-                print(f"  round {k + 1}: {n} worker{'s' if n > 1 else ' '} {wall:6.1f} s")
+                load.append(os.getloadavg()[0])
+                print(f"  round {k + 1}: {n} worker{'s' if n > 1 else ' '} {wall:6.1f} s  (load average {load[-1]:.1f})")
         same_local = _same_table(tmp / "w1.parquet", tmp / "w2.parquet")
         dask = {}
         try:
@@ -95,9 +98,11 @@ def main() -> dict:
         "speedup_2_vs_1": best[1] / best[2],
         "playback_s_per_unit_1": playback_s[1] / len(sessions), "playback_s_per_unit_2": playback_s[2] / len(sessions),
         "same_table_1_2": same_local,
+        "load_average_min": min(load), "load_average_max": max(load),
         **dask,
     }
-    print(f"batch: {len(sessions)} sessions x T1-T7 = {rows} rows (best of {ROUNDS}, pool start-up included)")
+    print(f"batch: {len(sessions)} sessions x T1-T7 = {rows} rows (best of {ROUNDS}, pool start-up included; "
+          f"1-min load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores: other jobs take cores too)")
     print(f"  1 worker   {best[1]:6.1f} s  {result['rows_per_s_1']:5.1f} rows/s  "
           f"(playback {result['playback_s_per_unit_1']:.2f} s per session in the worker)")
     print(f"  2 workers  {best[2]:6.1f} s  {result['rows_per_s_2']:5.1f} rows/s  speed-up {result['speedup_2_vs_1']:.2f}x  "
