@@ -420,3 +420,31 @@ def test_cli_prints_the_url_and_sigint_finishes_a_valid_file(media, tmp_path):
     msgs = _messages(out)
     assert sum(m.topic == Topic.CONTROLLER_IMU for m in msgs) == sent
     assert any(m.topic == Topic.CAMERA_IMAGE for m in msgs)
+
+
+def test_start_errors_are_one_line_and_leave_no_file(media, tmp_path):
+    import socket as socketlib
+
+    from phonepose.errors import ConfigError, InputFileError, OutputError
+
+    _, video, calib = media
+    out = tmp_path / "x.mcap"
+    with pytest.raises(InputFileError, match="camera 57: cannot open it"):
+        LiveSession(out, "57", calib, port=0, tls_dir=tmp_path / "tls")
+    with pytest.raises(InputFileError, match="no such calibration file"):
+        LiveSession(out, str(video), tmp_path / "none.yaml", port=0, tls_dir=tmp_path / "tls")
+    (tmp_path / "notadir").write_text("")
+    with pytest.raises(OutputError, match="cannot write the TLS certificate"):
+        LiveSession(out, str(video), calib, port=0, tls_dir=tmp_path / "notadir" / "tls")
+    with pytest.raises(OutputError, match="does not exist or is not writable"):
+        LiveSession(tmp_path / "nodir" / "x.mcap", str(video), calib, port=0, tls_dir=tmp_path / "tls")
+    busy = socketlib.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    try:
+        s = LiveSession(out, str(video), calib, host="127.0.0.1", port=busy.getsockname()[1], tls_dir=tmp_path / "tls")
+        with pytest.raises(ConfigError, match="choose another --port"):
+            s.start()
+    finally:
+        busy.close()
+    assert not out.exists()
