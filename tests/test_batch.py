@@ -259,3 +259,25 @@ def test_cli_runs_reports_failures_and_resumes(sessions, tmp_path):
     assert r2.returncode == 0, r2.stderr
     assert "0 playbacks (0 rows) run in" in r2.stdout and "7 rows skipped" in r2.stdout
     assert "nothing to run" in r2.stderr
+
+
+@pytest.mark.slow
+def test_killed_batch_keeps_finished_units_and_the_rerun_completes(sessions, one_worker, tmp_path):
+    import signal
+    import time
+
+    out = tmp_path / "r.parquet"
+    args = [sys.executable, "-m", "phonepose", "batch", *sessions, "-t", "paper", "--out", str(out), "--workers", "1"]
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)      # the batch and its worker, at once
+        proc.wait()
+    kept = pq.read_table(out).to_pylist()       # a complete table: written to a temporary file, then renamed
+    assert len(kept) in (7, 14) and {r["status"] for r in kept} == {"ok"}
+    rerun = run_batch(sessions, out, trackers="paper", workers=1)
+    assert rerun.skipped == len(kept) and rerun.rows_run == 21 - len(kept) and rerun.errors == 0
+    assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))   # the same as in one go
