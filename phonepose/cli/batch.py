@@ -42,7 +42,7 @@ def batch(
                                     help="KEY=V1,V2,... (repeat): rate_hz, correction_math, cm1_reading, start_s, end_s; "
                                          "the batch runs the cross product."),
     out: Path = typer.Option(..., "--out", "-o", help="Parquet table; rows already in it with status ok are skipped."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Local worker processes [default: one per core]."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Local worker processes (default: one per core)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address (tcp://host:8786) instead of local processes."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
