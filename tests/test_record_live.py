@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 
 import aiohttp
 import cv2
@@ -128,6 +129,8 @@ def test_certificate_is_made_once_then_reused(tmp_path):
     ('{"type": "imu", "t": 1, "gyro": [0, 0, NaN], "accel": [0, 0, 9.8]}', "imu 'gyro' is not 3 finite numbers"),
     ('{"type": "marker", "dictionary": "DICT_4X4_50", "id": 7, "size_m": 5}', "marker 'size_m' must be in (0, 1) m"),
     ('{"type": "pong", "id": "a", "t": 1}', "pong 'id' is not an integer"),
+    ('{"type": "imu", "t": 1' + "0" * 400 + ', "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}', "imu 't' is not a finite number"),
+    ("[" * 100000 + "]" * 100000, "not JSON"),
 ])
 def test_malformed_messages_are_named(text, kind):
     with pytest.raises(Malformed) as exc:
@@ -282,6 +285,8 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     assert len(by[Topic.CAMERA_IMAGE]) == n_frames and len(by[Topic.DISPLAY_VIO_POSE]) == n_frames
     assert [m.topic for m in msgs[:3]] == [Topic.SESSION_INFO, Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS]
     assert by[Topic.SESSION_INFO][0].msg.source == "live"
+    config = tomllib.loads(by[Topic.SESSION_INFO][0].msg.config_toml)["live"]
+    assert (config["camera"], config["marker_id"], config["image_width"]) == (str(media[1]), 7, W)
     assert len(by[Topic.CONTROLLER_MARKER]) == 1 and by[Topic.CONTROLLER_MARKER][0].msg.size_m == MARKER_SIZE
     # nothing received is lost: every pose and IMU sample sent is in the file, in receipt order
     sent_poses = [x for x in phone.sent if x[0] == "pose"]

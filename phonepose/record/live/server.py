@@ -59,7 +59,12 @@ class Malformed(ValueError):
 
 
 def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:   # an int beyond float range
+        return False
 
 
 def _field(msg: dict, name: str):
@@ -367,7 +372,13 @@ class LiveServer:
                 if conn is not self.current:
                     break
                 if msg.type == WSMsgType.TEXT:
-                    conn.handle_text(msg.data, receipt)
+                    try:
+                        conn.handle_text(msg.data, receipt)
+                    except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
+                        self.recording.stats["malformed"] += 1
+                        self.recording.malformed_kinds["could not be handled"] += 1
+                        self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
+                                           f"{str(exc)[:80]}); ignored", level="error")
                 elif msg.type == WSMsgType.BINARY:
                     conn.received += 1
                     self.recording.stats["messages"] += 1

@@ -43,6 +43,7 @@ from __future__ import annotations
 import asyncio
 import heapq
 import itertools
+import json
 import os
 import queue
 import secrets
@@ -429,15 +430,16 @@ class LiveSource:
 
     def _config_toml(self) -> str:
         c, rec = self.calibration, self.recording
-        lines = ["[live]", f"camera = {self.camera.spec!r}", f"camera_fps = {self.camera.fps:g}",
-                 f"calibration_file = {self.calibration_path!r}", f"image_width = {c.width}",
+        q = json.dumps   # a JSON string is a TOML basic string
+        lines = ["[live]", f"camera = {q(self.camera.spec)}", f"camera_fps = {self.camera.fps:g}",
+                 f"calibration_file = {q(self.calibration_path)}", f"image_width = {c.width}",
                  f"image_height = {c.height}", f"camera_matrix = {[float(v) for v in np.ravel(c.K)]}",
                  f"distortion_coefficients = {[float(v) for v in c.D]}",
                  f"calibration_rms_px = {c.reprojection_error_px if np.isfinite(c.reprojection_error_px) else -1.0}",
-                 f"marker_dictionary = {rec.marker_dictionary!r}", f"marker_id = {rec.marker_id}",
+                 f"marker_dictionary = {q(rec.marker_dictionary)}", f"marker_id = {rec.marker_id}",
                  f"marker_size_from_cli = {'true' if rec.marker_size_from_cli else 'false'}",
-                 f"host = {self.host!r}", f"port = {self.server.port}"]
-        return "\n".join(lines).replace("'", '"') + "\n"
+                 f"host = {q(self.host)}", f"port = {self.server.port}"]
+        return "\n".join(lines) + "\n"
 
     def request_stop(self, reason: str = "interrupted") -> None:
         """Finish: may be called from a signal handler or any thread (only sets a flag)."""
