@@ -24,7 +24,10 @@ MM_PER_INCH = 25.4
 # Paper sizes in mm, landscape (width, height); "fit" = the board plus a margin.
 PAPER_MM = {"a4": (297.0, 210.0), "a3": (420.0, 297.0), "letter": (279.4, 215.9)}
 FIT_MARGIN_MM = 15.0
-TEXT_BAND_MM = 12.0        # the printed description and the 50 mm check bar need this much below the board
+FIT_MIN_WIDTH_MM = 140.0   # a "fit" page is at least this wide: the 50 mm bar and its label need ~100 mm
+TEXT_HEIGHT_MM = 2.5       # capital letters of the printed description
+TEXT_GAP_MM = 4.0          # between the board and the first line of text
+LINE_MM = 5.0              # line pitch of the text under the board
 
 
 @dataclass(frozen=True)
@@ -120,10 +123,21 @@ def px_per_mm(dpi: float) -> float:
     return dpi / MM_PER_INCH
 
 
+def _wrap(words: list[str], fits) -> list[str]:
+    """Greedy word wrap: as many ``|``-separated phrases per line as ``fits(line)`` allows."""
+    lines: list[str] = []
+    for word in words:
+        if lines and fits(f"{lines[-1]}  |  {word}"):
+            lines[-1] = f"{lines[-1]}  |  {word}"
+        else:
+            lines.append(word)
+    return lines
+
+
 def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = "a4") -> np.ndarray:
     """The printable page as a uint8 grayscale image of ``paper`` (landscape, or ``fit``) at ``dpi``.
 
-    The board is centred; below it a line states the true sizes and a 50 mm bar lets the user
+    The board is centred; below it, lines state the true sizes and a 50 mm bar lets the user
     check with a ruler that the printer did not scale the page.
     """
     if not 50 <= dpi <= 1200:
@@ -131,37 +145,44 @@ def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = 
     scale = px_per_mm(dpi)
     bw_mm, bh_mm = board.size_mm
     if paper == "fit":
-        page_mm = (bw_mm + 2 * FIT_MARGIN_MM, bh_mm + 2 * FIT_MARGIN_MM + TEXT_BAND_MM)
+        page_w_mm = max(bw_mm + 2 * FIT_MARGIN_MM, FIT_MIN_WIDTH_MM)
     elif paper in PAPER_MM:
-        page_mm = PAPER_MM[paper]
+        page_w_mm = PAPER_MM[paper][0]
     else:
         raise ConfigError(f"--paper {paper!r}: expected one of {', '.join([*PAPER_MM, 'fit'])}")
-    margin_x, margin_y = (page_mm[0] - bw_mm) / 2, (page_mm[1] - bh_mm - TEXT_BAND_MM) / 2
-    if min(margin_x, margin_y) < 5.0:
+
+    # The text under the board, wrapped to the board's width (at least the width the bar needs).
+    font, thick = cv2.FONT_HERSHEY_SIMPLEX, max(1, round(0.25 * scale))
+    font_scale = TEXT_HEIGHT_MM * scale / cv2.getTextSize("X", font, 1.0, 1)[0][1]
+    text_w_px = max(bw_mm, FIT_MIN_WIDTH_MM - 2 * FIT_MARGIN_MM) * scale
+    phrases = [f"phonepose {board_spec(board)}", f"board {bw_mm:g} x {bh_mm:g} mm",
+               f"squares {board.square_mm:g} mm, markers {board.marker_mm:g} mm",
+               f"print at 100 % (no 'fit to page'), {dpi} dpi"]
+    lines = _wrap(phrases, lambda t: cv2.getTextSize(t, font, font_scale, thick)[0][0] <= text_w_px)
+    text_band_mm = TEXT_GAP_MM + LINE_MM * (len(lines) + 1)
+
+    page_h_mm = bh_mm + 2 * FIT_MARGIN_MM + text_band_mm if paper == "fit" else PAPER_MM[paper][1]
+    margin_y = (page_h_mm - bh_mm - text_band_mm) / 2
+    text_x_mm = (page_w_mm - text_w_px / scale) / 2
+    if min(text_x_mm, margin_y) < 5.0:
         raise ConfigError(f"a {bw_mm:g} x {bh_mm:g} mm board does not fit {paper} paper with margins; "
                           "use --paper a3, --paper fit or smaller squares")
-    page = np.full((round(page_mm[1] * scale), round(page_mm[0] * scale)), 255, np.uint8)
+    page = np.full((round(page_h_mm * scale), round(page_w_mm * scale)), 255, np.uint8)
     # OpenCV draws the board; we only place it. Its size is rounded to whole pixels: at 300 dpi a
     # 30 mm square is 354.33 px, drawn as 354 px (0.03 mm short), far below what a printer holds.
     bw_px, bh_px = round(bw_mm * scale), round(bh_mm * scale)
     image = board.opencv().generateImage((bw_px, bh_px), marginSize=0, borderBits=1)
-    x0, y0 = round(margin_x * scale), round(margin_y * scale)
+    x0, y0 = round((page_w_mm - bw_mm) / 2 * scale), round(margin_y * scale)
     page[y0:y0 + bh_px, x0:x0 + bw_px] = image
 
-    # The description and a 50 mm check bar under the board.
-    text = (f"phonepose {board_spec(board)}  |  board {bw_mm:g} x {bh_mm:g} mm, squares {board.square_mm:g} mm, "
-            f"markers {board.marker_mm:g} mm  |  print at 100 % (no 'fit to page'), {dpi} dpi")
+    tx = round(text_x_mm * scale)
+    base_y = y0 + bh_px + round((TEXT_GAP_MM + TEXT_HEIGHT_MM) * scale)
+    for line in lines:
+        cv2.putText(page, line, (tx, base_y), font, font_scale, 0, thick, cv2.LINE_AA)
+        base_y += round(LINE_MM * scale)
     ruler = "the bar must measure 50 mm:"
-    font, height_mm = cv2.FONT_HERSHEY_SIMPLEX, 2.5
-    font_scale = height_mm * scale / cv2.getTextSize("X", font, 1.0, 1)[0][1]
-    thick = max(1, round(0.25 * scale))
-    base_y = y0 + bh_px + round(6 * scale)
-    avail = page.shape[1] - 2 * x0
-    width = cv2.getTextSize(text, font, font_scale, thick)[0][0]
-    cv2.putText(page, text, (x0, base_y), font, font_scale * min(1.0, avail / width), 0, thick, cv2.LINE_AA)
-    base_y += round(5 * scale)
-    cv2.putText(page, ruler, (x0, base_y), font, font_scale, 0, thick, cv2.LINE_AA)
-    bar_x = x0 + cv2.getTextSize(ruler, font, font_scale, thick)[0][0] + round(3 * scale)
+    cv2.putText(page, ruler, (tx, base_y), font, font_scale, 0, thick, cv2.LINE_AA)
+    bar_x = tx + cv2.getTextSize(ruler, font, font_scale, thick)[0][0] + round(3 * scale)
     bar_h = round(1.5 * scale)
     page[base_y - bar_h:base_y, bar_x:bar_x + round(50 * scale)] = 0
     return page
