@@ -453,3 +453,47 @@ def test_start_errors_are_one_line_and_leave_no_file(media, tmp_path):
     finally:
         busy.close()
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_the_real_phone_page_in_headless_chromium_records_imu(media, tmp_path):
+    """The page of static/ (not a script) against the real server over HTTPS: hello, marker size,
+    clock pings and DeviceMotion samples end up in the session. (No WebXR in headless Chromium.)"""
+    playwright = pytest.importorskip("playwright.sync_api")
+    if not os.path.exists("/usr/bin/chromium"):
+        pytest.skip("Debian's chromium is not installed")
+    s, out, th, lines = _start(media, tmp_path)
+    n = 30
+    with playwright.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path="/usr/bin/chromium", headless=True,
+                                     args=["--no-sandbox", "--disable-gpu", "--no-first-run"])
+        try:
+            ctx = browser.new_context(viewport={"width": 400, "height": 800}, device_scale_factor=2,
+                                      ignore_https_errors=True)
+            page = ctx.new_page()
+            page.goto(f"https://127.0.0.1:{s.port}/?ppi=320&token={s.token}")
+            for _ in range(200):
+                if any("page clock offset" in line for line in lines):
+                    break
+                time.sleep(0.02)
+            page.evaluate("""async (n) => { for (let i = 0; i < n; i++) {
+                window.dispatchEvent(new DeviceMotionEvent('devicemotion', {rotationRate: {alpha: 1, beta: 2, gamma: 3},
+                    accelerationIncludingGravity: {x: 0.1, y: 9.8, z: 0.2}, interval: 16}));
+                await new Promise((r) => setTimeout(r, 10)); } }""", n)
+            for _ in range(200):
+                if s.source.recording.stats["imu"] >= n:
+                    break
+                time.sleep(0.02)
+            s.stop("test done")
+            th.join(timeout=30)
+        finally:
+            browser.close()
+    assert any("no WebXR immersive-ar" in line for line in lines)          # hello from headless Chromium
+    offsets = [line for line in lines if "page clock offset" in line]
+    assert offsets and abs(float(offsets[0].split("offset ")[1].split(" ms")[0])) < 50   # one machine
+    msgs = _messages(tmp_path / "s.mcap")
+    imu = [m for m in msgs if m.topic == Topic.CONTROLLER_IMU]
+    assert len(imu) == n
+    assert imu[0].msg.gyro_x == pytest.approx(math.radians(2))
+    (spec,) = [m.msg for m in msgs if m.topic == Topic.CONTROLLER_MARKER]    # no anchor: written at the end
+    assert 0.01 < spec.size_m < 0.1
