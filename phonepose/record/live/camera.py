@@ -82,6 +82,9 @@ class Camera:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+            fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
+            if fourcc.to_bytes(4, "little") != b"MJPG":   # no MJPG mode: take decoded BGR frames, encode them
+                cap.set(cv2.CAP_PROP_CONVERT_RGB, 1)
         else:
             if not os.path.isfile(self.spec):
                 raise InputFileError(f"{self.spec}: no such video file (or give a camera index such as 0)")
@@ -127,6 +130,8 @@ class Camera:
                 img = cv2.imdecode(raw, cv2.IMREAD_COLOR)
                 if img is None:
                     return None
+            elif data.ndim == 3 and data.shape[2] == 2:   # raw YUYV despite CONVERT_RGB (some backends)
+                img = cv2.cvtColor(data, cv2.COLOR_YUV2BGR_YUYV)
             else:
                 img = data
             if self.frames == 0:
