@@ -23,7 +23,7 @@ from phonepose.record.sim import default_config, record_sim
 PATHS = ("TRI1", "REC1", "TRI2")
 # a cheap camera rate keeps the sessions short to simulate and to play back (~1 s each)
 FAST = default_config().replace(camera=dict(rate_hz=5.0))
-WINDOW = ["start_s=2", "end_s=6"]     # a 4 s window: sweeps stay fast
+WINDOW = ["start_s=7", "end_s=12"]    # 5 s around the task's start (7.9 s): sweeps stay fast, metrics not null
 
 
 def run(*args, cwd=None):
@@ -61,6 +61,7 @@ def test_one_worker_rows_are_the_playbacks_metrics(sessions, one_worker):
     # sorted by session, then tracker; one row per (session, tracker)
     assert [(r["session"], r["tracker"]) for r in rows] == [(s, t) for s in sorted(sessions) for t in PAPER_TRACKERS]
     assert {r["status"] for r in rows} == {"ok"} and {r["error"] for r in rows} == {None}
+    assert all(r["p_ate_m_total"] > 0 and r["r_ate_deg_total"] > 0 and r["frames_total"] > 0 for r in rows)
     assert {r["param_rate_hz"] for r in rows} == {20.0} and {r["param_correction_math"] for r in rows} == {"paper"}
     assert {r["param_cm1_reading"] for r in rows} == {"consistent"} and {r["param_start_s"] for r in rows} == {None}
     assert table.schema.field("p_ate_m_total").type == pa.float64()
@@ -113,6 +114,7 @@ def test_failing_sessions_are_rows_and_do_not_stop_the_batch(sessions, tmp_path)
     for r in rows:
         by_session.setdefault(r["session"], []).append(r)
     assert {r["status"] for r in by_session[sessions[0]]} == {"ok"}
+    assert all(r["p_ate_m_total"] > 0 for r in by_session[sessions[0]])
     assert len(by_session[sessions[0]]) == 7
     expected = {str(not_mcap): f"{not_mcap}: not an MCAP file",
                 str(missing): f"{missing}: no such file",
@@ -169,15 +171,18 @@ def test_param_sweep_is_the_cross_product(sessions, tmp_path):
     rows = pq.read_table(out).to_pylist()
     assert [(r["param_rate_hz"], r["param_correction_math"], r["tracker"]) for r in rows] == [
         (rate, math, t) for rate in (10.0, 20.0) for math in ("paper", "se3") for t in ("T1", "T5")]
-    assert {(r["param_cm1_reading"], r["param_start_s"], r["param_end_s"]) for r in rows} == {("paper-literal", 2.0, 6.0)}
+    assert {(r["param_cm1_reading"], r["param_start_s"], r["param_end_s"]) for r in rows} == {("paper-literal", 7.0, 12.0)}
+    assert all(r["p_ate_m_total"] > 0 and r["frames_total"] > 0 for r in rows)
     # one combination checked against the playback itself (cm1_reading goes to the trackers)
     from phonepose.pipeline.trackers import make_trackers
 
-    direct = run_playback(sessions[1], trackers=["T1", "T5"], rate_hz=10, correction_math="se3", start_s=2, end_s=6,
+    direct = run_playback(sessions[1], trackers=["T1", "T5"], rate_hz=10, correction_math="se3", start_s=7, end_s=12,
                           write_outputs=False, tracker_factory=lambda n, m: make_trackers(n, m, "paper-literal"))
     for r in rows:
         if (r["param_rate_hz"], r["param_correction_math"]) == (10.0, "se3"):
-            assert r["p_ate_m_total"] == direct.metrics["trackers"][r["tracker"]]["total"]["p_ate_m"]
+            for scope, values in direct.metrics["trackers"][r["tracker"]].items():
+                for key, value in values.items():
+                    assert r[f"{key}_{scope}"] == value, (scope, key)
             assert r["n_ticks"] == direct.n_ticks
     n_ticks = {r["param_rate_hz"]: r["n_ticks"] for r in rows}
     assert n_ticks[20.0] == 2 * n_ticks[10.0] - 1 or n_ticks[20.0] == 2 * n_ticks[10.0]
@@ -245,7 +250,7 @@ def test_cli_runs_reports_failures_and_resumes(sessions, tmp_path):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"junk")
     out = tmp_path / "r.parquet"
-    args = ["batch", sessions[0], str(bad), "-t", "paper", "-p", "start_s=2", "-p", "end_s=5", "--out", str(out),
+    args = ["batch", sessions[0], str(bad), "-t", "paper", "-p", "start_s=7", "-p", "end_s=11", "--out", str(out),
             "--workers", "2"]
     r = run(*args)
     assert r.returncode == 1, r.stderr
