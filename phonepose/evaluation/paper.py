@@ -29,6 +29,7 @@ import numpy as np
 
 from phonepose.evaluation.alignment import align
 from phonepose.evaluation.ate import absolute_errors
+from phonepose.evaluation.boundary import boundary_jump_stats
 from phonepose.evaluation.relative import accumulated_distances, default_lengths, find_pairs
 from phonepose.evaluation.stats import rmse
 from phonepose.geometry import Pose
@@ -68,7 +69,8 @@ def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.nd
 
 
 def paper_metrics(stamps: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -> dict:
-    """``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` (None = not computable)."""
+    """``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` (None = not computable);
+    ``total`` also has the boundary jumps (phonepose.evaluation.boundary: count, max, RMS)."""
     stamps = np.asarray(stamps, dtype=float)
     inside = np.asarray(inside, dtype=bool).ravel()
     n = int(stamps.size)
@@ -88,4 +90,6 @@ def paper_metrics(stamps: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -
             continue
         out[scope] = {"frames": frames, "p_ate_m": rmse(e_trans[mask]), "r_ate_deg": rmse(e_rot[mask]),
                       "p_re_m": rmse(re_trans[pmask])}
+    if out["total"].get("frames"):
+        out["total"].update(boundary_jump_stats(stamps, gt.translation, est.translation, inside))
     return out

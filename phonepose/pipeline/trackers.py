@@ -23,8 +23,9 @@ When the pose a row needs is missing (no VIO yet, anchors not resolved), ``step`
 the tracker has no estimate at that tick; it never invents one.
 
 Trackers are causal streaming objects: ``reset()`` then ``step(obs)`` once per tick, in order.
-More rows ("better trackers of our own") are added with :func:`register`: T8 (latency-aware CM3,
-:class:`LatencyAwareCM3Tracker`, end of this module). ``"paper"`` selects T1-T7, ``"all"`` every row.
+More rows ("better trackers of our own") are added with :func:`register`: T7L (T7 with a
+latency-aware CM3, :class:`LatencyAwareCM3Tracker`, end of this module) and T8 (the fused tracker,
+phonepose/pipeline/fusion.py). ``"paper"`` selects T1-T7, ``"all"`` every row.
 """
 
 from __future__ import annotations
@@ -255,11 +256,11 @@ def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "Correc
 
 # ----------------------------------------------------------------------------- ours
 class LatencyAwareCM3Tracker:
-    """T8 (ours): marker inside the view, VIO + a latency-aware CM3 outside (se3 math).
+    """T7L (ours): T7 with a latency-aware CM3: marker inside the view, VIO + CM3 outside (se3 math).
 
     The controller's VIO reaches the display ~latency after its capture (log_time = receipt,
     message ``timestamp`` = capture). T7 pairs a marker with the VIO pose *received* by then, so
-    its offset absorbs speed × latency. T8 instead:
+    its offset absorbs speed × latency. T7L instead:
 
     1. keeps the recent marker observations (image capture time, marker pose) and the received
        VIO samples (capture time, anchor-mapped pose); an observation is paired with the VIO
@@ -358,6 +359,14 @@ def _latency_aware_cm3(spec: TrackerSpec, math: CorrectionMath, reading: CM1Read
     return LatencyAwareCM3Tracker(spec, math, reading)
 
 
-register(TrackerSpec("T8", MARKER, VIO, CorrectionKind.CM3,
-                     "ours: marker in view, else latency-aware CM3 (VIO paired by capture time, predicted to now)",
+def _fused(spec: TrackerSpec, math: CorrectionMath, reading: CM1Reading) -> Tracker:
+    from phonepose.pipeline.fusion import FusedTracker
+    return FusedTracker(spec.name)
+
+
+register(TrackerSpec("T7L", MARKER, VIO, CorrectionKind.CM3,
+                     "ours: T7 with a latency-aware CM3 (VIO paired by capture time, predicted to now)",
                      factory=_latency_aware_cm3))
+register(TrackerSpec("T8", MARKER, VIO, CorrectionKind.CM3,
+                     "ours: fused (ESKF on the correction + VIO time offset, gyro, gated, continuous output)",
+                     factory=_fused))

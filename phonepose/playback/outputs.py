@@ -19,6 +19,7 @@ from phonepose.geometry import Pose
 
 SCOPES = ("inside", "outside", "total")
 METRIC_KEYS = ("p_ate_m", "r_ate_deg", "p_re_m")
+TOTAL_KEYS = ("boundary_jumps", "boundary_jump_max_m", "boundary_jump_rms_m")   # total scope only
 
 
 def _clean(v):
@@ -30,18 +31,26 @@ def _clean(v):
     return v if math.isfinite(v) else None
 
 
-def empty_scope() -> dict:
-    return {"frames": 0, "p_ate_m": None, "r_ate_deg": None, "p_re_m": None}
+def empty_scope(scope: str = "inside") -> dict:
+    d = {"frames": 0, "p_ate_m": None, "r_ate_deg": None, "p_re_m": None}
+    if scope == "total":
+        d.update({"boundary_jumps": 0, "boundary_jump_max_m": None, "boundary_jump_rms_m": None})
+    return d
 
 
 def normalise_metrics(m: dict | None) -> dict:
-    """The exact ``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` layout."""
+    """The exact ``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` layout;
+    ``total`` also has ``boundary_jumps`` (count), ``boundary_jump_max_m`` and ``boundary_jump_rms_m``."""
     out = {}
     for scope in SCOPES:
         src = (m or {}).get(scope) or {}
         d = {"frames": int(src.get("frames") or 0)}
         for k in METRIC_KEYS:
             d[k] = _clean(src.get(k))
+        if scope == "total":
+            d["boundary_jumps"] = int(src.get("boundary_jumps") or 0)
+            d["boundary_jump_max_m"] = _clean(src.get("boundary_jump_max_m"))
+            d["boundary_jump_rms_m"] = _clean(src.get("boundary_jump_rms_m"))
         out[scope] = d
     return out
 
@@ -52,7 +61,7 @@ def paper_metrics(stamps_s: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray)
     from phonepose.evaluation import paper_metrics as compute
 
     if len(stamps_s) == 0:
-        return {s: empty_scope() for s in SCOPES}
+        return {s: empty_scope(s) for s in SCOPES}
     return normalise_metrics(compute(np.asarray(stamps_s, dtype=float), gt, est, np.asarray(inside, dtype=bool)))
 
 

@@ -1,4 +1,4 @@
-"""T8 (ours, latency-aware CM3) on hand-built Observations with a known constant latency.
+"""T7L (ours, T7 with a latency-aware CM3) on hand-built Observations with a known constant latency.
 
 The controller moves at constant velocity; its VIO frame is off the truth by a rigid error
 ``T_err`` (true = T_err · VIO). VIO is captured every 20 ms and received ``LATENCY`` later; ticks
@@ -63,13 +63,13 @@ def run(tracker, obs):
 
 def test_registry_paper_is_t1_t7_and_all_adds_ours():
     assert [t.name for t in make_trackers("paper")] == list(PAPER_TRACKERS)
-    assert tracker_names() == list(PAPER_TRACKERS) + ["T8"]
-    assert [t.name for t in make_trackers("all")] == list(PAPER_TRACKERS) + ["T8"]
+    assert tracker_names() == list(PAPER_TRACKERS) + ["T7L", "T8"]
+    assert [t.name for t in make_trackers("all")] == list(PAPER_TRACKERS) + ["T7L", "T8"]
 
 
 def test_offset_is_the_frame_error_where_cm3_absorbs_speed_times_latency():
     obs = observations(IN_VIEW_TICKS)
-    t8 = make_tracker("T8")
+    t8 = make_tracker("T7L")
     run(t8, obs)
     # the newest pairable observation: its image time is at most (tick - latency)
     assert t8.current.as_pose().allclose(T_ERR, atol=1e-9)
@@ -84,7 +84,7 @@ def test_offset_is_the_frame_error_where_cm3_absorbs_speed_times_latency():
 
 def test_outside_predicts_vio_to_the_tick_time():
     obs = observations(IN_VIEW_TICKS + 8)
-    est = run(make_tracker("T8"), obs)
+    est = run(make_tracker("T7L"), obs)
     for i in range(IN_VIEW_TICKS):
         assert est[i].allclose(truth_at(i * TICK_NS), atol=1e-12)     # marker inside
     for i in range(IN_VIEW_TICKS, len(obs)):
@@ -96,7 +96,7 @@ def test_after_a_stop_outside_t8_is_exact_where_t7_keeps_speed_times_latency():
     # stops outside the view (the usual case), T7 is left with R_err · v · latency.
     stop = IN_VIEW_TICKS * TICK_NS
     obs = observations(IN_VIEW_TICKS + 12, stop_ns=stop)
-    t8 = run(make_tracker("T8"), obs)
+    t8 = run(make_tracker("T7L"), obs)
     t7 = run(make_tracker("T7", "se3"), obs)
     settled = stop + LATENCY_NS + 2 * T8_WINDOW_NS        # the stop is visible in received VIO
     expected = np.linalg.norm(VELOCITY) * LATENCY_NS / 1e9
@@ -109,15 +109,15 @@ def test_after_a_stop_outside_t8_is_exact_where_t7_keeps_speed_times_latency():
 
 def test_before_any_vio_pairing_the_offset_is_not_invented():
     obs = observations(2)           # the first VIO sample after image time 0 arrives at 120 ms
-    t8 = make_tracker("T8")
+    t8 = make_tracker("T7L")
     run(t8, obs)
     assert t8.current is None
 
 
 def test_causal_later_samples_never_change_earlier_estimates():
     n, cut = IN_VIEW_TICKS + 6, IN_VIEW_TICKS + 2
-    clean = run(make_tracker("T8"), observations(n))
-    spoiled = run(make_tracker("T8"), observations(n, cut_after=cut))
+    clean = run(make_tracker("T7L"), observations(n))
+    spoiled = run(make_tracker("T7L"), observations(n, cut_after=cut))
     for i in range(cut + 1):
         assert spoiled[i].allclose(clean[i], atol=0)
     assert not spoiled[-1].allclose(clean[-1], atol=1e-3)

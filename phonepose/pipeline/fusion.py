@@ -1,0 +1,467 @@
+"""T8 (ours): a fused tracker of the controller pose from IMU, anchor-mapped VIO and the marker.
+
+What T1-T7 lack, and what T8 does about it (docs/pipeline.md, "T8: the fused tracker"):
+
+* **One noisy sighting sets the correction** (T6/T7 take ``T_marker · T_VIO^-1`` from a single
+  frame, so its 2-4° of orientation noise and millimetres of depth noise stay in every later
+  pose). T8 estimates the correction ``C`` (display_vio ← anchor-mapped controller VIO) with an
+  **error-state Kalman filter** (Solà 2017, "Quaternion kinematics for the error-state Kalman
+  filter", §6-7: nominal state on the manifold, 6+1-dim error state, reset after each update)
+  from *every* sighting; its process noise follows the VIO drift model, so old sightings fade.
+* **The marker and VIO streams are ~0.12-0.15 s apart** (the controller's streams reach the
+  display late; T7's offset absorbs speed × latency). T8 pairs each sighting with VIO
+  interpolated at the image's capture time, and estimates the residual time offset ``d`` of the
+  VIO stream online as a filter state with the velocity as its Jacobian (Li & Mourikis 2014,
+  "Online temporal calibration for camera-IMU systems", IJRR 33(7)).
+* **Flipped or outlying marker poses** (IPPE's second solution, motion blur) are rejected by a
+  chi-square gate on the innovation (Mahalanobis distance); a run of rejections re-initialises
+  the filter (a VIO relocalisation jump or a re-resolved anchor).
+* **The output jumps where the marker appears or disappears** (T4-T7 switch source). T8 keeps
+  the output continuous: at a source switch the difference between the two sources is carried
+  as an offset that decays with ``blend_time_s`` (the "smooth transition" of Kelly's /
+  Open-VINS-style output smoothing; no step in the output).
+* **Orientation noise**: T8's orientation is always the VIO orientation through the filtered
+  correction, predicted to the tick time with the controller's **gyroscope** (the IMU samples
+  received after the newest VIO sample), never a single marker frame.
+
+Position: inside the view, the marker's position moved to the tick time with the VIO velocity;
+outside, the corrected VIO predicted from its capture time to the tick time at constant
+velocity (a least-squares line through the last ``velocity_window_s`` of VIO samples, which
+averages out hand tremor). The accelerometer is not integrated: over the ~0.15 s horizon the
+8-12 Hz tremor's accelerations (~3 m/s²) would add more error than they remove (measured in
+docs/pipeline.md).
+
+Causal: a step sees only what this and earlier ticks carried. Every parameter is in
+:class:`FusionConfig` (defaults for phone-class sensors; none tuned per sequence).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from phonepose.errors import ConfigError
+from phonepose.geometry import Pose
+from phonepose.pipeline.types import Observation
+
+_NS = 1e-9
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """T8's parameters. Noise figures are 1-sigma."""
+
+    # correction filter: initial uncertainty (first sighting decides: anchors err by ~cm, ~degrees)
+    init_rotation_deg: float = 10.0
+    init_translation_m: float = 0.20
+    init_time_offset_s: float = 0.10
+    time_offset_after: int = 20                      # sightings that fix C (with d = 0) before d is estimated
+    # correction filter: process noise, as the VIO drifts (random walks)
+    rotation_walk_deg_per_sqrt_s: float = 0.1        # yaw drift ~0.07 deg/sqrt(s) of phone VIO
+    translation_walk_m_per_sqrt_s: float = 0.002     # ~1 cm/min
+    translation_per_path_length: float = 0.02        # drift proportional to distance travelled
+    time_offset_walk_s_per_sqrt_s: float = 1e-4
+    # marker measurement noise (camera frame: lateral, depth) and VIO noise
+    marker_lateral_m: float = 0.002
+    marker_depth_m: float = 0.006
+    marker_rotation_deg: float = 3.0
+    vio_position_m: float = 0.002
+    # gating: chi-square, 6 dof, 99.9 %; re-initialise after this many rejections in a row
+    lever_arm: int = 1                               # position residuals inform the rotation through the lever arm
+    use_gyro: int = 1
+    use_accel: int = 1
+    accel_window_s: float = 0.1
+    gate_chi2: float = 22.46
+    max_rejections: int = 10
+    # output
+    velocity_window_s: float = 0.15                  # line fit through the newest VIO samples
+    max_prediction_s: float = 0.5                    # never extrapolate further
+    marker_lead: float = 0.0                         # fraction of the sighting's age to move it forward with the VIO velocity (docs/pipeline.md: 0 measured best)
+    marker_weight: float = 0.9                       # inside: weight of the marker position against the corrected VIO
+    blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
+    gyro_window_s: float = 0.15                      # held angular rate = mean of the newest gyro samples (averages out tremor)
+    smoothing_time_s: float = 0.0                    # decay of the change new VIO information makes to the prediction
+    history_s: float = 1.0                           # VIO / IMU kept for pairing
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "FusionConfig":
+        known = {f.name: f.type for f in fields(cls)}
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"unknown T8 parameter(s) {', '.join(unknown)}; valid: {', '.join(known)}")
+        out = {}
+        for k, v in values.items():
+            try:
+                out[k] = int(v) if known[k] in ("int", int) else float(v)
+            except (TypeError, ValueError):
+                raise ConfigError(f"T8 parameter {k}={v!r} is not a number") from None
+        return cls(**out)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class CorrectionFilter:
+    """Error-state Kalman filter of the correction C = (R_C, t_C) and the VIO time offset d.
+
+    Nominal state: ``R_C`` (scipy Rotation), ``t_C`` (3,), ``d`` (s; true capture time = VIO stamp + d).
+    Error state (7): ``δθ`` (left-multiplied: R_C ← exp(δθ) R_C), ``δt``, ``δd``.
+    A marker sighting at image time t measures the controller pose M; the model is
+    ``M = C · V(t - d)`` with V the anchor-mapped VIO interpolated at stamp time ``t - d``.
+    """
+
+    def __init__(self, cfg: FusionConfig):
+        self.cfg = cfg
+        self.reset()
+
+    def reset(self) -> None:
+        self.R: Rotation | None = None      # None: not initialised (no sighting yet)
+        self.t = np.zeros(3)
+        self.d = 0.0
+        self.P = np.zeros((7, 7))
+        self.rejections = 0
+        self.since_init = 0
+        self.accepted = 0
+        self.rejected = 0
+
+    @property
+    def ready(self) -> bool:
+        return self.R is not None
+
+    def initialise(self, M: Pose, V: Pose, d: float = 0.0) -> None:
+        c = self.cfg
+        self.R = M.rotation * V.rotation.inv()
+        self.t = M.translation - self.R.apply(V.translation)
+        self.d = d
+        self.since_init = 0
+        # after one sighting the correction is as uncertain as one sighting (plus what the caller guessed of d)
+        rot = math.radians(c.marker_rotation_deg)
+        pos = math.hypot(c.marker_depth_m, c.vio_position_m)
+        # d stays fixed (zero variance) until C is settled: one sighting cannot tell a time
+        # offset from a correction error, and a wrong early d misplaces every later pairing
+        self.P = np.diag([rot ** 2] * 3 + [pos ** 2] * 3 + [0.0])
+        self.rejections = 0
+
+    def predict(self, dt_s: float, path_m: float) -> None:
+        """Random-walk process noise over ``dt_s`` in which the VIO travelled ``path_m``."""
+        if not self.ready or dt_s <= 0:
+            return
+        c = self.cfg
+        q_rot = math.radians(c.rotation_walk_deg_per_sqrt_s) ** 2 * dt_s
+        q_pos = c.translation_walk_m_per_sqrt_s ** 2 * dt_s + (c.translation_per_path_length * path_m) ** 2
+        q_d = c.time_offset_walk_s_per_sqrt_s ** 2 * dt_s
+        self.P[np.diag_indices(7)] += np.array([q_rot] * 3 + [q_pos] * 3 + [q_d])
+
+    def apply(self, V: Pose) -> Pose:
+        return Pose(self.R * V.rotation, self.R.apply(V.translation) + self.t)
+
+    def update(self, M: Pose, V: Pose, v_vio: np.ndarray, w_vio: np.ndarray, R_meas: np.ndarray) -> bool:
+        """One sighting: M (marker, display_vio), V = VIO at stamp ``t - d``, its velocity and
+        angular rate (world frame, per second). Returns False if the gate rejected it."""
+        pred = self.apply(V)
+        r_rot = (M.rotation * pred.rotation.inv()).as_rotvec()
+        r_pos = M.translation - pred.translation
+        y = np.concatenate([r_rot, r_pos])
+        H = np.zeros((6, 7))
+        H[0:3, 0:3] = np.eye(3)
+        if self.cfg.lever_arm:
+            H[3:6, 0:3] = -_skew(self.R.apply(V.translation))
+        H[3:6, 3:6] = np.eye(3)
+        # d later means the pair looks at an earlier VIO sample: dV/dd = -velocity
+        H[0:3, 6] = -self.R.apply(w_vio)
+        H[3:6, 6] = -self.R.apply(v_vio)
+        S = H @ self.P @ H.T + R_meas
+        try:
+            K_T = np.linalg.solve(S, H @ self.P)       # (P H^T S^-1)^T, S symmetric
+        except np.linalg.LinAlgError:
+            return False
+        m2 = float(y @ np.linalg.solve(S, y))
+        if not math.isfinite(m2) or m2 > self.cfg.gate_chi2:
+            self.rejections += 1
+            self.rejected += 1
+            return False
+        dx = K_T.T @ y
+        self.R = Rotation.from_rotvec(dx[0:3]) * self.R
+        self.t = self.t + dx[3:6]
+        self.d = self.d + dx[6]
+        I_KH = np.eye(7) - K_T.T @ H
+        self.P = I_KH @ self.P @ I_KH.T + K_T.T @ R_meas @ K_T     # Joseph form: stays symmetric PSD
+        self.rejections = 0
+        self.accepted += 1
+        self.since_init += 1
+        if self.since_init == self.cfg.time_offset_after:
+            # now estimate the time offset too, and let C move with it (it absorbed any offset so far)
+            c = self.cfg
+            self.P[6, 6] = c.init_time_offset_s ** 2
+            self.P[0:3, 0:3] += np.eye(3) * math.radians(c.marker_rotation_deg) ** 2
+            self.P[3:6, 3:6] += np.eye(3) * c.marker_depth_m ** 2
+        return True
+
+
+class _Stream:
+    """Recent samples of one controller stream on its own stamps (seconds), ascending."""
+
+    def __init__(self) -> None:
+        self.t: deque[float] = deque()
+        self.v: deque = deque()
+
+    def add(self, t: float, value) -> None:
+        if not self.t or t > self.t[-1]:
+            self.t.append(t)
+            self.v.append(value)
+
+    def prune(self, horizon: float) -> None:
+        while len(self.t) > 2 and self.t[1] < horizon:
+            self.t.popleft()
+            self.v.popleft()
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+class FusedTracker:
+    """T8: see the module docstring. Same interface as every tracker (reset/step)."""
+
+    uses_vio_samples = True   # reads obs.controller_vio_samples_dvio (stamped VIO samples)
+
+    def __init__(self, name: str = "T8", config: FusionConfig | None = None):
+        self.name = name
+        self.cfg = config or FusionConfig()
+        self.filter = CorrectionFilter(self.cfg)
+        self.reset()
+
+    def reset(self) -> None:
+        self.filter.reset()
+        self._t0_ns: int | None = None             # time origin (ns) for float seconds
+        self._vio = _Stream()                      # (stamp s) -> Pose in display_vio (anchor-mapped)
+        self._gyro = _Stream()                     # (stamp s) -> gyro rad/s + accel m/s^2, body frame
+        self._pending: deque = deque()             # (image s, marker Pose, R_meas)
+        self._last_image_ns: int | None = None
+        self._last_filter_t: float | None = None
+        self._last_vio_t_for_path: float | None = None
+        self._path_since_predict = 0.0
+        self._offset = np.zeros(3)                 # carried across source switches, decays
+        self._vio_offset = np.zeros(3)             # new VIO information being blended in, decays
+        self._source: str | None = None
+        self._last_out: Pose | None = None
+        self._last_corrected: np.ndarray | None = None
+        self._last_t: float | None = None
+        self._last_marker: tuple[float, Pose] | None = None   # (image s, marker pose) of the newest sighting
+
+    # ------------------------------------------------------------------ time
+    def _s(self, t_ns: int) -> float:
+        if self._t0_ns is None:
+            self._t0_ns = int(t_ns)
+        return (int(t_ns) - self._t0_ns) * _NS
+
+    # ------------------------------------------------------------------ VIO history
+    def _vio_at(self, t: float) -> Pose | None:
+        ts = self._vio.t
+        if len(ts) < 2 or t < ts[0] or t > ts[-1]:
+            return None
+        i = int(np.searchsorted(np.fromiter(ts, float, len(ts)), t))
+        i = min(max(i, 1), len(ts) - 1)
+        t0, t1 = ts[i - 1], ts[i]
+        p0, p1 = self._vio.v[i - 1], self._vio.v[i]
+        a = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
+        rel = (p0.rotation.inv() * p1.rotation).as_rotvec()
+        return Pose(p0.rotation * Rotation.from_rotvec(a * rel), p0.translation + a * (p1.translation - p0.translation))
+
+    def _velocity(self, t_end: float | None = None) -> tuple[np.ndarray, np.ndarray, float | None]:
+        """(velocity, fitted position at the newest used sample, its stamp) from a line fit
+        through the VIO samples of the last ``velocity_window_s`` up to ``t_end``."""
+        ts = np.fromiter(self._vio.t, float, len(self._vio))
+        if len(ts) == 0:
+            return np.zeros(3), np.zeros(3), None
+        hi = len(ts) if t_end is None else int(np.searchsorted(ts, t_end, side="right"))
+        hi = max(hi, 1)
+        lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
+        if hi - lo < 2:
+            return np.zeros(3), self._vio.v[hi - 1].translation, ts[hi - 1]
+        tt = ts[lo:hi] - ts[hi - 1]
+        pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
+        A = np.column_stack([np.ones_like(tt), tt])
+        coef, *_ = np.linalg.lstsq(A, pp, rcond=None)
+        return coef[1], coef[0], ts[hi - 1]
+
+    def _vio_predicted(self, t_stamp: float) -> Pose | None:
+        """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
+        the fitted velocity, orientation by the gyroscope (received samples, then the mean rate)."""
+        if not len(self._vio):
+            return None
+        t_last, last = self._vio.t[-1], self._vio.v[-1]
+        velocity, p_fit, _ = self._velocity()
+        dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
+        rot = last.rotation
+        if dt > 0 and len(self._gyro) and self.cfg.use_gyro:
+            # integrate the gyro samples received after the VIO sample, hold the newest rate after them
+            t_prev, R = t_last, rot
+            for tg, w in zip(self._gyro.t, self._gyro.v):
+                if tg <= t_last:
+                    continue
+                if tg > t_last + dt:
+                    break
+                R = R * Rotation.from_rotvec(np.asarray(w[:3]) * (tg - t_prev))
+                t_prev = tg
+            w_last = np.mean([w[:3] for tg, w in zip(self._gyro.t, self._gyro.v)
+                              if tg >= self._gyro.t[-1] - self.cfg.gyro_window_s], axis=0)
+            rot = R * Rotation.from_rotvec(w_last * (t_last + dt - t_prev))
+        position = p_fit + velocity * dt
+        if self.cfg.use_accel and len(self._gyro) and dt > 0:
+            # constant acceleration: the specific force of the last accel_window_s (one tremor
+            # period: averages the 8-12 Hz tremor out) in the world, plus gravity (z up)
+            f_body = np.mean([w[3:6] for tg, w in zip(self._gyro.t, self._gyro.v)
+                              if tg >= self._gyro.t[-1] - self.cfg.accel_window_s], axis=0)
+            a = last.rotation.apply(f_body) + np.array([0.0, 0.0, -9.81])
+            lag = self.cfg.velocity_window_s / 2          # the line fit's velocity is that old
+            position = position + a * lag * dt + 0.5 * a * dt * dt
+        return Pose(rot, position)
+
+    # ------------------------------------------------------------------ measurements
+    def _measurement_noise(self, marker: Pose, camera_position: np.ndarray | None) -> np.ndarray:
+        c = self.cfg
+        R_meas = np.zeros((6, 6))
+        R_meas[0:3, 0:3] = np.eye(3) * math.radians(c.marker_rotation_deg) ** 2
+        cov = np.eye(3) * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
+        if camera_position is not None:
+            u = marker.translation - camera_position
+            n = np.linalg.norm(u)
+            if n > 1e-6:
+                u = u / n
+                cov = cov + np.outer(u, u) * (c.marker_depth_m ** 2 - c.marker_lateral_m ** 2)
+        R_meas[3:6, 3:6] = cov
+        return R_meas
+
+    def _ingest(self, obs: Observation) -> None:
+        tick = obs.tick
+        for capture_ns, pose in obs.controller_vio_samples_dvio:
+            if _finite_pose(pose):
+                t = self._s(capture_ns)
+                if len(self._vio) and t > self._vio.t[-1]:
+                    self._path_since_predict += float(np.linalg.norm(pose.translation - self._vio.v[-1].translation))
+                self._vio.add(t, pose)
+        imu = tick.imu
+        if imu is not None and len(imu):
+            for row in imu:
+                if np.isfinite(row).all():
+                    self._gyro.add(self._s(int(round(row[0] * 1e9))), np.asarray(row[1:7], dtype=float))
+        if len(self._vio):
+            horizon = self._vio.t[-1] - self.cfg.history_s
+            self._vio.prune(horizon)
+            self._gyro.prune(horizon)
+        m = obs.marker
+        if m is not None and _finite_pose(m.T_dvio_controller):
+            image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
+            if image_ns != self._last_image_ns:
+                self._last_image_ns = image_ns
+                cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
+                t_img = self._s(image_ns)
+                self._pending.append((t_img, m.T_dvio_controller, self._measurement_noise(m.T_dvio_controller, cam)))
+                self._last_marker = (t_img, m.T_dvio_controller)
+
+    def _update_filter(self) -> None:
+        """Pair every pending sighting whose image time the VIO stamps now cover, oldest first."""
+        f = self.filter
+        while self._pending and len(self._vio):
+            t_img, M, R_meas = self._pending[0]
+            t_stamp = t_img - f.d
+            if t_stamp > self._vio.t[-1]:
+                break   # the VIO of that moment has not arrived yet (latency): wait
+            self._pending.popleft()
+            V = self._vio_at(t_stamp)
+            if V is None:
+                continue   # older than the kept history
+            if self._last_filter_t is not None:
+                f.predict(t_img - self._last_filter_t, self._path_since_predict)
+            self._path_since_predict = 0.0
+            self._last_filter_t = t_img
+            if not f.ready:
+                f.initialise(M, V)
+                continue
+            v, _, _ = self._velocity(t_stamp)
+            w = self._angular_rate_at(t_stamp)
+            if not f.update(M, V, v, w, R_meas) and f.rejections >= self.cfg.max_rejections:
+                f.initialise(M, V, f.d)   # persistent disagreement: the VIO or the anchor moved
+
+    def _angular_rate_at(self, t_stamp: float) -> np.ndarray:
+        """World-frame angular rate of the VIO orientation at stamp time ``t`` (the two samples around it)."""
+        ts = self._vio.t
+        if len(ts) < 2:
+            return np.zeros(3)
+        i = int(np.searchsorted(np.fromiter(ts, float, len(ts)), t_stamp))
+        i = min(max(i, 1), len(ts) - 1)
+        dt = ts[i] - ts[i - 1]
+        if dt <= 0:
+            return np.zeros(3)
+        return (self._vio.v[i].rotation * self._vio.v[i - 1].rotation.inv()).as_rotvec() / dt
+
+    # ------------------------------------------------------------------ output
+    def step(self, obs: Observation) -> Pose | None:
+        t = self._s(obs.tick.t_ns)
+        f = self.filter
+        # what the previous knowledge predicts for now: new VIO samples and filter updates change
+        # the prediction by up to centimetres; that change is blended in (smoothing_time_s), not stepped
+        before = None
+        if f.ready and len(self._vio):
+            before = f.apply(self._vio_predicted(t - f.d)).translation
+        self._ingest(obs)
+        self._update_filter()
+        vio_now = self._vio_predicted(t - f.d)
+        if vio_now is None and _finite_pose(obs.T_dvio_controller_vio):
+            vio_now = obs.T_dvio_controller_vio      # no stamped samples: the received pose
+        corrected = f.apply(vio_now) if (vio_now is not None and f.ready) else vio_now
+        if self._last_t is not None and self.cfg.smoothing_time_s > 0:
+            self._vio_offset = self._vio_offset * math.exp(-max(t - self._last_t, 0.0) / self.cfg.smoothing_time_s)
+        if before is not None and corrected is not None and f.ready and np.isfinite(before).all() \
+                and self.cfg.smoothing_time_s > 0:
+            self._vio_offset = self._vio_offset + (before - corrected.translation)
+        if corrected is not None:
+            corrected = Pose(corrected.rotation, corrected.translation + self._vio_offset)
+        velocity = f.R.apply(self._velocity()[0]) if f.ready else self._velocity()[0]
+
+        # the marker source: the newest sighting moved to the tick time with the VIO velocity
+        marker_now = None
+        if self._last_marker is not None:
+            t_img, M = self._last_marker
+            age = t - t_img
+            if 0 <= age <= self.cfg.max_prediction_s:
+                marker_now = M.translation + velocity * age * self.cfg.marker_lead
+        source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
+        if source is None:
+            if obs.in_view and _finite_pose(obs.marker.T_dvio_controller):
+                return obs.marker.T_dvio_controller
+            return None
+        position = corrected.translation if source == "vio" else (
+            marker_now if corrected is None or not f.ready
+            else self.cfg.marker_weight * marker_now + (1 - self.cfg.marker_weight) * corrected.translation)
+        rotation = corrected.rotation if corrected is not None else obs.marker.T_dvio_controller.rotation
+
+        # continuity: carry the difference across a switch, then let it decay
+        if self._last_t is not None:
+            self._offset = self._offset * math.exp(-max(t - self._last_t, 0.0) / self.cfg.blend_time_s)
+        if self._source is not None and source != self._source and self._last_out is not None \
+                and corrected is not None and self._last_corrected is not None:
+            # a switch: this tick's output = the last output moved by the VIO's motion over the
+            # tick (always available, unlike the marker), and the difference is carried and decays
+            target = self._last_out.translation + velocity * (t - self._last_t)
+            self._offset = target - position
+        self._source = source
+        self._last_corrected = None if corrected is None else corrected.translation
+        self._last_t = t
+        out = Pose(rotation, position + self._offset)
+        if not _finite_pose(out):
+            return None
+        self._last_out = out
+        return out
+
+    def __repr__(self) -> str:
+        return f"{self.name}(fused: ESKF correction + time offset, gyro prediction, continuous output)"
+
+
+def _finite_pose(p: Pose | None) -> bool:
+    return p is not None and bool(np.isfinite(p.translation).all() and np.isfinite(p.rotation.as_quat()).all())

@@ -1,0 +1,188 @@
+"""T8 (ours, the fused tracker) on hand-built Observations with known motion, latency and errors.
+
+The controller's VIO frame is off the truth by a rigid error ``T_ERR`` (truth = T_ERR · VIO).
+VIO is captured at 30 Hz and received ``LATENCY`` later; ticks every 50 ms; the marker (= the
+truth at the image time, exactly) is recognised while ``visible(tick)``. Expected values follow
+from the geometry: once the filter has paired sightings with VIO, its correction is T_ERR, and
+the output is the truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
+from phonepose.geometry import Pose
+from phonepose.pipeline.fusion import FusedTracker, FusionConfig
+from phonepose.pipeline.trackers import make_tracker
+from phonepose.pipeline.types import MarkerObservation, Observation, Tick
+
+LATENCY_NS = 120_000_000
+VIO_PERIOD_NS = 33_333_333
+TICK_NS = 50_000_000
+T_ERR = Pose.from_rotvec([0.03, -0.02, 0.04], [0.005, 0.01, -0.02])
+R0 = Rotation.from_rotvec([0.1, -0.2, 0.3])
+
+
+def static(t_s: float) -> Pose:
+    return Pose(R0, np.array([0.1, 0.2, 0.4]))
+
+
+def constant_velocity(t_s: float) -> Pose:
+    return Pose(R0, np.array([0.1, 0.2, 0.4]) + np.array([0.3, -0.2, 0.1]) * t_s)
+
+
+def circle(t_s: float) -> Pose:
+    """0.15 m radius at 1 rad/s (0.15 m/s): the velocity turns, so a time offset is observable."""
+    return Pose(R0 * Rotation.from_rotvec([0, 0, 0.2 * np.sin(t_s)]),
+                np.array([0.15 * np.cos(t_s), 0.15 * np.sin(t_s), 0.4]))
+
+
+def observations(truth, n_ticks: int, visible=lambda i: True, stamp_offset_ns: int = 0,
+                 flip_at: int | None = None) -> list[Observation]:
+    """``stamp_offset_ns``: the VIO stamps are that much earlier than the true capture times."""
+    captures = range(-10 * VIO_PERIOD_NS, n_ticks * TICK_NS, VIO_PERIOD_NS)
+    vio = lambda c: T_ERR.inv() @ truth(c / 1e9)                                    # noqa: E731
+    out = []
+    for i in range(n_ticks):
+        t = i * TICK_NS
+        received = [c for c in captures if (i - 1) * TICK_NS < c + LATENCY_NS <= t]
+        samples = [(c - stamp_offset_ns, vio(c)) for c in received]
+        marker = None
+        if visible(i):
+            pose = truth(t / 1e9)
+            if i == flip_at:   # IPPE's other solution: the marker seen tilted the wrong way
+                pose = Pose(pose.rotation * Rotation.from_rotvec([0.6, 0, 0]), pose.translation + [0, 0, 0.05])
+            marker = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(),
+                                       T_dvio_controller=pose, reprojection_error_px=0.1,
+                                       chosen_solution=0, ambiguity_ratio=10.0, id=7)
+        tick = Tick(index=i, t_ns=t, image_t_ns=t, image_is_new=True, T_dvio_display=Pose.identity())
+        out.append(Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio(t - LATENCY_NS),
+                               controller_vio_samples_dvio=samples))
+    return out
+
+
+def run(tracker, obs):
+    tracker.reset()
+    return [tracker.step(o) for o in obs]
+
+
+def errors(est, truth, obs):
+    pos = np.array([np.linalg.norm(e.translation - truth(o.tick.t_ns / 1e9).translation) for e, o in zip(est, obs)])
+    rot = np.array([np.degrees((e.rotation * truth(o.tick.t_ns / 1e9).rotation.inv()).magnitude())
+                    for e, o in zip(est, obs)])
+    return pos, rot
+
+
+def test_t8_is_the_fused_tracker():
+    t8 = make_tracker("T8")
+    assert isinstance(t8, FusedTracker) and t8.uses_vio_samples
+
+
+def test_static_phone_correction_is_the_frame_error_and_output_is_the_truth():
+    obs = observations(static, 40, visible=lambda i: i < 20)
+    t8 = FusedTracker()
+    est = run(t8, obs)
+    f = t8.filter
+    assert f.ready and f.rejected == 0
+    assert np.degrees((f.R * T_ERR.rotation.inv()).magnitude()) < 1e-6
+    np.testing.assert_allclose(f.t, T_ERR.translation, atol=1e-9)
+    assert abs(f.d) < 1e-9                      # a still phone says nothing against zero offset
+    pos, rot = errors(est, static, obs)
+    # from the first pairing on (one latency after the first sighting), inside and outside
+    assert pos[4:].max() < 1e-6 and rot[4:].max() < 1e-6
+
+
+def test_constant_velocity_is_predicted_over_the_latency_inside_and_outside():
+    obs = observations(constant_velocity, 60, visible=lambda i: i < 30)
+    t8 = FusedTracker()
+    est = run(t8, obs)
+    pos, rot = errors(est, constant_velocity, obs)
+    # the VIO reaches the display 0.12 s late; T8 moves it to the tick time at the fitted velocity
+    assert pos[10:].max() < 1e-6, pos
+    assert rot[10:].max() < 1e-6
+    # T1 (uncorrected VIO, as received): off by the frame error and by speed x latency
+    t1_pos, _ = errors(run(make_tracker("T1"), obs), constant_velocity, obs)
+    assert t1_pos[10:].min() > 0.02
+
+
+def test_marker_dropping_out_and_back_leaves_no_step():
+    visible = lambda i: i < 20 or 40 <= i < 50                                     # noqa: E731
+    obs = observations(constant_velocity, 60, visible=visible)
+    est = run(FusedTracker(), obs)
+    t = np.array([o.tick.t_ns / 1e9 for o in obs])
+    p_gt = np.array([constant_velocity(s).translation for s in t])
+    p_est = np.array([e.translation for e in est])
+    inside = np.array([visible(i) for i in range(60)])
+    jumps = boundary_jumps(t, p_gt, p_est, inside)
+    assert len(jumps) == 3                       # out at 20, in at 40, out at 50
+    assert jumps.max() < 1e-6
+    # T4 switches from the marker to uncorrected VIO: its jump is the frame error (plus latency)
+    t4 = run(make_tracker("T4"), obs)
+    t4_jumps = boundary_jumps(t, p_gt, np.array([e.translation for e in t4]), inside)
+    assert t4_jumps.min() > 0.01
+
+
+def test_a_150_ms_vio_time_offset_is_estimated_online():
+    obs = observations(circle, 400, stamp_offset_ns=150_000_000)     # 20 s around the circle, all in view
+    t8 = FusedTracker()
+    est = run(t8, obs)
+    assert t8.filter.d == pytest.approx(0.150, abs=0.005)
+    pos, _ = errors(est, circle, obs)
+    assert np.sqrt(np.mean(pos[-100:] ** 2)) < 0.002
+    # without the offset state the same stream stays off by speed x offset
+    frozen = FusedTracker(config=FusionConfig(init_time_offset_s=0.0, marker_weight=0.0))
+    est0 = run(frozen, obs)
+    pos0, _ = errors(est0, circle, obs)
+    assert np.sqrt(np.mean(pos0[-100:] ** 2)) > 5 * np.sqrt(np.mean(pos[-100:] ** 2))
+
+
+def test_a_flipped_marker_pose_is_gated_out():
+    obs = observations(static, 60, flip_at=40)
+    t8 = FusedTracker()
+    est = run(t8, obs)
+    assert t8.filter.rejected == 1
+    assert np.degrees((t8.filter.R * T_ERR.rotation.inv()).magnitude()) < 1e-6
+    pos, rot = errors(est, static, obs)
+    assert rot[10:].max() < 1e-6           # the orientation never follows the flipped frame
+
+
+def test_config_rejects_unknown_and_non_numeric_parameters():
+    from phonepose.errors import ConfigError
+    assert FusionConfig.from_dict({"blend_time_s": "0.2"}).blend_time_s == 0.2
+    with pytest.raises(ConfigError, match="unknown T8 parameter"):
+        FusionConfig.from_dict({"nope": 1})
+    with pytest.raises(ConfigError, match="not a number"):
+        FusionConfig.from_dict({"blend_time_s": "x"})
+
+
+# ----------------------------------------------------------------------------- the metric
+def test_boundary_jump_is_the_estimated_minus_the_true_change_at_transitions():
+    t = np.arange(10) * 0.05
+    p_gt = np.column_stack([t * 0.2, np.zeros(10), np.zeros(10)])
+    p_est = p_gt.copy()
+    p_est[5:] += [0.0, 0.02, 0.0]                 # a 2 cm step where the marker is lost
+    inside = np.array([True] * 5 + [False] * 5)
+    np.testing.assert_allclose(boundary_jumps(t, p_gt, p_est, inside), [0.02])
+    stats = boundary_jump_stats(t, p_gt, p_est, inside)
+    assert stats["boundary_jumps"] == 1
+    assert stats["boundary_jump_max_m"] == pytest.approx(0.02) and stats["boundary_jump_rms_m"] == pytest.approx(0.02)
+    # a step elsewhere is not a boundary jump; no transition gives no value
+    assert boundary_jump_stats(t, p_gt, p_est, np.ones(10, bool))["boundary_jump_max_m"] is None
+    # a hole in the trajectory (no pose for a tick) leaves no pair across it
+    keep = np.array([0, 1, 2, 3, 4, 6, 7, 8, 9])
+    assert boundary_jumps(t[keep], p_gt[keep], p_est[keep], inside[keep]).size == 0
+
+
+def test_boundary_jump_rms_over_two_transitions():
+    t = np.arange(6) * 0.05
+    p_gt = np.zeros((6, 3))
+    p_est = np.zeros((6, 3))
+    p_est[2:] += [0.03, 0, 0]
+    p_est[4:] += [0, 0.04, 0]
+    inside = np.array([True, True, False, False, True, True])
+    stats = boundary_jump_stats(t, p_gt, p_est, inside)
+    assert stats["boundary_jump_max_m"] == pytest.approx(0.04)
+    assert stats["boundary_jump_rms_m"] == pytest.approx(np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2))
