@@ -48,8 +48,11 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     assert list(doc["trackers"]) == names
     for name, m in doc["trackers"].items():
         assert list(m) == ["inside", "outside", "total"]
-        for scope in m.values():
-            assert list(scope) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m"]
+        for scope in ("inside", "outside"):
+            assert list(m[scope]) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m"]
+        assert list(m["total"]) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m",
+                                    "boundary_jumps", "boundary_jump_max_m", "boundary_jump_rms_m"]
+        assert m["total"]["boundary_jumps"] >= 1 and m["total"]["boundary_jump_max_m"] >= m["total"]["boundary_jump_rms_m"] > 0
         assert m["inside"]["frames"] > 5 and m["outside"]["frames"] > 5
         assert m["inside"]["frames"] + m["outside"]["frames"] == m["total"]["frames"]
         assert all(m["total"][k] is not None and m["total"][k] >= 0 for k in ("p_ate_m", "r_ate_deg", "p_re_m"))

@@ -38,6 +38,7 @@ def exp2_summary_tables(result) -> list[Table]:
     t6.add_column("scope")
     for label in ("p_ATE cm", "r_ATE deg", "p_RE cm"):
         t6.add_column(label, justify="right")
+    t6.add_column("jump max / RMS cm", justify="right")
     rows6 = {}
     for r in result.table6:
         rows6.setdefault(r["tracker"], {})[(r["scope"], r["key"])] = r
@@ -45,7 +46,11 @@ def exp2_summary_tables(result) -> list[Table]:
         for i, scope in enumerate(("inside", "outside", "total")):
             cells = [f"{_f(d[(scope, k)]['average'], d[(scope, k)]['scale'])} / {d[(scope, k)]['paper']}"
                      for k in ("p_ate_m", "r_ate_deg", "p_re_m")]
-            t6.add_row(tracker if i == 0 else "", scope, *cells, end_section=scope == "total")
+            jump = ""
+            if scope == "total" and ("total", "boundary_jump_max_m") in d:
+                jm, jr = d[("total", "boundary_jump_max_m")], d[("total", "boundary_jump_rms_m")]
+                jump = f"{_f(jm['average'], 100)} / {_f(jr['average'], 100)}"
+            t6.add_row(tracker if i == 0 else "", scope, *cells, jump, end_section=scope == "total")
     return [t5, t6]
 
 

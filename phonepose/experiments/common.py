@@ -31,7 +31,7 @@ def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
 
 
 def run_sequence(job: SequenceJob) -> dict:
-    """Record one simulated session and play it back with T1-T7; returns what the tables need."""
+    """Record one simulated session and play it back with T1-T7 and ours (T7L, T8); returns what the tables need."""
     from phonepose.playback.engine import run_playback
     from phonepose.record.sim import record_sim
 
@@ -42,7 +42,7 @@ def run_sequence(job: SequenceJob) -> dict:
     rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
     if rrd is not None:
         rrd.parent.mkdir(parents=True, exist_ok=True)
-    result = run_playback(session, trackers="paper", out_dir=out / "playback" / job.name,
+    result = run_playback(session, trackers="all", out_dir=out / "playback" / job.name,
                           correction_math=job.correction_math, rerun_path=rrd)
     return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,
             **sequence_arrays(result, session), "rerun": None if rrd is None else str(rrd)}

@@ -50,7 +50,7 @@ def target_errors(seq: dict, targets: list[dict], radius: float) -> list[dict]:
     rows = []
     gt_t = np.asarray(gt["stamps_ns"])
     gt_pose = Pose.from_xyzw(gt["translation"], gt["quat"])
-    for name in paper.TRACKERS:
+    for name in paper.REPORTED:
         tr = seq["trajectories"].get(name)
         if tr is None or tr["translation"] is None:
             continue
@@ -75,7 +75,7 @@ def target_errors(seq: dict, targets: list[dict], radius: float) -> list[dict]:
 
 def summarise(rows: list[dict]) -> dict:
     out = {}
-    for name in paper.TRACKERS:
+    for name in paper.REPORTED:
         out[name] = {}
         for scope, flag in (("inside", True), ("outside", False)):
             sel = [r for r in rows if r["tracker"] == name and r["inside"] == flag]
@@ -94,7 +94,7 @@ def exp1_tables(result: Exp1Result) -> list[Table]:
         t.add_column("pos cm", justify="right")
         t.add_column("rot deg", justify="right")
         t.add_column("selected (2 cm)", justify="right")
-        for name in paper.TRACKERS:
+        for name in paper.REPORTED:
             d = result.summary[name][scope]
             p = ref[name]
             t.add_row(name, f"{fmt(d['pos_m'], 100)} / {p[0]}", f"{fmt(d['rot_deg'])} / {p[1]}",
@@ -114,7 +114,7 @@ def _write(result: Exp1Result) -> None:
     lines = ["# Tables 2 and 3 equivalent: experiment 1 (16 targets)", "",
              "Ours: mean over targets of the per-target RMSE during the 5 s hold; `paper` = Park & Ogawa 2024.", "",
              "| tracker | scope | pos cm | paper | rot deg | paper | selected (≤ 2 cm) |", "|---|---|---:|---:|---:|---:|---:|"]
-    for name in paper.TRACKERS:
+    for name in paper.REPORTED:
         for scope, ref in (("inside", paper.TABLE2_INSIDE), ("outside", paper.TABLE3_OUTSIDE)):
             d = result.summary[name][scope]
             lines.append(f"| {name} | {scope} | {fmt(d['pos_m'], 100)} | {ref[name][0]} | {fmt(d['rot_deg'])} | "

@@ -50,3 +50,16 @@ TABLE2_INSIDE = _expand({"T1": (2.7, 16.6), "T2": (0.5, 18.2), "T3": (0.7, 16.9)
 TABLE3_OUTSIDE = _expand({"T1, T4": (2.2, 14.9), "T2, T5": (1.0, 15.6), "T3, T6": (0.9, 17.6), "T7": (2.1, 9.8)})
 
 TRACKERS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7"]
+
+# Our own trackers, reported beside T1-T7 in every table (the paper has no number for them: "—").
+OURS = ["T7L", "T8"]
+REPORTED = TRACKERS + OURS
+NO_VALUE = "—"
+
+for _table in (TABLE5_AVERAGE,):
+    for _name in OURS:
+        _table[_name] = {"p_ate_cm": NO_VALUE, "r_ate_deg": NO_VALUE, "p_re_cm": NO_VALUE}
+for _name in OURS:
+    TABLE6_AVERAGE[_name] = {s: (NO_VALUE,) * 3 for s in ("inside", "outside", "total")}
+    TABLE2_INSIDE[_name] = (NO_VALUE, NO_VALUE)
+    TABLE3_OUTSIDE[_name] = (NO_VALUE, NO_VALUE)

@@ -175,12 +175,13 @@ class CorrectionFilter:
         # d later means the pair looks at an earlier VIO sample: dV/dd = -velocity
         H[0:3, 6] = -self.R.apply(w_vio)
         H[3:6, 6] = -self.R.apply(v_vio)
-        S = H @ self.P @ H.T + R_meas
-        try:
-            K_T = np.linalg.solve(S, H @ self.P)       # (P H^T S^-1)^T, S symmetric
-        except np.linalg.LinAlgError:
-            return False
-        m2 = float(y @ np.linalg.solve(S, y))
+        with np.errstate(over="ignore", invalid="ignore"):   # absurd inputs give inf/NaN: gated below
+            S = H @ self.P @ H.T + R_meas
+            try:
+                K_T = np.linalg.solve(S, H @ self.P)       # (P H^T S^-1)^T, S symmetric
+                m2 = float(y @ np.linalg.solve(S, y))
+            except np.linalg.LinAlgError:
+                return False
         if not math.isfinite(m2) or m2 > self.cfg.gate_chi2:
             self.rejections += 1
             self.rejected += 1
