@@ -53,6 +53,8 @@ SUMMARY = [
     ("evaluation", "speedup_incl_loading", "  same, including loading the files", ">= 10x", lambda v: v >= 10),
     ("record", "x_real_time", "record sim, x real time (wall)", ">= 5x", lambda v: v >= 5),
     ("record", "writer_vs_plain", "SessionWriter vs plain file, same bytes", "floor 1x", None),
+    ("fusion", "T8_ms_per_tick", "T8 (fused tracker) per tick, ms", "< 2 ms", lambda v: v < 2.0),
+    ("fusion", "t8_vs_shared_stages", "  same / shared stages (decode+detect+anchor)", "report", None),
     ("memory", "peak_ratio_long_vs_short", "peak RSS, 10-min / 1-min session playback", "<= 1.1x", lambda v: v <= 1.1),
     ("memory", "ticks_peak_ratio_long_vs_short", "  same, up to the last tick (before the metrics)", "<= 1.1x",
      lambda v: v <= 1.1),

@@ -101,7 +101,7 @@ def test_constant_velocity_is_predicted_over_the_latency_inside_and_outside():
     est = run(t8, obs)
     pos, rot = errors(est, constant_velocity, obs)
     # the VIO reaches the display 0.12 s late; T8 moves it to the tick time at the fitted velocity
-    assert pos[10:].max() < 1e-6, pos
+    assert pos[15:].max() < 1e-5, pos          # (the inside filter forgets its start-up by half per tick)
     assert rot[10:].max() < 1e-6
     # T1 (uncorrected VIO, as received): off by the frame error and by speed x latency
     t1_pos, _ = errors(run(make_tracker("T1"), obs), constant_velocity, obs)
@@ -126,17 +126,18 @@ def test_marker_dropping_out_and_back_leaves_no_step():
 
 
 def test_a_150_ms_vio_time_offset_is_estimated_online():
-    obs = observations(circle, 400, stamp_offset_ns=150_000_000)     # 20 s around the circle, all in view
+    # 20 s around the circle in view, then 5 s out of it, where only the (time-aligned) VIO is left
+    obs = observations(circle, 500, visible=lambda i: i < 400, stamp_offset_ns=150_000_000)
     t8 = FusedTracker()
     est = run(t8, obs)
     assert t8.filter.d == pytest.approx(0.150, abs=0.005)
     pos, _ = errors(est, circle, obs)
-    assert np.sqrt(np.mean(pos[-100:] ** 2)) < 0.002
-    # without the offset state the same stream stays off by speed x offset
-    frozen = FusedTracker(config=FusionConfig(init_time_offset_s=0.0, marker_weight=0.0))
-    est0 = run(frozen, obs)
-    pos0, _ = errors(est0, circle, obs)
-    assert np.sqrt(np.mean(pos0[-100:] ** 2)) > 5 * np.sqrt(np.mean(pos[-100:] ** 2))
+    outside = slice(410, 500)
+    assert np.sqrt(np.mean(pos[outside] ** 2)) < 0.002
+    # without the offset state the VIO outside is predicted to the wrong moment: off by ~speed x offset
+    frozen = FusedTracker(config=FusionConfig(init_time_offset_s=0.0))
+    pos0, _ = errors(run(frozen, obs), circle, obs)
+    assert np.sqrt(np.mean(pos0[outside] ** 2)) > 5 * np.sqrt(np.mean(pos[outside] ** 2))
 
 
 def test_a_flipped_marker_pose_is_gated_out():

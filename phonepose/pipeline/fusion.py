@@ -73,18 +73,18 @@ class FusionConfig:
     # gating: chi-square, 6 dof, 99.9 %; re-initialise after this many rejections in a row
     lever_arm: int = 1                               # position residuals inform the rotation through the lever arm
     use_gyro: int = 1
-    use_accel: int = 1
+    use_accel: int = 0
     accel_window_s: float = 0.1
     gate_chi2: float = 22.46
     max_rejections: int = 10
     # output
-    velocity_window_s: float = 0.15                  # line fit through the newest VIO samples
+    marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
+    velocity_fit_degree: int = 2                     # 1: line, 2: quadratic (slope at the newest sample)
+    velocity_window_s: float = 0.3                   # the fit runs through the newest VIO samples of this window
     max_prediction_s: float = 0.5                    # never extrapolate further
-    marker_lead: float = 0.0                         # fraction of the sighting's age to move it forward with the VIO velocity (docs/pipeline.md: 0 measured best)
-    marker_weight: float = 0.9                       # inside: weight of the marker position against the corrected VIO
+    marker_gain: float = 0.5                         # inside: weight of a new sighting against the filtered position
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
     gyro_window_s: float = 0.15                      # held angular rate = mean of the newest gyro samples (averages out tremor)
-    smoothing_time_s: float = 0.0                    # decay of the change new VIO information makes to the prediction
     history_s: float = 1.0                           # VIO / IMU kept for pairing
 
     @classmethod
@@ -210,16 +210,25 @@ class _Stream:
     def __init__(self) -> None:
         self.t: deque[float] = deque()
         self.v: deque = deque()
+        self._arrays: tuple[np.ndarray, np.ndarray] | None = None
 
     def add(self, t: float, value) -> None:
         if not self.t or t > self.t[-1]:
             self.t.append(t)
             self.v.append(value)
+            self._arrays = None
 
     def prune(self, horizon: float) -> None:
         while len(self.t) > 2 and self.t[1] < horizon:
             self.t.popleft()
             self.v.popleft()
+            self._arrays = None
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps, values) as arrays, rebuilt only after the stream changed."""
+        if self._arrays is None:
+            self._arrays = (np.fromiter(self.t, float, len(self.t)), np.array(self.v, dtype=float))
+        return self._arrays
 
     def __len__(self) -> int:
         return len(self.t)
@@ -246,13 +255,15 @@ class FusedTracker:
         self._last_filter_t: float | None = None
         self._last_vio_t_for_path: float | None = None
         self._path_since_predict = 0.0
+        self._velocity_cache = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
-        self._vio_offset = np.zeros(3)             # new VIO information being blended in, decays
         self._source: str | None = None
         self._last_out: Pose | None = None
         self._last_corrected: np.ndarray | None = None
         self._last_t: float | None = None
         self._last_marker: tuple[float, Pose] | None = None   # (image s, marker pose) of the newest sighting
+        self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
+        self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
 
     # ------------------------------------------------------------------ time
     def _s(self, t_ns: int) -> float:
@@ -274,50 +285,61 @@ class FusedTracker:
         return Pose(p0.rotation * Rotation.from_rotvec(a * rel), p0.translation + a * (p1.translation - p0.translation))
 
     def _velocity(self, t_end: float | None = None) -> tuple[np.ndarray, np.ndarray, float | None]:
-        """(velocity, fitted position at the newest used sample, its stamp) from a line fit
-        through the VIO samples of the last ``velocity_window_s`` up to ``t_end``."""
-        ts = np.fromiter(self._vio.t, float, len(self._vio))
-        if len(ts) == 0:
+        """(velocity, fitted position at the newest used sample, its stamp) from a least-squares
+        line through the VIO samples of the last ``velocity_window_s`` up to ``t_end``."""
+        n = len(self._vio)
+        if n == 0:
             return np.zeros(3), np.zeros(3), None
-        hi = len(ts) if t_end is None else int(np.searchsorted(ts, t_end, side="right"))
+        key = (n, self._vio.t[-1], self._vio.t[0], t_end)
+        if self._velocity_cache is not None and self._velocity_cache[0] == key:
+            return self._velocity_cache[1]
+        ts = np.fromiter(self._vio.t, float, n)
+        hi = n if t_end is None else int(np.searchsorted(ts, t_end, side="right"))
         hi = max(hi, 1)
         lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
         if hi - lo < 2:
-            return np.zeros(3), self._vio.v[hi - 1].translation, ts[hi - 1]
-        tt = ts[lo:hi] - ts[hi - 1]
-        pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
-        A = np.column_stack([np.ones_like(tt), tt])
-        coef, *_ = np.linalg.lstsq(A, pp, rcond=None)
-        return coef[1], coef[0], ts[hi - 1]
+            out = (np.zeros(3), self._vio.v[hi - 1].translation, ts[hi - 1])
+        else:
+            tt = ts[lo:hi] - ts[hi - 1]
+            pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
+            if self.cfg.velocity_fit_degree == 2 and hi - lo >= 4:
+                # quadratic fit: its slope at the newest sample does not lag behind an acceleration
+                c = np.polynomial.polynomial.polyfit(tt, pp, 2)
+                out = (c[1], c[0], ts[hi - 1])
+            else:
+                tc, pc = tt - tt.mean(), pp - pp.mean(axis=0)
+                velocity = (tc @ pc) / (tc @ tc)          # the normal equations of the line fit
+                out = (velocity, pp.mean(axis=0) - velocity * tt.mean(), ts[hi - 1])
+        self._velocity_cache = (key, out)
+        return out
 
     def _vio_predicted(self, t_stamp: float) -> Pose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
-        the fitted velocity, orientation by the gyroscope (received samples, then the mean rate)."""
+        the fitted velocity (and the accelerometer's acceleration), orientation by the gyroscope
+        (the samples received after the VIO sample, then their recent mean rate)."""
         if not len(self._vio):
             return None
         t_last, last = self._vio.t[-1], self._vio.v[-1]
         velocity, p_fit, _ = self._velocity()
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
         rot = last.rotation
-        if dt > 0 and len(self._gyro) and self.cfg.use_gyro:
-            # integrate the gyro samples received after the VIO sample, hold the newest rate after them
-            t_prev, R = t_last, rot
-            for tg, w in zip(self._gyro.t, self._gyro.v):
-                if tg <= t_last:
-                    continue
-                if tg > t_last + dt:
-                    break
-                R = R * Rotation.from_rotvec(np.asarray(w[:3]) * (tg - t_prev))
-                t_prev = tg
-            w_last = np.mean([w[:3] for tg, w in zip(self._gyro.t, self._gyro.v)
-                              if tg >= self._gyro.t[-1] - self.cfg.gyro_window_s], axis=0)
-            rot = R * Rotation.from_rotvec(w_last * (t_last + dt - t_prev))
         position = p_fit + velocity * dt
-        if self.cfg.use_accel and len(self._gyro) and dt > 0:
+        if dt <= 0 or not len(self._gyro):
+            return Pose(rot, position)
+        tg, imu = self._gyro.arrays()
+        if self.cfg.use_gyro:
+            # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
+            # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
+            after = (tg > t_last) & (tg <= t_last + dt)
+            steps = np.diff(np.concatenate([[t_last], tg[after]]))
+            rotvec = (imu[after, 0:3] * steps[:, None]).sum(axis=0)
+            t_prev = tg[after][-1] if after.any() else t_last
+            hold = imu[tg >= tg[-1] - self.cfg.gyro_window_s, 0:3].mean(axis=0)
+            rot = rot * Rotation.from_rotvec(rotvec + hold * (t_last + dt - t_prev))
+        if self.cfg.use_accel:
             # constant acceleration: the specific force of the last accel_window_s (one tremor
             # period: averages the 8-12 Hz tremor out) in the world, plus gravity (z up)
-            f_body = np.mean([w[3:6] for tg, w in zip(self._gyro.t, self._gyro.v)
-                              if tg >= self._gyro.t[-1] - self.cfg.accel_window_s], axis=0)
+            f_body = imu[tg >= tg[-1] - self.cfg.accel_window_s, 3:6].mean(axis=0)
             a = last.rotation.apply(f_body) + np.array([0.0, 0.0, -9.81])
             lag = self.cfg.velocity_window_s / 2          # the line fit's velocity is that old
             position = position + a * lag * dt + 0.5 * a * dt * dt
@@ -364,6 +386,9 @@ class FusedTracker:
                 t_img = self._s(image_ns)
                 self._pending.append((t_img, m.T_dvio_controller, self._measurement_noise(m.T_dvio_controller, cam)))
                 self._last_marker = (t_img, m.T_dvio_controller)
+                self._sightings.append((t_img, m.T_dvio_controller.translation))
+                while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
+                    self._sightings.popleft()
 
     def _update_filter(self) -> None:
         """Pair every pending sighting whose image time the VIO stamps now cover, oldest first."""
@@ -389,6 +414,16 @@ class FusedTracker:
             if not f.update(M, V, v, w, R_meas) and f.rejections >= self.cfg.max_rejections:
                 f.initialise(M, V, f.d)   # persistent disagreement: the VIO or the anchor moved
 
+    def _marker_velocity(self, t: float) -> np.ndarray | None:
+        """Line fit through the sightings of the last ``marker_velocity_window_s`` (None: < 3 of them)."""
+        s = [(ti, p) for ti, p in self._sightings if ti >= t - self.cfg.marker_velocity_window_s]
+        if len(s) < 3:
+            return None
+        tt = np.array([ti for ti, _ in s])
+        pp = np.array([p for _, p in s])
+        tc = tt - tt.mean()
+        return (tc @ (pp - pp.mean(axis=0))) / (tc @ tc)
+
     def _angular_rate_at(self, t_stamp: float) -> np.ndarray:
         """World-frame angular rate of the VIO orientation at stamp time ``t`` (the two samples around it)."""
         ts = self._vio.t
@@ -405,41 +440,35 @@ class FusedTracker:
     def step(self, obs: Observation) -> Pose | None:
         t = self._s(obs.tick.t_ns)
         f = self.filter
-        # what the previous knowledge predicts for now: new VIO samples and filter updates change
-        # the prediction by up to centimetres; that change is blended in (smoothing_time_s), not stepped
-        before = None
-        if f.ready and len(self._vio):
-            before = f.apply(self._vio_predicted(t - f.d)).translation
         self._ingest(obs)
         self._update_filter()
         vio_now = self._vio_predicted(t - f.d)
         if vio_now is None and _finite_pose(obs.T_dvio_controller_vio):
             vio_now = obs.T_dvio_controller_vio      # no stamped samples: the received pose
         corrected = f.apply(vio_now) if (vio_now is not None and f.ready) else vio_now
-        if self._last_t is not None and self.cfg.smoothing_time_s > 0:
-            self._vio_offset = self._vio_offset * math.exp(-max(t - self._last_t, 0.0) / self.cfg.smoothing_time_s)
-        if before is not None and corrected is not None and f.ready and np.isfinite(before).all() \
-                and self.cfg.smoothing_time_s > 0:
-            self._vio_offset = self._vio_offset + (before - corrected.translation)
-        if corrected is not None:
-            corrected = Pose(corrected.rotation, corrected.translation + self._vio_offset)
         velocity = f.R.apply(self._velocity()[0]) if f.ready else self._velocity()[0]
 
-        # the marker source: the newest sighting moved to the tick time with the VIO velocity
+        # the marker source: the newest sighting (at its image time, as T4-T7 report it)
         marker_now = None
         if self._last_marker is not None:
             t_img, M = self._last_marker
             age = t - t_img
             if 0 <= age <= self.cfg.max_prediction_s:
-                marker_now = M.translation + velocity * age * self.cfg.marker_lead
+                marker_now = M.translation
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
             if obs.in_view and _finite_pose(obs.marker.T_dvio_controller):
                 return obs.marker.T_dvio_controller
             return None
-        position = corrected.translation if source == "vio" else (
-            marker_now if corrected is None or not f.ready
-            else self.cfg.marker_weight * marker_now + (1 - self.cfg.marker_weight) * corrected.translation)
+        position = corrected.translation if source == "vio" else marker_now
+        if source == "marker" and self.cfg.marker_gain < 1:
+            # inside: a complementary filter — the newest sightings, moved by the VIO velocity, average the marker's noise
+            if self._source == "marker" and self._inside is not None and self._last_t is not None:
+                predicted = self._inside + velocity * (t - self._last_t)
+                position = self.cfg.marker_gain * position + (1 - self.cfg.marker_gain) * predicted
+            self._inside = position
+        else:
+            self._inside = None
         rotation = corrected.rotation if corrected is not None else obs.marker.T_dvio_controller.rotation
 
         # continuity: carry the difference across a switch, then let it decay
@@ -447,9 +476,15 @@ class FusedTracker:
             self._offset = self._offset * math.exp(-max(t - self._last_t, 0.0) / self.cfg.blend_time_s)
         if self._source is not None and source != self._source and self._last_out is not None \
                 and corrected is not None and self._last_corrected is not None:
-            # a switch: this tick's output = the last output moved by the VIO's motion over the
-            # tick (always available, unlike the marker), and the difference is carried and decays
-            target = self._last_out.translation + velocity * (t - self._last_t)
+            # a switch: this tick's output = the last output moved by the estimated motion over the
+            # tick, and the difference to the new source is carried and decays
+            motion = velocity
+            if self._source == "marker":
+                # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
+                marker_velocity = self._marker_velocity(t)
+                if marker_velocity is not None:
+                    motion = marker_velocity
+            target = self._last_out.translation + motion * (t - self._last_t)
             self._offset = target - position
         self._source = source
         self._last_corrected = None if corrected is None else corrected.translation
