@@ -62,6 +62,8 @@ class FusionConfig:
     time_offset_after: int = 20                      # sightings that fix C (with d = 0) before d is estimated
     # correction filter: process noise, as the VIO drifts (random walks)
     rotation_walk_deg_per_sqrt_s: float = 0.1        # yaw drift ~0.07 deg/sqrt(s) of phone VIO
+    tilt_deg: float = 0.5                            # gravity-aligned VIO worlds: C tilts by at most ~this (anchor tilt)
+    tilt_walk_deg_per_sqrt_s: float = 0.01
     translation_walk_m_per_sqrt_s: float = 0.002     # ~1 cm/min
     translation_per_path_length: float = 0.02        # drift proportional to distance travelled
     time_offset_walk_s_per_sqrt_s: float = 1e-4
@@ -82,8 +84,10 @@ class FusionConfig:
     velocity_fit_degree: int = 2                     # 1: line, 2: quadratic (slope at the newest sample)
     velocity_window_s: float = 0.3                   # the fit runs through the newest VIO samples of this window
     max_prediction_s: float = 0.5                    # never extrapolate further
-    marker_gain: float = 0.5                         # inside: weight of a new sighting against the filtered position
+    marker_rotation_gain: float = 0.4                # inside: share of the sighting's orientation in the output
+    marker_gain: float = 0.7                         # inside: weight of a new sighting against the filtered position
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
+    gyro_fit_degree: int = 0                         # 0: hold the mean rate, 1: extrapolate its linear trend
     gyro_window_s: float = 0.15                      # held angular rate = mean of the newest gyro samples (averages out tremor)
     history_s: float = 1.0                           # VIO / IMU kept for pairing
 
@@ -135,16 +139,22 @@ class CorrectionFilter:
 
     def initialise(self, M: Pose, V: Pose, d: float = 0.0) -> None:
         c = self.cfg
-        self.R = M.rotation * V.rotation.inv()
+        R = M.rotation * V.rotation.inv()
+        if c.tilt_deg < c.marker_rotation_deg:
+            # both VIO worlds are gravity aligned (z up): C is a heading change, tilt only within tilt_deg;
+            # start from the sighting's heading alone, not its (noisier) tilt
+            R = Rotation.from_euler("z", R.as_euler("ZYX")[0])
+        self.R = R
         self.t = M.translation - self.R.apply(V.translation)
         self.d = d
         self.since_init = 0
         # after one sighting the correction is as uncertain as one sighting (plus what the caller guessed of d)
         rot = math.radians(c.marker_rotation_deg)
+        tilt = math.radians(min(c.tilt_deg, c.marker_rotation_deg))
         pos = math.hypot(c.marker_depth_m, c.vio_position_m)
         # d stays fixed (zero variance) until C is settled: one sighting cannot tell a time
         # offset from a correction error, and a wrong early d misplaces every later pairing
-        self.P = np.diag([rot ** 2] * 3 + [pos ** 2] * 3 + [0.0])
+        self.P = np.diag([tilt ** 2, tilt ** 2, rot ** 2] + [pos ** 2] * 3 + [0.0])
         self.rejections = 0
 
     def predict(self, dt_s: float, path_m: float) -> None:
@@ -153,9 +163,10 @@ class CorrectionFilter:
             return
         c = self.cfg
         q_rot = math.radians(c.rotation_walk_deg_per_sqrt_s) ** 2 * dt_s
+        q_tilt = math.radians(c.tilt_walk_deg_per_sqrt_s) ** 2 * dt_s
         q_pos = c.translation_walk_m_per_sqrt_s ** 2 * dt_s + (c.translation_per_path_length * path_m) ** 2
         q_d = c.time_offset_walk_s_per_sqrt_s ** 2 * dt_s
-        self.P[np.diag_indices(7)] += np.array([q_rot] * 3 + [q_pos] * 3 + [q_d])
+        self.P[np.diag_indices(7)] += np.array([q_tilt, q_tilt, q_rot] + [q_pos] * 3 + [q_d])
 
     def apply(self, V: Pose) -> Pose:
         return Pose(self.R * V.rotation, self.R.apply(V.translation) + self.t)
@@ -199,7 +210,7 @@ class CorrectionFilter:
             # now estimate the time offset too, and let C move with it (it absorbed any offset so far)
             c = self.cfg
             self.P[6, 6] = c.init_time_offset_s ** 2
-            self.P[0:3, 0:3] += np.eye(3) * math.radians(c.marker_rotation_deg) ** 2
+            self.P[2, 2] += math.radians(c.marker_rotation_deg) ** 2
             self.P[3:6, 3:6] += np.eye(3) * c.marker_depth_m ** 2
         return True
 
@@ -334,8 +345,16 @@ class FusedTracker:
             steps = np.diff(np.concatenate([[t_last], tg[after]]))
             rotvec = (imu[after, 0:3] * steps[:, None]).sum(axis=0)
             t_prev = tg[after][-1] if after.any() else t_last
-            hold = imu[tg >= tg[-1] - self.cfg.gyro_window_s, 0:3].mean(axis=0)
-            rot = rot * Rotation.from_rotvec(rotvec + hold * (t_last + dt - t_prev))
+            recent = tg >= tg[-1] - self.cfg.gyro_window_s
+            rest = t_last + dt - t_prev
+            if self.cfg.gyro_fit_degree == 1 and recent.sum() >= 3:
+                # the rate's trend over the window (a line fit), integrated over the rest of the horizon
+                tr = tg[recent] - t_prev
+                c = np.polynomial.polynomial.polyfit(tr, imu[recent, 0:3], 1)
+                extra = c[0] * rest + c[1] * rest * rest / 2
+            else:
+                extra = imu[recent, 0:3].mean(axis=0) * rest
+            rot = rot * Rotation.from_rotvec(rotvec + extra)
         if self.cfg.use_accel:
             # constant acceleration: the specific force of the last accel_window_s (one tremor
             # period: averages the 8-12 Hz tremor out) in the world, plus gravity (z up)
@@ -470,6 +489,11 @@ class FusedTracker:
         else:
             self._inside = None
         rotation = corrected.rotation if corrected is not None else obs.marker.T_dvio_controller.rotation
+        if source == "marker" and corrected is not None and self.cfg.marker_rotation_gain > 0:
+            # inside: the fresh sighting's orientation pulls the predicted one (whose error grows
+            # with the ~0.13 s the gyro has to bridge)
+            pull = (self._last_marker[1].rotation * rotation.inv()).as_rotvec()
+            rotation = Rotation.from_rotvec(self.cfg.marker_rotation_gain * pull) * rotation
 
         # continuity: carry the difference across a switch, then let it decay
         if self._last_t is not None:
