@@ -141,9 +141,14 @@ class CorrectionFilter:
         c = self.cfg
         R = M.rotation * V.rotation.inv()
         if c.tilt_deg < c.marker_rotation_deg:
-            # both VIO worlds are gravity aligned (z up): C is a heading change, tilt only within tilt_deg;
-            # start from the sighting's heading alone, not its (noisier) tilt
-            R = Rotation.from_euler("z", R.as_euler("ZYX")[0])
+            # both VIO worlds are gravity aligned (z up): C is a heading change and a tilt of at most
+            # ~tilt_deg; the sighting's tilt beyond that is its noise, clipped here
+            heading = Rotation.from_euler("z", R.as_euler("ZYX")[0])
+            tilt = (R * heading.inv()).as_rotvec()
+            limit = math.radians(c.tilt_deg)
+            if np.linalg.norm(tilt) > limit:
+                tilt = tilt * (limit / np.linalg.norm(tilt))
+            R = Rotation.from_rotvec(tilt) * heading
         self.R = R
         self.t = M.translation - self.R.apply(V.translation)
         self.d = d
@@ -493,7 +498,8 @@ class FusedTracker:
             # inside: the fresh sighting's orientation pulls the predicted one (whose error grows
             # with the ~0.13 s the gyro has to bridge)
             pull = (self._last_marker[1].rotation * rotation.inv()).as_rotvec()
-            rotation = Rotation.from_rotvec(self.cfg.marker_rotation_gain * pull) * rotation
+            if np.linalg.norm(pull) <= math.radians(3 * self.cfg.marker_rotation_deg):   # a flip does not pull
+                rotation = Rotation.from_rotvec(self.cfg.marker_rotation_gain * pull) * rotation
 
         # continuity: carry the difference across a switch, then let it decay
         if self._last_t is not None:
