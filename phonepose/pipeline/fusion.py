@@ -124,7 +124,7 @@ class CorrectionFilter:
         self.reset()
 
     def reset(self) -> None:
-        self.R: Rotation | None = None      # None: not initialised (no sighting yet)
+        self.R = None                       # None: not initialised (no sighting yet)
         self.t = np.zeros(3)
         self.d = 0.0
         self.P = np.zeros((7, 7))
@@ -173,24 +173,35 @@ class CorrectionFilter:
         q_d = c.time_offset_walk_s_per_sqrt_s ** 2 * dt_s
         self.P[np.diag_indices(7)] += np.array([q_tilt, q_tilt, q_rot] + [q_pos] * 3 + [q_d])
 
+    @property
+    def R(self) -> Rotation | None:
+        return self._R
+
+    @R.setter
+    def R(self, value: Rotation | None) -> None:
+        self._R = value
+        self._Rm = None if value is None else value.as_matrix()   # numpy products below: cheaper per call
+
     def apply(self, V: Pose) -> Pose:
-        return Pose(self.R * V.rotation, self.R.apply(V.translation) + self.t)
+        return Pose(self._R * V.rotation, self._Rm @ V.translation + self.t)
 
     def update(self, M: Pose, V: Pose, v_vio: np.ndarray, w_vio: np.ndarray, R_meas: np.ndarray) -> bool:
         """One sighting: M (marker, display_vio), V = VIO at stamp ``t - d``, its velocity and
         angular rate (world frame, per second). Returns False if the gate rejected it."""
-        pred = self.apply(V)
-        r_rot = (M.rotation * pred.rotation.inv()).as_rotvec()
-        r_pos = M.translation - pred.translation
+        Rm = self._Rm
+        pred_rm = Rm @ V.rotation.as_matrix()
+        p_world = Rm @ V.translation
+        r_rot = Rotation.from_matrix(M.rotation.as_matrix() @ pred_rm.T).as_rotvec()
+        r_pos = M.translation - (p_world + self.t)
         y = np.concatenate([r_rot, r_pos])
         H = np.zeros((6, 7))
         H[0:3, 0:3] = np.eye(3)
         if self.cfg.lever_arm:
-            H[3:6, 0:3] = -_skew(self.R.apply(V.translation))
+            H[3:6, 0:3] = -_skew(p_world)
         H[3:6, 3:6] = np.eye(3)
         # d later means the pair looks at an earlier VIO sample: dV/dd = -velocity
-        H[0:3, 6] = -self.R.apply(w_vio)
-        H[3:6, 6] = -self.R.apply(v_vio)
+        H[0:3, 6] = -(Rm @ w_vio)
+        H[3:6, 6] = -(Rm @ v_vio)
         with np.errstate(over="ignore", invalid="ignore"):   # absurd inputs give inf/NaN: gated below
             S = H @ self.P @ H.T + R_meas
             try:
@@ -320,7 +331,8 @@ class FusedTracker:
             pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
             if self.cfg.velocity_fit_degree == 2 and hi - lo >= 4:
                 # quadratic fit: its slope at the newest sample does not lag behind an acceleration
-                c = np.polynomial.polynomial.polyfit(tt, pp, 2)
+                A = np.vander(tt, 3, increasing=True)          # 1, t, t^2
+                c = np.linalg.solve(A.T @ A, A.T @ pp)         # the normal equations (3 x 3)
                 out = (c[1], c[0], ts[hi - 1])
             else:
                 tc, pc = tt - tt.mean(), pp - pp.mean(axis=0)
@@ -354,8 +366,8 @@ class FusedTracker:
             rest = t_last + dt - t_prev
             if self.cfg.gyro_fit_degree == 1 and recent.sum() >= 3:
                 # the rate's trend over the window (a line fit), integrated over the rest of the horizon
-                tr = tg[recent] - t_prev
-                c = np.polynomial.polynomial.polyfit(tr, imu[recent, 0:3], 1)
+                A = np.vander(tg[recent] - t_prev, 2, increasing=True)
+                c = np.linalg.solve(A.T @ A, A.T @ imu[recent, 0:3])
                 extra = c[0] * rest + c[1] * rest * rest / 2
             else:
                 extra = imu[recent, 0:3].mean(axis=0) * rest
