@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
+import numpy as np
 import typer
+from rich.console import Console
 
 from phonepose.cli import app
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, SessionContentError
 
-METRICS = ("rpg", "ape", "rpe")
+METRICS = ("rpg", "ape", "rpe", "paper")
 
 
 def _parse_lengths(text: str | None) -> list[float] | None:
@@ -65,6 +68,29 @@ def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
     console.print(table)
 
 
+def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
+    """The paper's metrics as playback computes them, from files: GT, estimate and in-view flags
+    associated by timestamp (rpg's greedy association, ``max_diff`` s)."""
+    from phonepose.evaluation import associate_rpg, paper_metrics
+    from phonepose.evaluation.trajectory import load_in_view
+    from phonepose.playback.outputs import normalise_metrics
+
+    if in_view is None:
+        raise ConfigError("--metric paper needs --in-view FILE (playback writes in_view.txt beside groundtruth.tum)")
+    if gt_traj.stamps is None or est_traj.stamps is None:
+        raise ConfigError("--metric paper needs timestamped trajectories (TUM or EuRoC), not KITTI")
+    flag_t, flags = load_in_view(in_view)
+    i_est, i_gt = associate_rpg(est_traj.stamps, gt_traj.stamps, max_diff)
+    i_est2, i_flag = associate_rpg(est_traj.stamps[i_est], flag_t, max_diff)
+    i_est, i_gt = i_est[i_est2], i_gt[i_est2]
+    order = np.argsort(est_traj.stamps[i_est], kind="stable")
+    i_est, i_gt, i_flag = i_est[order], i_gt[order], i_flag[order]
+    if i_est.size == 0:
+        raise SessionContentError("no estimate, ground-truth and in-view stamps within --max-diff of each other")
+    return normalise_metrics(paper_metrics(est_traj.stamps[i_est], gt_traj.poses[i_gt], est_traj.poses[i_est],
+                                           flags[i_flag]))
+
+
 @app.command()
 def evaluate(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
@@ -73,7 +99,10 @@ def evaluate(
     align: str = typer.Option(None, "--align",
                               help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for ape/rpe as evo)."),
     align_frames: int = typer.Option(-1, "--align-frames", help="Align with the first N matched poses (-1: all)."),
-    metric: str = typer.Option("rpg", "--metric", help="rpg (ATE + RE) | ape | rpe (evo-compatible)."),
+    metric: str = typer.Option("rpg", "--metric", help="rpg (ATE + RE) | ape | rpe (evo-compatible) | paper "
+                               "(p_ATE, r_ATE, p_RE inside / outside the view and the boundary jump; needs --in-view)."),
+    in_view: Optional[Path] = typer.Option(None, "--in-view", help="--metric paper: the in_view.txt playback wrote "
+                                           "beside groundtruth.tum (timestamp, 0|1 per tick)."),
     delta: float = typer.Option(1.0, "--delta", help="RPE delta."),
     delta_unit: str = typer.Option("f", "--delta-unit", help="RPE delta unit: f (frames) | m | d (deg) | r (rad)."),
     pose_relation: str = typer.Option("trans", "--pose-relation",
@@ -105,6 +134,15 @@ def evaluate(
     gt_traj = load_trajectory(gt, fmt)
     est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
     est_traj = load_trajectory(est, est_fmt)
+    if metric == "paper":
+        result = _paper(gt_traj, est_traj, in_view, 0.02 if max_diff is None else max_diff)
+        if as_json:
+            typer.echo(json.dumps(result, indent=2, allow_nan=False))
+        else:
+            from phonepose.cli.playback import metrics_table
+            Console().print(metrics_table({"session": f"{est.name} vs {gt.name}", "rate_hz": None,
+                                           "trackers": {est.stem: result}}))
+        return
     if metric == "rpg":
         result = evaluate_rpg(gt_traj, est_traj, align or "posyaw", align_frames, lens,
                               0.02 if max_diff is None else max_diff, index_shift_quirk=rpg_quirks,

@@ -21,16 +21,20 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
 
 def metrics_table(metrics: dict) -> Table:
     """One row per tracker and scope (inside / outside the FoV / total); n/a where not computable."""
-    table = Table(title=f"{metrics['session']} @ {metrics['rate_hz']} Hz")
+    rate = metrics.get("rate_hz")
+    table = Table(title=f"{metrics['session']}" + (f" @ {rate} Hz" if rate is not None else ""))
     table.add_column("tracker", style="bold")
     table.add_column("scope")
-    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm"):
+    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm"):
         table.add_column(label, justify="right")
     for name, m in metrics["trackers"].items():
         for i, scope in enumerate(("inside", "outside", "total")):
             d = m[scope]
+            jump = ""   # the boundary jump: at the ticks where the marker enters or leaves the view
+            if scope == "total" and d.get("boundary_jumps"):
+                jump = f"{_fmt(d['boundary_jump_max_m'], 100.0)} / {_fmt(d['boundary_jump_rms_m'], 100.0)}"
             table.add_row(name if i == 0 else "", scope, str(d["frames"]), _fmt(d["p_ate_m"], 100.0),
-                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0),
+                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump,
                           end_section=(scope == "total"))
     return table
 

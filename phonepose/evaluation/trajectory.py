@@ -212,3 +212,43 @@ def write_tum(path: str | os.PathLike, stamps, poses: Pose | None) -> None:
         Path(path).write_text(text)
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+# ----------------------------------------------------------------------------- in-view flags
+def write_in_view(path: str | os.PathLike, stamps, inside) -> None:
+    """``timestamp in_view`` lines (1: the marker was recognised at that tick), stamps as in write_tum.
+
+    Playback writes it beside groundtruth.tum so that ``phonepose evaluate --metric paper`` can split
+    any trajectory into inside / outside the view and find the boundary jumps.
+    """
+    stamps = np.atleast_1d(stamps)
+    flags = np.asarray(inside, dtype=bool).ravel()
+    if len(stamps) != len(flags):
+        raise ValueError(f"{len(stamps)} stamps for {len(flags)} flags")
+    text = "# timestamp in_view\n" + "".join(f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags)) \
+        if len(stamps) else "# timestamp in_view\n"
+    try:
+        Path(path).write_text(text)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+def load_in_view(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps in s, in-view flags) from a file written by :func:`write_in_view`."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{path}: no such file")
+    stamps, flags = [], []
+    for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.replace(",", " ").split()
+        try:
+            if len(parts) != 2 or parts[1] not in ("0", "1"):
+                raise ValueError
+            stamps.append(float(parts[0]))
+            flags.append(parts[1] == "1")
+        except ValueError:
+            raise InputFileError(f"{path}:{n}: expected 'timestamp in_view(0|1)', got {line[:60]!r}") from None
+    return np.array(stamps, dtype=float), np.array(flags, dtype=bool)

@@ -240,11 +240,11 @@ def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "Correc
                   cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
     """Trackers by name; ``"all"`` means every registered one (T1-T7, then ours), ``"paper"`` T1-T7.
 
-    Accepts a list or a comma-separated string (``"T1,T7"``).
+    Accepts a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``).
     """
     if isinstance(names, str):
-        names = [n.strip() for n in names.split(",") if n.strip()]
-    names = list(names)
+        names = [names]
+    names = [n.strip() for item in names for n in str(item).split(",") if n.strip()]
     if any(n.lower() == "all" for n in names):
         names = tracker_names()
     elif any(n.lower() == "paper" for n in names):

@@ -9,6 +9,7 @@ in_view)`` and the associated ground truth, then writes (docs/playback.md):
 * ``DIR/trajectories/<tracker>.tum``: ticks inside the task window where the tracker has a pose,
   display_vio frame, TUM format;
 * ``DIR/groundtruth.tum``: the associated GT at the task-window ticks (display_vio);
+* ``DIR/in_view.txt``: at those ticks, whether the marker was recognised (for ``evaluate --metric paper``);
 * ``DIR/metrics.json``: per tracker p_ATE / r_ATE / p_RE inside / outside the FoV and total
   (``null`` where not computable, e.g. no GT);
 * ``DIR/trackers.mcap``: ``/pipeline/markers`` (per new camera frame) and ``/trackers/<name>/pose``.
@@ -33,7 +34,7 @@ from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
 from phonepose.playback.context import has_camera, read_context
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
-from phonepose.evaluation.trajectory import write_tum
+from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
@@ -226,9 +227,10 @@ class PlaybackEngine:
 
 
 def _tracker_list(trackers: Iterable[str] | str) -> list[str]:
+    """Names from a list and/or comma-separated strings (``--tracker T4,T8`` or ``--tracker T4 --tracker T8``)."""
     if isinstance(trackers, str):
-        trackers = [n.strip() for n in trackers.split(",") if n.strip()]
-    return list(trackers)
+        trackers = [trackers]
+    return [n.strip() for item in trackers for n in str(item).split(",") if n.strip()]
 
 
 def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("all",), out_dir: str | os.PathLike | None = None,
@@ -317,6 +319,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         if gt is not None:
             write_tum(out / "groundtruth.tum", gt_stamps, gt)
             files["groundtruth.tum"] = str(out / "groundtruth.tum")
+            write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
+            files["in_view.txt"] = str(out / "in_view.txt")
         metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker)
         files["metrics.json"] = str(out / "metrics.json")
     return PlaybackResult(
