@@ -129,6 +129,7 @@ class ResultTable:
         self.rows = read_rows(self.path)
         self.writes = 0
         self._last_write = 0.0
+        self._last_cost = 0.0
         self._dirty = False
 
     def update(self, rows: list[dict]) -> None:
@@ -137,9 +138,12 @@ class ResultTable:
         self._dirty = True
 
     def write(self, min_interval_s: float = 0.0) -> bool:
-        """Rewrite the file if rows changed and at least ``min_interval_s`` passed since the last write."""
-        if not self._dirty or time.monotonic() - self._last_write < min_interval_s:
+        """Rewrite the file if rows changed and at least ``min_interval_s`` passed since the last write
+        (or, when that is > 0, ten times what the last rewrite took: large tables stay under 10 % of the time)."""
+        interval = max(min_interval_s, 10 * self._last_cost) if min_interval_s > 0 else 0.0
+        if not self._dirty or time.monotonic() - self._last_write < interval:
             return False
+        t0 = time.monotonic()
         table = to_arrow(list(self.rows.values()))
         tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         try:
@@ -156,5 +160,6 @@ class ResultTable:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         self._dirty = False
         self._last_write = time.monotonic()
+        self._last_cost = self._last_write - t0
         self.writes += 1
         return True
