@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from phonepose.geometry import Pose  # noqa: E402
 
 COLORS = {"GT": "black", "T1": "tab:gray", "T2": "tab:olive", "T3": "tab:cyan", "T4": "tab:blue",
-          "T5": "tab:purple", "T6": "tab:orange", "T7": "tab:red"}
+          "T5": "tab:purple", "T6": "tab:orange", "T7": "tab:red", "T7L": "tab:pink", "T8": "tab:green"}
 
 
 def to_display_view(T_dvio_camera: Pose, poses: Pose) -> np.ndarray:
@@ -32,8 +32,8 @@ def plot_fig11(path: str | Path, title: str, T_dvio_camera: Pose, gt: Pose, esti
         if len(poses) == 0:
             continue
         xyz = to_display_view(T_dvio_camera, poses) * 100.0
-        style = dict(color=COLORS.get(name), lw=2.4 if name == "GT" else 1.2, label=name,
-                     ls="-" if name in ("GT", "T7", "T6", "T3") else "--")
+        style = dict(color=COLORS.get(name), lw=2.4 if name == "GT" else (1.8 if name == "T8" else 1.2), label=name,
+                     ls="-" if name in ("GT", "T8", "T7", "T6", "T3") else "--")
         axes[0].plot(xyz[:, 0], xyz[:, 1], **style)
         axes[1].plot(xyz[:, 2], xyz[:, 1], **style)
     if gt_inside is not None and len(gt):
