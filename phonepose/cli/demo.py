@@ -15,7 +15,7 @@ def demo(
     out: Path = typer.Option(Path("phonepose-demo"), "--out", "-o", help="Output directory."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated session."),
 ) -> None:
-    """Record a simulated TRI2 session, replay it through T1-T7, print the metrics, save a plot and a .rrd.
+    """Record a simulated TRI2 session, replay it through T1-T7 and ours (T7L, T8), print the metrics, save a plot and a .rrd.
 
     The session follows the paper's path TRI2 (partly outside the display camera's view). Outputs
     go to --out: the session, TUM trajectories and metrics.json, a Fig. 11-style plot, demo.rrd.
@@ -33,8 +33,8 @@ def demo(
         rec = record_sim(session, scenario="exp2", path="TRI2", trial=1, seed=seed)
     console.print(f"[green]1/3[/green] recorded {session} ({_describe(rec)})")
     rrd = out / "demo.rrd"
-    with console.status("playing it back through T1-T7 at 20 Hz..."):
-        result = run_playback(session, trackers="paper", out_dir=out / "playback", rerun_path=rrd)
+    with console.status("playing it back through T1-T7, T7L and T8 at 20 Hz..."):
+        result = run_playback(session, trackers="all", out_dir=out / "playback", rerun_path=rrd)
     console.print(f"[green]2/3[/green] played back {result.n_ticks} ticks in {result.wall_s:.1f} s")
     console.print(metrics_table(result.metrics))
     seq = {"name": "TRI2_01", **sequence_arrays(result, session)}
