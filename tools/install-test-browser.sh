@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The browser tests/test_live_page.py drives (headless, through playwright): Debian's chromium if
+# it is there or can be installed with apt (as root or with sudo), else Playwright's own build.
+set -euo pipefail
+if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then
+    exit 0
+fi
+if command -v apt-get >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ]; then
+        apt-get update -qq && apt-get install -y -qq chromium >/dev/null && exit 0
+    elif command -v sudo >/dev/null 2>&1; then
+        sudo apt-get update -qq && sudo apt-get install -y -qq chromium >/dev/null && exit 0
+    fi
+fi
+python -m playwright install chromium
