@@ -315,7 +315,7 @@ CASES = [
          r"gt\.txt:1: not a number in 'hello world'"),
     Case("evaluate-bad-metric", "`evaluate --metric xx`",
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "gt.txt"), "--metric", "xx"], 5,
-         r"--metric 'xx': expected one of rpg, ape, rpe$"),
+         r"--metric 'xx': expected one of rpg, ape, rpe, paper$"),
 ]
 
 
