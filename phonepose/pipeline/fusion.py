@@ -1,35 +1,36 @@
 """T8 (ours): a fused tracker of the controller pose from IMU, anchor-mapped VIO and the marker.
 
-What T1-T7 lack, and what T8 does about it (docs/pipeline.md, "T8: the fused tracker"):
+What T1-T7 lack, and what T8 does about it (docs/pipeline.md, "T8: the fused tracker", has the
+measurements behind every choice):
 
-* **One noisy sighting sets the correction** (T6/T7 take ``T_marker · T_VIO^-1`` from a single
-  frame, so its 2-4° of orientation noise and millimetres of depth noise stay in every later
-  pose). T8 estimates the correction ``C`` (display_vio ← anchor-mapped controller VIO) with an
-  **error-state Kalman filter** (Solà 2017, "Quaternion kinematics for the error-state Kalman
-  filter", §6-7: nominal state on the manifold, 6+1-dim error state, reset after each update)
-  from *every* sighting; its process noise follows the VIO drift model, so old sightings fade.
+* **One sighting sets the correction** (T6/T7 take ``T_marker · T_VIO^-1`` from a single frame, so
+  its noise stays in every later pose). T8 estimates the correction ``C`` (display_vio ←
+  anchor-mapped controller VIO) with an **error-state Kalman filter** (Solà 2017, "Quaternion
+  kinematics for the error-state Kalman filter", §6-7: nominal state on the manifold, 6+1-dim
+  error state) from *every* sighting; its process noise follows the VIO drift model, so old
+  sightings fade. ``C``'s rotation is a heading change plus at most ``tilt_deg`` of tilt: both VIO
+  worlds are gravity aligned.
 * **The marker and VIO streams are ~0.12-0.15 s apart** (the controller's streams reach the
   display late; T7's offset absorbs speed × latency). T8 pairs each sighting with VIO
   interpolated at the image's capture time, and estimates the residual time offset ``d`` of the
   VIO stream online as a filter state with the velocity as its Jacobian (Li & Mourikis 2014,
   "Online temporal calibration for camera-IMU systems", IJRR 33(7)).
 * **Flipped or outlying marker poses** (IPPE's second solution, motion blur) are rejected by a
-  chi-square gate on the innovation (Mahalanobis distance); a run of rejections re-initialises
-  the filter (a VIO relocalisation jump or a re-resolved anchor).
-* **The output jumps where the marker appears or disappears** (T4-T7 switch source). T8 keeps
-  the output continuous: at a source switch the difference between the two sources is carried
-  as an offset that decays with ``blend_time_s`` (the "smooth transition" of Kelly's /
-  Open-VINS-style output smoothing; no step in the output).
-* **Orientation noise**: T8's orientation is always the VIO orientation through the filtered
-  correction, predicted to the tick time with the controller's **gyroscope** (the IMU samples
-  received after the newest VIO sample), never a single marker frame.
+  chi-square gate on the innovation; a run of rejections re-initialises the filter (a VIO
+  relocalisation jump or a re-resolved anchor).
+* **The VIO is old at every tick**: it is predicted to the tick time, the position along a
+  quadratic fit of the last ``velocity_window_s`` of samples (a line's slope lags behind an
+  acceleration), the orientation with the controller's **gyroscope** (the samples received after
+  the newest VIO sample, then their recent mean rate). The accelerometer is off by default: the
+  8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
+* **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
+  T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
+  velocity) and carries the difference to the new source as an offset that decays with
+  ``blend_time_s``: no step.
 
-Position: inside the view, the marker's position moved to the tick time with the VIO velocity;
-outside, the corrected VIO predicted from its capture time to the tick time at constant
-velocity (a least-squares line through the last ``velocity_window_s`` of VIO samples, which
-averages out hand tremor). The accelerometer is not integrated: over the ~0.15 s horizon the
-8-12 Hz tremor's accelerations (~3 m/s²) would add more error than they remove (measured in
-docs/pipeline.md).
+Output: inside the view, the marker's position through a complementary filter (``marker_gain``)
+and the predicted VIO orientation through ``C`` pulled towards the sighting's
+(``marker_rotation_gain``); outside, the corrected, predicted VIO.
 
 Causal: a step sees only what this and earlier ticks carried. Every parameter is in
 :class:`FusionConfig` (defaults for phone-class sensors; none tuned per sequence).
@@ -55,13 +56,11 @@ _NS = 1e-9
 class FusionConfig:
     """T8's parameters. Noise figures are 1-sigma."""
 
-    # correction filter: initial uncertainty (first sighting decides: anchors err by ~cm, ~degrees)
-    init_rotation_deg: float = 10.0
-    init_translation_m: float = 0.20
+    # correction filter: the time offset (estimated once C has settled)
     init_time_offset_s: float = 0.10
     time_offset_after: int = 20                      # sightings that fix C (with d = 0) before d is estimated
     # correction filter: process noise, as the VIO drifts (random walks)
-    rotation_walk_deg_per_sqrt_s: float = 0.1        # yaw drift ~0.07 deg/sqrt(s) of phone VIO
+    rotation_walk_deg_per_sqrt_s: float = 0.1        # heading drift ~0.07 deg/sqrt(s) of phone VIO
     tilt_deg: float = 0.5                            # gravity-aligned VIO worlds: C tilts by at most ~this (anchor tilt)
     tilt_walk_deg_per_sqrt_s: float = 0.01
     translation_walk_m_per_sqrt_s: float = 0.002     # ~1 cm/min
@@ -72,24 +71,25 @@ class FusionConfig:
     marker_depth_m: float = 0.006
     marker_rotation_deg: float = 3.0
     vio_position_m: float = 0.002
+    lever_arm: int = 1                               # position residuals inform C's rotation through the lever arm
     # gating: chi-square, 6 dof, 99.9 %; re-initialise after this many rejections in a row
-    lever_arm: int = 1                               # position residuals inform the rotation through the lever arm
-    use_gyro: int = 1
-    use_accel: int = 0
-    accel_window_s: float = 0.1
     gate_chi2: float = 22.46
     max_rejections: int = 10
-    # output
-    marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
+    # prediction of the (old) VIO to the tick time
     velocity_fit_degree: int = 2                     # 1: line, 2: quadratic (slope at the newest sample)
     velocity_window_s: float = 0.3                   # the fit runs through the newest VIO samples of this window
-    max_prediction_s: float = 0.5                    # never extrapolate further
-    marker_rotation_gain: float = 0.4                # inside: share of the sighting's orientation in the output
-    marker_gain: float = 0.7                         # inside: weight of a new sighting against the filtered position
-    blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
+    use_gyro: int = 1
     gyro_fit_degree: int = 0                         # 0: hold the mean rate, 1: extrapolate its linear trend
-    gyro_window_s: float = 0.15                      # held angular rate = mean of the newest gyro samples (averages out tremor)
+    gyro_window_s: float = 0.15                      # held rate = mean of the newest gyro samples (averages tremor out)
+    use_accel: int = 0                               # constant acceleration from the accelerometer (measured worse)
+    accel_window_s: float = 0.1
+    max_prediction_s: float = 0.5                    # never extrapolate further
     history_s: float = 1.0                           # VIO / IMU kept for pairing
+    # output
+    marker_gain: float = 0.7                         # inside: weight of a new sighting against the filtered position
+    marker_rotation_gain: float = 0.4                # inside: share of the sighting's orientation in the output
+    marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
+    blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
 
     @classmethod
     def from_dict(cls, values: dict) -> "FusionConfig":
