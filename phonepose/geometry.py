@@ -119,6 +119,11 @@ class Pose:
         return bool(np.all(self.distance_to(other) <= atol) and np.all(self.angle_to(other) <= atol))
 
 
+def is_finite(pose: Pose | None) -> bool:
+    """A pose with no NaN/inf anywhere (None is not finite): broken inputs are skipped, never used."""
+    return pose is not None and bool(np.isfinite(pose.translation).all() and np.isfinite(pose.rotation.as_quat()).all())
+
+
 def interpolate(t0: float, pose0: Pose, t1: float, pose1: Pose, t: float) -> Pose:
     """Pose at time ``t`` between two single poses: linear translation, slerp rotation."""
     if t1 == t0:

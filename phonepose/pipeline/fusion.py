@@ -21,7 +21,7 @@ measurements behind every choice):
 * **The VIO is old at every tick**: it is predicted to the tick time, the position along a
   quadratic fit of the last ``velocity_window_s`` of samples (a line's slope lags behind an
   acceleration), the orientation with the controller's **gyroscope** (the samples received after
-  the newest VIO sample, then their recent mean rate). The accelerometer is off by default: the
+  the newest VIO sample, then their recent mean rate). The accelerometer is not used: the
   8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
 * **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
   T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
@@ -46,7 +46,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, interpolate, is_finite
 from phonepose.pipeline.types import Observation
 
 _NS = 1e-9
@@ -79,10 +79,7 @@ class FusionConfig:
     velocity_fit_degree: int = 2                     # 1: line, 2: quadratic (slope at the newest sample)
     velocity_window_s: float = 0.3                   # the fit runs through the newest VIO samples of this window
     use_gyro: int = 1
-    gyro_fit_degree: int = 0                         # 0: hold the mean rate, 1: extrapolate its linear trend
     gyro_window_s: float = 0.15                      # held rate = mean of the newest gyro samples (averages tremor out)
-    use_accel: int = 0                               # constant acceleration from the accelerometer (measured worse)
-    accel_window_s: float = 0.1
     max_prediction_s: float = 0.5                    # never extrapolate further
     history_s: float = 1.0                           # VIO / IMU kept for pairing
     # output
@@ -104,6 +101,13 @@ class FusionConfig:
             except (TypeError, ValueError):
                 raise ConfigError(f"T8 parameter {k}={v!r} is not a number") from None
         return cls(**out)
+
+
+def _polyfit(t: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
+    """Least-squares polynomial coefficients (constant first) of ``values`` over ``t``, one column per
+    axis: the normal equations directly (np.polynomial.polyfit costs more than the rest of a tick)."""
+    A = np.vander(t, degree + 1, increasing=True)
+    return np.linalg.solve(A.T @ A, A.T @ values)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -276,7 +280,7 @@ class FusedTracker:
         self.filter.reset()
         self._t0_ns: int | None = None             # time origin (ns) for float seconds
         self._vio = _Stream()                      # (stamp s) -> Pose in display_vio (anchor-mapped)
-        self._gyro = _Stream()                     # (stamp s) -> gyro rad/s + accel m/s^2, body frame
+        self._gyro = _Stream()                     # (stamp s) -> gyro rad/s, body frame
         self._pending: deque = deque()             # (image s, marker Pose, R_meas)
         self._last_image_ns: int | None = None
         self._last_filter_t: float | None = None
@@ -300,16 +304,13 @@ class FusedTracker:
 
     # ------------------------------------------------------------------ VIO history
     def _vio_at(self, t: float) -> Pose | None:
+        """Anchor-mapped VIO at stamp time ``t`` (None outside the kept samples)."""
         ts = self._vio.t
         if len(ts) < 2 or t < ts[0] or t > ts[-1]:
             return None
         i = int(np.searchsorted(np.fromiter(ts, float, len(ts)), t))
         i = min(max(i, 1), len(ts) - 1)
-        t0, t1 = ts[i - 1], ts[i]
-        p0, p1 = self._vio.v[i - 1], self._vio.v[i]
-        a = 0.0 if t1 == t0 else (t - t0) / (t1 - t0)
-        rel = (p0.rotation.inv() * p1.rotation).as_rotvec()
-        return Pose(p0.rotation * Rotation.from_rotvec(a * rel), p0.translation + a * (p1.translation - p0.translation))
+        return interpolate(ts[i - 1], self._vio.v[i - 1], ts[i], self._vio.v[i], t)
 
     def _velocity(self, t_end: float | None = None) -> tuple[np.ndarray, np.ndarray, float | None]:
         """(velocity, fitted position at the newest used sample, its stamp) from a least-squares
@@ -329,22 +330,17 @@ class FusedTracker:
         else:
             tt = ts[lo:hi] - ts[hi - 1]
             pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
-            if self.cfg.velocity_fit_degree == 2 and hi - lo >= 4:
-                # quadratic fit: its slope at the newest sample does not lag behind an acceleration
-                A = np.vander(tt, 3, increasing=True)          # 1, t, t^2
-                c = np.linalg.solve(A.T @ A, A.T @ pp)         # the normal equations (3 x 3)
-                out = (c[1], c[0], ts[hi - 1])
-            else:
-                tc, pc = tt - tt.mean(), pp - pp.mean(axis=0)
-                velocity = (tc @ pc) / (tc @ tc)          # the normal equations of the line fit
-                out = (velocity, pp.mean(axis=0) - velocity * tt.mean(), ts[hi - 1])
+            # quadratic: its slope at the newest sample does not lag behind an acceleration as a line's does
+            degree = self.cfg.velocity_fit_degree if hi - lo > self.cfg.velocity_fit_degree + 1 else 1
+            c = _polyfit(tt, pp, degree)
+            out = (c[1], c[0], ts[hi - 1])
         self._velocity_cache = (key, out)
         return out
 
     def _vio_predicted(self, t_stamp: float) -> Pose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
-        the fitted velocity (and the accelerometer's acceleration), orientation by the gyroscope
-        (the samples received after the VIO sample, then their recent mean rate)."""
+        the fitted velocity, orientation by the gyroscope (the samples received after the VIO
+        sample, then their recent mean rate)."""
         if not len(self._vio):
             return None
         t_last, last = self._vio.t[-1], self._vio.v[-1]
@@ -354,31 +350,16 @@ class FusedTracker:
         position = p_fit + velocity * dt
         if dt <= 0 or not len(self._gyro):
             return Pose(rot, position)
-        tg, imu = self._gyro.arrays()
         if self.cfg.use_gyro:
+            tg, gyro = self._gyro.arrays()
             # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
             # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
             after = (tg > t_last) & (tg <= t_last + dt)
             steps = np.diff(np.concatenate([[t_last], tg[after]]))
-            rotvec = (imu[after, 0:3] * steps[:, None]).sum(axis=0)
+            rotvec = (gyro[after] * steps[:, None]).sum(axis=0)
             t_prev = tg[after][-1] if after.any() else t_last
-            recent = tg >= tg[-1] - self.cfg.gyro_window_s
-            rest = t_last + dt - t_prev
-            if self.cfg.gyro_fit_degree == 1 and recent.sum() >= 3:
-                # the rate's trend over the window (a line fit), integrated over the rest of the horizon
-                A = np.vander(tg[recent] - t_prev, 2, increasing=True)
-                c = np.linalg.solve(A.T @ A, A.T @ imu[recent, 0:3])
-                extra = c[0] * rest + c[1] * rest * rest / 2
-            else:
-                extra = imu[recent, 0:3].mean(axis=0) * rest
-            rot = rot * Rotation.from_rotvec(rotvec + extra)
-        if self.cfg.use_accel:
-            # constant acceleration: the specific force of the last accel_window_s (one tremor
-            # period: averages the 8-12 Hz tremor out) in the world, plus gravity (z up)
-            f_body = imu[tg >= tg[-1] - self.cfg.accel_window_s, 3:6].mean(axis=0)
-            a = last.rotation.apply(f_body) + np.array([0.0, 0.0, -9.81])
-            lag = self.cfg.velocity_window_s / 2          # the line fit's velocity is that old
-            position = position + a * lag * dt + 0.5 * a * dt * dt
+            hold = gyro[tg >= tg[-1] - self.cfg.gyro_window_s].mean(axis=0)   # the recent mean rate
+            rot = rot * Rotation.from_rotvec(rotvec + hold * (t_last + dt - t_prev))
         return Pose(rot, position)
 
     # ------------------------------------------------------------------ measurements
@@ -399,7 +380,7 @@ class FusedTracker:
     def _ingest(self, obs: Observation) -> None:
         tick = obs.tick
         for capture_ns, pose in obs.controller_vio_samples_dvio:
-            if _finite_pose(pose):
+            if is_finite(pose):
                 t = self._s(capture_ns)
                 if len(self._vio) and t > self._vio.t[-1]:
                     self._path_since_predict += float(np.linalg.norm(pose.translation - self._vio.v[-1].translation))
@@ -408,13 +389,13 @@ class FusedTracker:
         if imu is not None and len(imu):
             for row in imu:
                 if np.isfinite(row).all():
-                    self._gyro.add(self._s(int(round(row[0] * 1e9))), np.asarray(row[1:7], dtype=float))
+                    self._gyro.add(self._s(int(round(row[0] * 1e9))), np.asarray(row[1:4], dtype=float))
         if len(self._vio):
             horizon = self._vio.t[-1] - self.cfg.history_s
             self._vio.prune(horizon)
             self._gyro.prune(horizon)
         m = obs.marker
-        if m is not None and _finite_pose(m.T_dvio_controller):
+        if m is not None and is_finite(m.T_dvio_controller):
             image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
             if image_ns != self._last_image_ns:
                 self._last_image_ns = image_ns
@@ -456,9 +437,7 @@ class FusedTracker:
         if len(s) < 3:
             return None
         tt = np.array([ti for ti, _ in s])
-        pp = np.array([p for _, p in s])
-        tc = tt - tt.mean()
-        return (tc @ (pp - pp.mean(axis=0))) / (tc @ tc)
+        return _polyfit(tt - tt[-1], np.array([p for _, p in s]), 1)[1]
 
     def _angular_rate_at(self, t_stamp: float) -> np.ndarray:
         """World-frame angular rate of the VIO orientation at stamp time ``t`` (the two samples around it)."""
@@ -479,7 +458,7 @@ class FusedTracker:
         self._ingest(obs)
         self._update_filter()
         vio_now = self._vio_predicted(t - f.d)
-        if vio_now is None and _finite_pose(obs.T_dvio_controller_vio):
+        if vio_now is None and is_finite(obs.T_dvio_controller_vio):
             vio_now = obs.T_dvio_controller_vio      # no stamped samples: the received pose
         corrected = f.apply(vio_now) if (vio_now is not None and f.ready) else vio_now
         velocity = f.R.apply(self._velocity()[0]) if f.ready else self._velocity()[0]
@@ -493,7 +472,7 @@ class FusedTracker:
                 marker_now = M.translation
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
-            if obs.in_view and _finite_pose(obs.marker.T_dvio_controller):
+            if obs.in_view and is_finite(obs.marker.T_dvio_controller):
                 return obs.marker.T_dvio_controller
             return None
         position = corrected.translation if source == "vio" else marker_now
@@ -532,7 +511,7 @@ class FusedTracker:
         self._last_corrected = None if corrected is None else corrected.translation
         self._last_t = t
         out = Pose(rotation, position + self._offset)
-        if not _finite_pose(out):
+        if not is_finite(out):
             return None
         self._last_out = out
         return out
@@ -540,6 +519,3 @@ class FusedTracker:
     def __repr__(self) -> str:
         return f"{self.name}(fused: ESKF correction + time offset, gyro prediction, continuous output)"
 
-
-def _finite_pose(p: Pose | None) -> bool:
-    return p is not None and bool(np.isfinite(p.translation).all() and np.isfinite(p.rotation.as_quat()).all())

@@ -36,10 +36,9 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Callable, Iterable
 
-import numpy as np
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import Pose, interpolate
+from phonepose.geometry import Pose, interpolate, is_finite
 from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
                                             marker_correction)
 from phonepose.pipeline.types import Observation, Tracker
@@ -60,11 +59,6 @@ class CorrectionKind(str, Enum):
 
 # ----------------------------------------------------------------------------- correction sources
 log = logging.getLogger("phonepose")
-
-
-def _finite(pose: Pose | None) -> bool:
-    """A pose with no NaN/inf anywhere (broken inputs are skipped, never used: docs/reliability.md)."""
-    return pose is not None and bool(np.isfinite(pose.translation).all() and np.isfinite(pose.rotation.as_quat()).all())
 
 
 def _event_pose(fg) -> Pose | None:
@@ -126,8 +120,8 @@ class CM2Source(CorrectionSource):
             self.pending = True
         # The marker must be recognised at the moment; if it is not on the event's tick, the
         # first tick after it on which it is (with VIO) is the calibration moment.
-        if self.pending and obs.marker is not None and _finite(obs.marker.T_dvio_controller) \
-                and _finite(obs.T_dvio_controller_vio):
+        if self.pending and obs.marker is not None and is_finite(obs.marker.T_dvio_controller) \
+                and is_finite(obs.T_dvio_controller_vio):
             self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
             self.pending = False
 
@@ -136,7 +130,7 @@ class CM3Source(CorrectionSource):
     """CM3: the CM2 offset, renewed on every tick where the marker is recognised."""
 
     def update(self, obs: Observation) -> None:
-        if obs.marker is not None and _finite(obs.marker.T_dvio_controller) and _finite(obs.T_dvio_controller_vio):
+        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller) and is_finite(obs.T_dvio_controller_vio):
             self.current = marker_correction(obs.marker.T_dvio_controller, obs.T_dvio_controller_vio, self.math)
 
 
@@ -182,11 +176,11 @@ class CompositeTracker:
             est = obs.marker.T_dvio_controller
         else:
             vio = obs.T_dvio_controller_vio
-            if not _finite(vio):
+            if not is_finite(vio):
                 return None
             offset = self.correction.current
             est = vio if offset is None else offset.apply(vio)
-        return est if est is None or _finite(est) else None   # a non-finite input gives no estimate
+        return est if est is None or is_finite(est) else None   # a non-finite input gives no estimate
 
     def __repr__(self) -> str:
         s = self.spec
@@ -224,6 +218,13 @@ def tracker_names() -> list[str]:
     return list(TRACKERS)
 
 
+def split_names(names: "Iterable[str] | str") -> list[str]:
+    """Tracker names from a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``)."""
+    if isinstance(names, str):
+        names = [names]
+    return [n.strip() for item in names for n in str(item).split(",") if n.strip()]
+
+
 def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Tracker:
     spec = TRACKERS.get(name) or TRACKERS.get(str(name).upper())
@@ -242,9 +243,7 @@ def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "Correc
 
     Accepts a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``).
     """
-    if isinstance(names, str):
-        names = [names]
-    names = [n.strip() for item in names for n in str(item).split(",") if n.strip()]
+    names = split_names(names)
     if any(n.lower() == "all" for n in names):
         names = tracker_names()
     elif any(n.lower() == "paper" for n in names):
@@ -319,13 +318,13 @@ class LatencyAwareCM3Tracker:
     def step(self, obs: Observation) -> Pose | None:
         tick = obs.tick
         for capture_ns, pose in obs.controller_vio_samples_dvio:
-            if _finite(pose) and (not self._vio or capture_ns > self._vio[-1][0]):
+            if is_finite(pose) and (not self._vio or capture_ns > self._vio[-1][0]):
                 self._vio.append((capture_ns, pose))
         if self._vio:
             horizon = self._vio[-1][0] - self.buffer_ns
             while len(self._vio) > 2 and self._vio[1][0] < horizon:
                 self._vio.pop(0)
-        if obs.marker is not None and _finite(obs.marker.T_dvio_controller):
+        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):
             image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
             if image_ns != self._last_image_ns:
                 self._pending.append((image_ns, obs.marker.T_dvio_controller))
@@ -342,14 +341,14 @@ class LatencyAwareCM3Tracker:
                 keep.append((image_ns, marker))
         self._pending = keep
         if obs.in_view:   # a non-finite marker pose gives no estimate, as for T1-T7
-            return obs.marker.T_dvio_controller if _finite(obs.marker.T_dvio_controller) else None
+            return obs.marker.T_dvio_controller if is_finite(obs.marker.T_dvio_controller) else None
         vio = self._predict(tick.t_ns)
         if vio is None:
             vio = obs.T_dvio_controller_vio
-        if not _finite(vio):
+        if not is_finite(vio):
             return None
         est = vio if self.current is None else self.current.apply(vio)
-        return est if _finite(est) else None
+        return est if is_finite(est) else None
 
     def __repr__(self) -> str:
         return f"{self.name}(marker/VIO/latency-aware CM3, se3)"

@@ -226,13 +226,6 @@ class PlaybackEngine:
         return out
 
 
-def _tracker_list(trackers: Iterable[str] | str) -> list[str]:
-    """Names from a list and/or comma-separated strings (``--tracker T4,T8`` or ``--tracker T4 --tracker T8``)."""
-    if isinstance(trackers, str):
-        trackers = [trackers]
-    return [n.strip() for item in trackers for n in str(item).split(",") if n.strip()]
-
-
 def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("all",), out_dir: str | os.PathLike | None = None,
                  rate_hz: float = DEFAULT_RATE_HZ, correction_math: str = "paper", rerun_path: str | os.PathLike | None = None,
                  spawn: bool = False, start_s: float | None = None, end_s: float | None = None, realtime: bool = False,
@@ -247,7 +240,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     replace the pipeline's SharedStages / make_trackers (tests, experiments).
     """
     wall0 = time.perf_counter()
-    names = _tracker_list(trackers)
+    from phonepose.pipeline.trackers import split_names
+    names = split_names(trackers)   # --tracker T4,T8 or --tracker T4 --tracker T8
     from phonepose.pipeline.corrections import CorrectionMath
     math = CorrectionMath.parse(correction_math).value
     tracker_objs = (tracker_factory or _default_trackers)(names, math)
