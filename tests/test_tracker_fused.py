@@ -188,3 +188,17 @@ def test_boundary_jump_rms_over_two_transitions():
     stats = boundary_jump_stats(t, p_gt, p_est, inside)
     assert stats["boundary_jump_max_m"] == pytest.approx(0.04)
     assert stats["boundary_jump_rms_m"] == pytest.approx(np.sqrt((0.03 ** 2 + 0.04 ** 2) / 2))
+
+
+def test_a_recognised_marker_without_display_pose_and_no_vio_keeps_the_last_sighting():
+    """No VIO at all; the second frame's marker cannot be placed (display pose unknown): T8 reports
+    the last sighting it could place (found by the tracker fuzz test)."""
+    pose = static(0.0)
+    seen = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(), T_dvio_controller=pose,
+                             reprojection_error_px=0.1, chosen_solution=0, ambiguity_ratio=10.0, id=7)
+    unplaced = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(), T_dvio_controller=None,
+                                 reprojection_error_px=0.1, chosen_solution=0, ambiguity_ratio=10.0, id=7)
+    obs = [Observation(tick=Tick(index=i, t_ns=i * TICK_NS, image_t_ns=i * TICK_NS, image_is_new=True),
+                       marker=m, T_dvio_controller_vio=None) for i, m in enumerate([seen, unplaced])]
+    est = run(FusedTracker(), obs)
+    assert est[0].allclose(pose, atol=1e-12) and est[1].allclose(pose, atol=1e-12)

@@ -484,7 +484,7 @@ class FusedTracker:
             self._inside = position
         else:
             self._inside = None
-        rotation = corrected.rotation if corrected is not None else obs.marker.T_dvio_controller.rotation
+        rotation = corrected.rotation if corrected is not None else self._last_marker[1].rotation
         if source == "marker" and corrected is not None and self.cfg.marker_rotation_gain > 0:
             # inside: the fresh sighting's orientation pulls the predicted one (whose error grows
             # with the ~0.13 s the gyro has to bridge)
