@@ -174,6 +174,20 @@ def test_cli_records_and_summarises(tmp_path):
         info = reader.first(Topic.SESSION_INFO)
     assert (info.path, info.trial, info.seed) == ("REC1", 2, 3)
 
+    # the same --out again: refused in one line, the first recording kept byte for byte
+    before = out.read_bytes()
+    again = [*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
+             "--seed", "4", "--out", str(out), "--config", str(cfg), "--quiet"]
+    r = subprocess.run(again, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 6 and r.stderr == f"phonepose: error: {out} already exists: choose another --out, " \
+                                              "or add --force to replace it\n"
+    assert out.read_bytes() == before
+    # --force replaces it
+    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    with SessionReader(out) as reader:
+        assert reader.first(Topic.SESSION_INFO).seed == 4
+
 
 # ---------------------------------------------------------------- stopping
 def _wait_for_size(path, size, proc, timeout=60.0):

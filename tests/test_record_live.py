@@ -455,6 +455,18 @@ def test_start_errors_are_one_line_and_leave_no_file(media, tmp_path):
     assert not out.exists()
 
 
+def test_an_existing_recording_is_never_replaced_without_force(media, tmp_path):
+    _, video, calib = media
+    out = tmp_path / "yesterday.mcap"
+    out.write_bytes(b"a real session that cannot be recorded again")
+    r = subprocess.run([sys.executable, "-m", "phonepose", "record", "live", "--camera", str(video),
+                        "--calibration", str(calib), "--out", str(out), "--port", "0", "--no-qr"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 6 and r.stdout == ""
+    assert r.stderr == f"phonepose: error: {out} already exists: choose another --out, or add --force to replace it\n"
+    assert out.read_bytes() == b"a real session that cannot be recorded again"
+
+
 @pytest.mark.slow
 def test_the_real_phone_page_in_headless_chromium_records_imu(media, tmp_path):
     """The page of static/ (not a script) against the real server over HTTPS: hello, marker size,

@@ -290,6 +290,12 @@ CASES = [
     Case("record-out-not-writable", "`record sim --out` in a missing directory",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "nodir" / "s.mcap")], 6,
          r"cannot write .*nodir/s\.mcap: No such file or directory$"),
+    Case("record-out-exists", "`record sim --out` naming an existing session (kept untouched; `--force` replaces it)",
+         lambda g, d: ["record", "sim", "-q", "--out", str(_write(d / "s.mcap", b"an earlier recording"))], 6,
+         r"s\.mcap already exists: choose another --out, or add --force to replace it$"),
+    Case("record-out-is-dir", "`record sim --out` naming a directory",
+         lambda g, d: ["record", "sim", "-q", "--out", str(_mkdir(d / "sessions"))], 6,
+         r"sessions: is a directory; --out takes a file name$"),
     Case("usage-missing-option", "a required option left out (`recover` without `--out`)",
          lambda g, d: ["recover", str(g)], 2,
          r"recover: Missing option '--out' / '-o'\. \(see `phonepose recover --help`\)$"),
@@ -307,6 +313,9 @@ CASES = [
     Case("recover-out-dir", "`recover --out` in a missing directory",
          lambda g, d: ["recover", str(g), "--out", str(d / "nodir" / "fixed.mcap")], 6,
          r"cannot write .*nodir/fixed\.mcap: No such file or directory$"),
+    Case("recover-out-exists", "`recover --out` naming an existing file",
+         lambda g, d: ["recover", str(g), "--out", str(_write(d / "fixed.mcap", b"x"))], 6,
+         r"fixed\.mcap already exists: choose another --out, or add --force to replace it$"),
     Case("evaluate-missing", "`evaluate` with a missing trajectory file",
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "est.txt")], 2,
          r"gt\.txt: no such file$"),
@@ -317,6 +326,11 @@ CASES = [
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "gt.txt"), "--metric", "xx"], 5,
          r"--metric 'xx': expected one of rpg, ape, rpe, paper$"),
 ]
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir()
+    return path
 
 
 def _write(path: Path, data: bytes) -> Path:

@@ -33,6 +33,8 @@ def live(
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer (live preview)."),
     qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the page's URL as a QR code too."),
+    force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing "
+                               "recording is an error and stays untouched)."),
 ) -> None:
     """Record a live session: webcam frames and, from a phone's browser page (WebXR on ARCore
     phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view.
@@ -44,9 +46,11 @@ def live(
     Ctrl-C or SIGTERM stop the recording and leave a valid file. Guide: docs/recording-real-sessions.md.
     """
     from phonepose.record.live import LiveSession   # here: keeps `phonepose --help` fast
+    from phonepose.session.writer import refuse_to_replace
 
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
+    refuse_to_replace(out, force)
 
     def echo(line: str) -> None:
         typer.echo(f"[{time.strftime('%H:%M:%S')}] {line}", err=True)

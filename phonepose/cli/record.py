@@ -35,6 +35,8 @@ def sim(
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing file "
+                               "is an error and stays untouched)."),
 ) -> None:
     """Simulate the paper's setup (display phone on a tripod filming the controller phone's
     marker, shared anchor, VIO drift, IMU, motion-capture ground truth) and record it.
@@ -44,6 +46,7 @@ def sim(
     Ctrl-C or SIGTERM stop the recording and still leave a valid file.
     """
     from phonepose.record.sim import check_choice, load_config, record_sim  # here: keeps `phonepose --help` fast
+    from phonepose.session.writer import refuse_to_replace
 
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
@@ -51,6 +54,7 @@ def sim(
         path = path.upper()
     check_choice(scenario, path, trial)      # bad choices and config fail before anything is written
     cfg = load_config(config)
+    refuse_to_replace(out, force)
     t0 = time.perf_counter()
     with Progress(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),
                   TextColumn("{task.fields[seconds]}"), TimeElapsedColumn(),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 from pathlib import Path
 
 import typer
@@ -12,6 +13,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.session.recover import RecoveryReport, salvage
+from phonepose.session.writer import refuse_to_replace
 
 
 def _t(ns: int | None, t0: int | None) -> str:
@@ -53,11 +55,14 @@ def recover(
     file: Path = typer.Argument(..., help="Damaged or truncated session (.mcap)."),
     out: Path = typer.Option(..., "--out", "-o", help="Where to write the recovered session (a new file)."),
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+    force: bool = typer.Option(False, "--force", help="Replace --out if it exists."),
 ) -> None:
     """Salvage every intact chunk of a truncated or corrupted session into a valid, indexed file.
 
     Exit code 0 when something was recovered; 3 when nothing could be (see docs/reliability.md).
     """
+    if os.path.exists(file) and not (os.path.exists(out) and os.path.samefile(file, out)):
+        refuse_to_replace(out, force)   # a missing input, or --out naming the input, is salvage's to report
     r = salvage(file, out)
     if as_json:
         typer.echo(json.dumps({

@@ -22,6 +22,18 @@ CHUNK_SIZE = 1 << 20
 FLUSH_EVERY_NS = 1_000_000_000
 
 
+def refuse_to_replace(path: str | os.PathLike, force: bool = False, option: str = "--out") -> None:
+    """Stop a command before it replaces an existing file at ``path`` unless ``force``.
+
+    A live recording cannot be made again and a simulated one costs minutes, so the commands that
+    create a session (record sim, record live, recover) call this before they start.
+    """
+    if os.path.isdir(path):
+        raise OutputError(f"{os.fspath(path)}: is a directory; {option} takes a file name")
+    if os.path.lexists(path) and not force:
+        raise OutputError(f"{os.fspath(path)} already exists: choose another {option}, or add --force to replace it")
+
+
 class SessionWriter:
     def __init__(self, path: str | os.PathLike | BinaryIO, *, flush_every_ns: int = FLUSH_EVERY_NS,
                  chunk_size: int = CHUNK_SIZE, compression: CompressionType = CompressionType.ZSTD):
