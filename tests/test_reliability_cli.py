@@ -316,6 +316,12 @@ CASES = [
     Case("recover-out-exists", "`recover --out` naming an existing file",
          lambda g, d: ["recover", str(g), "--out", str(_write(d / "fixed.mcap", b"x"))], 6,
          r"fixed\.mcap already exists: choose another --out, or add --force to replace it$"),
+    Case("hand-eye-no-turns", "`calibrate-hand-eye` on a session whose phone turns about one axis only",
+         lambda g, d: ["calibrate-hand-eye", str(g), "--out", str(d / "he.yaml")], 4,
+         r"good\.mcap: the phone turned about one axis only: the hand-eye rotation about it is undetermined"),
+    Case("hand-eye-not-a-file", "`playback --hand-eye` with a file that is not one",
+         lambda g, d: ["playback", str(g), "-q", "--hand-eye", str(_write(d / "he.yaml", b"hello\n")),
+                       "--out", str(d / "o")], 2, r"he\.yaml: not an OpenCV YAML/XML hand-eye file$"),
     Case("evaluate-missing", "`evaluate` with a missing trajectory file",
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "est.txt")], 2,
          r"gt\.txt: no such file$"),
@@ -325,7 +331,18 @@ CASES = [
     Case("evaluate-bad-metric", "`evaluate --metric xx`",
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "gt.txt"), "--metric", "xx"], 5,
          r"--metric 'xx': expected one of rpg, ape, rpe, paper$"),
+    Case("evaluate-paper-no-in-view", "`evaluate --metric paper` without `--in-view`",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
+                       "--metric", "paper"], 5,
+         r"--metric paper needs --in-view FILE \(playback writes in_view\.txt beside groundtruth\.tum\)$"),
+    Case("evaluate-bad-in-view", "a malformed `--in-view` file",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
+                       "--metric", "paper", "--in-view", str(_write(d / "bad.txt", b"0.0 1\n1.0 yes\n"))], 2,
+         r"bad\.txt:2: expected 'timestamp in_view\(0\|1\)', got '1\.0 yes'$"),
 ]
+
+
+TUM_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (k / 10, k / 100) for k in range(20))
 
 
 def _mkdir(path: Path) -> Path:

@@ -28,13 +28,7 @@ class CameraCalibrationFile:
 
 
 def save_calibration(path: "str | Path", calib: CameraCalibrationFile) -> None:
-    path = Path(path)
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    except cv2.error as exc:
-        raise OutputError(f"cannot write {path}: {exc}") from None
-    if not fs.isOpened():
-        raise OutputError(f"cannot write {path}")
+    fs = open_yaml(Path(path), "calibration", write=True)
     fs.write("image_width", int(calib.width))
     fs.write("image_height", int(calib.height))
     fs.write("camera_matrix", np.asarray(calib.K, dtype=np.float64).reshape(3, 3))
@@ -45,17 +39,27 @@ def save_calibration(path: "str | Path", calib: CameraCalibrationFile) -> None:
     fs.release()
 
 
+def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
+    """An OpenCV YAML/XML file opened for reading (one it cannot parse is an InputFileError) or for
+    writing (OutputError)."""
+    if not write and not Path(path).is_file():
+        raise InputFileError(f"{path}: no such {what} file")
+    error = ""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE if write else cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:   # opencv-python 5.0 reports a YAML parse error as SystemError
+        fs, error = None, f": {exc}"
+    if fs is None or not fs.isOpened():
+        if write:
+            raise OutputError(f"cannot write {path}{error}")
+        raise InputFileError(f"{path}: not an OpenCV YAML/XML {what} file")
+    return fs
+
+
 def load_calibration(path: "str | Path") -> CameraCalibrationFile:
     """Read a calibration file; a missing or malformed one is an InputFileError (one line, exit 2)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such calibration file")
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error:
-        fs = None
-    if fs is None or not fs.isOpened():
-        raise InputFileError(f"{path}: not an OpenCV YAML/XML calibration file")
+    fs = open_yaml(path, "calibration")
     try:
         K = fs.getNode("camera_matrix").mat()
         D = fs.getNode("distortion_coefficients").mat()

@@ -162,3 +162,37 @@ def calibrate_camera(
     for note in notes:
         typer.echo(f"phonepose: warning: {note}", err=True)
     typer.echo(f"{out}: written in {wall:.1f} s")
+
+
+@app.command("calibrate-hand-eye")
+def calibrate_hand_eye(
+    session: Path = typer.Argument(..., help="A session with the controller's VIO and motion-capture ground truth."),
+    out: Path = typer.Option(..., "--out", "-o", help="Hand-eye file to write (OpenCV YAML, read by "
+                             "`playback --hand-eye`)."),
+    translation: str = typer.Option("0,0,0", "--translation", help="The rigid body's origin in the phone's frame, "
+                                    "metres x,y,z, measured (it is not estimated: see docs/evaluation.md)."),
+) -> None:
+    """Estimate the rotation between the motion-capture rigid body and the phone's frame, and the
+    mocap clock's offset, from the phone's own VIO and the ground truth of one session.
+
+    Example: [bold]phonepose calibrate-hand-eye s.mcap --out hand_eye.yaml && phonepose playback s.mcap --hand-eye hand_eye.yaml[/bold]
+    """
+    from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
+    from phonepose.session.reader import check_mcap_file
+
+    import numpy as np
+
+    try:
+        lever = [float(v) for v in translation.split(",")]
+        if len(lever) != 3 or not np.isfinite(lever).all() or max(abs(v) for v in lever) > 1:
+            raise ValueError
+    except ValueError:
+        raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
+    check_mcap_file(session)
+    _check_out_dir(out)
+    he = hand_eye_from_session(session, translation=lever)
+    save_hand_eye(out, he)
+    rv = he.T_controller_mocap.rotation.as_rotvec(degrees=True)
+    typer.echo(f"{out}: rigid body turned {he.rotation_deg:.2f} deg from the phone's frame "
+               f"(rotation vector {rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f} deg), mocap clock {he.time_offset_s * 1e3:+.0f} ms; "
+               f"{he.pairs} motions, residual {he.residual_deg:.2f} deg RMS")

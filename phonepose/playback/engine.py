@@ -231,13 +231,16 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
                  spawn: bool = False, start_s: float | None = None, end_s: float | None = None, realtime: bool = False,
                  progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
                  stages_factory: Callable[[SessionContext], object] | None = None,
-                 tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None) -> PlaybackResult:
+                 tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None,
+                 hand_eye: str | os.PathLike | None = None) -> PlaybackResult:
     """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
 
     ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
     default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
     everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
-    replace the pipeline's SharedStages / make_trackers (tests, experiments).
+    replace the pipeline's SharedStages / make_trackers (tests, experiments). ``hand_eye`` is a file
+    from ``phonepose calibrate-hand-eye``: the ground truth is moved into the phone's frame and clock
+    before any metric (docs/evaluation.md, "The hand-eye offset").
     """
     wall0 = time.perf_counter()
     from phonepose.pipeline.trackers import split_names
@@ -245,6 +248,13 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     from phonepose.pipeline.corrections import CorrectionMath
     math = CorrectionMath.parse(correction_math).value
     tracker_objs = (tracker_factory or _default_trackers)(names, math)
+    gt_note = None
+    if hand_eye is not None:
+        from phonepose.calibration.hand_eye import load_hand_eye
+        hand_eye_cal = load_hand_eye(hand_eye)
+        gt_note = {"hand_eye_file": os.fspath(hand_eye), "hand_eye_rotation_deg": round(hand_eye_cal.rotation_deg, 6),
+                   "hand_eye_translation_m": [round(float(v), 6) for v in hand_eye_cal.T_controller_mocap.translation],
+                   "time_offset_s": round(hand_eye_cal.time_offset_s, 6)}
     session = os.fspath(session)
     out = None
     if write_outputs:
@@ -254,7 +264,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     with SessionReader(session) as reader:
         context = read_context(reader)
         _check_camera_trackers(session, context, tracker_objs)
-        scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s)
+        scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s,
+                                  hand_eye=hand_eye_cal if hand_eye is not None else None)
         stages = (stages_factory or _default_stages)(context)
         if hasattr(stages, "map_vio_samples"):
             stages.map_vio_samples = any(getattr(t, "uses_vio_samples", False) for t in tracker_objs)
@@ -304,7 +315,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     gt_stamps = engine.gt.stamps()
     gt = engine.gt.poses()
     session_name = Path(session).name
-    metrics_doc = metrics_document(session_name, rate_hz, per_tracker)
+    metrics_doc = metrics_document(session_name, rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
         for name, traj in trajs.items():
             p = out / "trajectories" / f"{name}.tum"
@@ -315,7 +326,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             files["groundtruth.tum"] = str(out / "groundtruth.tum")
             write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
             files["in_view.txt"] = str(out / "in_view.txt")
-        metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker)
+        metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker, ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
     return PlaybackResult(
         session=session, out_dir=out, rate_hz=rate_hz, n_ticks=engine.n_ticks, n_task_ticks=engine.n_task_ticks,

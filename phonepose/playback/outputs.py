@@ -65,15 +65,21 @@ def paper_metrics(stamps_s: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray)
     return normalise_metrics(compute(np.asarray(stamps_s, dtype=float), gt, est, np.asarray(inside, dtype=bool)))
 
 
-def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict]) -> dict:
-    """The metrics.json document: ``{"session", "rate_hz", "trackers": {name: {scope: {...}}}}``."""
+def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict], ground_truth: dict | None = None) -> dict:
+    """The metrics.json document: ``{"session", "rate_hz", ["ground_truth",] "trackers": {name: {scope: {...}}}}``.
+
+    ``ground_truth`` (only with ``playback --hand-eye``) says how the ground truth was re-expressed."""
     rate = int(rate_hz) if float(rate_hz).is_integer() else float(rate_hz)
-    return {"session": session, "rate_hz": rate,
-            "trackers": {name: normalise_metrics(trackers[name]) for name in trackers}}
+    doc = {"session": session, "rate_hz": rate}
+    if ground_truth is not None:
+        doc["ground_truth"] = ground_truth
+    doc["trackers"] = {name: normalise_metrics(trackers[name]) for name in trackers}
+    return doc
 
 
-def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict]) -> dict:
-    doc = metrics_document(session, rate_hz, trackers)
+def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict],
+                  ground_truth: dict | None = None) -> dict:
+    doc = metrics_document(session, rate_hz, trackers, ground_truth)
     try:
         Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
     except OSError as exc:

@@ -240,7 +240,9 @@ class TickScheduler:
 
     def __init__(self, reader: SessionReader, context: SessionContext, *, rate_hz: float = DEFAULT_RATE_HZ,
                  start_s: float | None = None, end_s: float | None = None,
-                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S):
+                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, hand_eye=None):
+        """``hand_eye`` (a calibration.hand_eye.HandEye) re-expresses the ground truth in the phone's
+        frame and on its clock: T_world_mocap · X⁻¹, read ``time_offset_s`` later."""
         if not rate_hz > 0:
             from phonepose.errors import ConfigError
             raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
@@ -254,6 +256,9 @@ class TickScheduler:
         self.has_camera = summary.has(Topic.CAMERA_IMAGE)
         self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
         self._T_dvio_world = raw_of(context.T_world_display_vio.inv()) if context.T_world_display_vio is not None else None
+        self._T_mocap_controller = raw_of(hand_eye.T_controller_mocap.inv()) if hand_eye is not None else None
+        self._gt_shift_ns = int(round(hand_eye.time_offset_s * 1e9)) if hand_eye is not None else 0
+        self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
         t0 = None
         for schema, channel, m in reader.raw_messages([origin_topic]):
@@ -303,7 +308,7 @@ class TickScheduler:
         next_t = info.first_tick_ns
         index = 0
         # Nothing after this is needed: the last tick plus the look-ahead.
-        read_end = info.last_tick_ns + max(self.max_gap_ns, self.gt_tol_ns) + 1
+        read_end = info.last_tick_ns + max(self.max_gap_ns, self._gt_wait_ns) + 1
         need_display = self.has_camera
 
         def ready(t: int, now: int) -> bool:
@@ -311,7 +316,7 @@ class TickScheduler:
                 return False
             if need_display and not display.has_after(t) and now - t <= self.max_gap_ns:
                 return False
-            if self.has_gt and not gt.has_after(t) and now - t <= self.gt_tol_ns:
+            if self.has_gt and not gt.has_after(t) and now - t <= self._gt_wait_ns:
                 return False
             return True
 
@@ -357,6 +362,8 @@ class TickScheduler:
             if self.has_gt:
                 T_world_ctrl = gt.raw_associate(t, self.gt_tol_ns)
                 if T_world_ctrl is not None:
+                    if self._T_mocap_controller is not None:
+                        T_world_ctrl = compose(T_world_ctrl, self._T_mocap_controller)
                     gt_pose = to_pose(compose(self._T_dvio_world, T_world_ctrl))
             ctx = self.context
             in_task = True
@@ -412,7 +419,7 @@ class TickScheduler:
                     cvio_samples.append((now, msg.timestamp.ToNanoseconds() or now, raw))
             elif topic == Topic.GT_CONTROLLER_POSE:
                 if self.has_gt:
-                    gt.add(now, raw)
+                    gt.add(now - self._gt_shift_ns, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
                 d_anchor.append((now, to_pose(raw)))
             elif topic == Topic.CONTROLLER_ANCHOR:

@@ -1,0 +1,136 @@
+"""Hand-eye calibration (phonepose/calibration/hand_eye.py), `calibrate-hand-eye` and `playback --hand-eye`."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from phonepose.calibration.hand_eye import HandEye, estimate_hand_eye, load_hand_eye, save_hand_eye
+from phonepose.errors import InputFileError, SessionContentError
+from phonepose.geometry import Pose
+from phonepose.playback.engine import run_playback
+from phonepose.playback.testdata import write_test_session
+
+X_TRUE = Pose(Rotation.from_rotvec(np.radians([-9.0, 3.0, 5.5])), np.array([0.004, -0.002, 0.003]))
+Z_TRUE = Pose(Rotation.from_euler("zyx", [70.0, 4.0, -2.0], degrees=True), np.array([1.5, -0.3, 0.9]))
+
+
+def phone_motion(t: np.ndarray, axes: str = "xyz") -> Pose:
+    """A hand turning the phone about several axes (smooth; 0.2-0.7 Hz), in the phone's VIO world."""
+    rv = np.zeros((len(t), 3))
+    for k, (amp, f) in enumerate(((25.0, 0.23), (18.0, 0.41), (30.0, 0.17))):
+        if "xyz"[k] in axes:
+            rv[:, k] = np.radians(amp) * np.sin(2 * np.pi * f * t + k)
+    pos = np.column_stack([0.2 * np.sin(0.3 * t), 0.1 * np.cos(0.5 * t), 0.05 * t])
+    return Pose(Rotation.from_rotvec(rv), pos)
+
+
+def mocap_of(phone_t: np.ndarray, offset_s: float, axes: str = "xyz"):
+    """The rigid body as motion capture reports it: its own world Z, its frame X, stamps offset_s late."""
+    stamps = np.arange(0.0, 30.0, 1 / 120)
+    body = Z_TRUE @ phone_motion(stamps - offset_s, axes) @ X_TRUE
+    return stamps, body
+
+
+def test_recovers_the_rotation_and_the_clock_offset_exactly():
+    t = np.arange(0.2, 29.5, 1 / 30)
+    stamps, body = mocap_of(t, 0.030)
+    he = estimate_hand_eye(t, phone_motion(t), stamps, body, translation=X_TRUE.translation)
+    assert he.time_offset_s == 0.030
+    assert np.degrees(he.T_controller_mocap.angle_to(X_TRUE)) < 0.01     # 120 Hz slerp of a smooth motion
+    assert np.allclose(he.T_controller_mocap.translation, X_TRUE.translation)   # as given, not estimated
+    assert he.residual_deg < 0.01 and he.pairs > 500
+
+
+def test_negative_offset_and_no_offset():
+    t = np.arange(0.5, 29.0, 1 / 30)
+    for offset in (-0.12, 0.0):
+        stamps, body = mocap_of(t, offset)
+        he = estimate_hand_eye(t, phone_motion(t), stamps, body)
+        assert he.time_offset_s == pytest.approx(offset, abs=1e-9)
+        assert np.degrees(he.T_controller_mocap.angle_to(X_TRUE)) < 0.01
+
+
+def test_one_axis_or_no_motion_is_refused():
+    t = np.arange(0.2, 29.5, 1 / 30)
+    stamps, body = mocap_of(t, 0.0, axes="z")
+    with pytest.raises(SessionContentError, match="one axis only"):
+        estimate_hand_eye(t, phone_motion(t, axes="z"), stamps, body)
+    still = Pose(Rotation.identity(len(t)), np.zeros((len(t), 3)))
+    with pytest.raises(SessionContentError, match=r"only 0 motions turn the phone"):
+        estimate_hand_eye(t, still, stamps, Z_TRUE @ still[np.zeros(len(stamps), dtype=int)] @ X_TRUE)
+    with pytest.raises(SessionContentError, match="do not overlap"):
+        estimate_hand_eye(t + 100, phone_motion(t), stamps, body)
+
+
+def test_file_round_trip_and_bad_files(tmp_path):
+    he = HandEye(T_controller_mocap=X_TRUE, time_offset_s=0.03, pairs=12, residual_deg=0.25)
+    save_hand_eye(tmp_path / "he.yaml", he)
+    back = load_hand_eye(tmp_path / "he.yaml")
+    assert back.T_controller_mocap.allclose(X_TRUE, atol=1e-12)
+    assert (back.time_offset_s, back.pairs, back.residual_deg) == (0.03, 12, 0.25)
+    (tmp_path / "garbage.yaml").write_text("not yaml at all\n")
+    with pytest.raises(InputFileError, match="not an OpenCV YAML/XML hand-eye file"):
+        load_hand_eye(tmp_path / "garbage.yaml")
+    (tmp_path / "other.yaml").write_text("%YAML:1.0\nfoo: 1\n")
+    with pytest.raises(InputFileError, match="expected a 4x4 matrix T_controller_mocap"):
+        load_hand_eye(tmp_path / "other.yaml")
+    with pytest.raises(InputFileError, match="no such hand-eye file"):
+        load_hand_eye(tmp_path / "none.yaml")
+
+
+def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
+    """GT at tick i becomes the mocap sample of tick i + 1 (offset 50 ms = one 20 Hz tick) times X^-1."""
+    session = tmp_path / "s.mcap"
+    write_test_session(session)
+    save_hand_eye(tmp_path / "he.yaml", HandEye(T_controller_mocap=X_TRUE, time_offset_s=0.05))
+    plain = run_playback(session, trackers="T1", write_outputs=False)
+    moved = run_playback(session, trackers="T1", write_outputs=False, hand_eye=tmp_path / "he.yaml")
+    by_tick = {int(s): k for k, s in enumerate(plain.gt_stamps_ns)}
+    pairs = [(k, by_tick[int(s) + 50_000_000]) for k, s in enumerate(moved.gt_stamps_ns) if int(s) + 50_000_000 in by_tick]
+    assert len(pairs) >= len(moved.gt_stamps_ns) - 2
+    i, j = np.array(pairs).T
+    assert moved.gt[i].allclose(plain.gt[j] @ X_TRUE.inv(), atol=1e-9)
+    assert moved.metrics["ground_truth"] == {"hand_eye_file": str(tmp_path / "he.yaml"), "hand_eye_rotation_deg":
+                                             round(float(np.degrees(X_TRUE.rotation.magnitude())), 6),
+                                             "hand_eye_translation_m": [0.004, -0.002, 0.003], "time_offset_s": 0.05}
+    assert "ground_truth" not in plain.metrics
+
+
+@pytest.mark.slow
+def test_simulated_session_cli_end_to_end(tmp_path):
+    """record sim -> calibrate-hand-eye finds the simulator's 11 deg hand-eye and 30 ms mocap clock;
+    playback --hand-eye then scores the trackers' own orientation error, not the rigid body's."""
+    from phonepose.record.sim import SimSession, default_config
+    from phonepose.record.sim import record_sim
+
+    session = tmp_path / "s.mcap"
+    record_sim(session, scenario="exp2", path="TRI2", trial=1, seed=0)
+    truth = SimSession("exp2", "TRI2", 1, seed=0).world.hand_eye
+    cfg = default_config()
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
+
+    r = run("calibrate-hand-eye", str(session), "--out", str(tmp_path / "he.yaml"), "--translation", "0,0,0")
+    assert r.returncode == 0, r.stderr
+    assert re.search(r"rigid body turned 1[01]\.\d\d deg .* mocap clock \+(29|30|31) ms; \d+ motions", r.stdout), r.stdout
+    he = load_hand_eye(tmp_path / "he.yaml")
+    assert he.time_offset_s == pytest.approx(cfg.mocap.clock_offset_s, abs=0.002)   # 1 ms grid, noisy VIO
+    assert np.degrees(he.T_controller_mocap.angle_to(truth)) < 0.3       # of the simulator's 11 deg
+    assert cfg.mocap.hand_eye_rotation_deg == 11.0
+
+    for args, name in (((), "plain"), (("--hand-eye", str(tmp_path / "he.yaml")), "moved")):
+        r = run("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
+        assert r.returncode == 0, r.stderr
+    plain = json.loads((tmp_path / "plain" / "metrics.json").read_text())["trackers"]
+    moved = json.loads((tmp_path / "moved" / "metrics.json").read_text())["trackers"]
+    # the hand-eye rotation is every tracker's r_ATE without the calibration, and gone with it
+    assert plain["T4"]["inside"]["r_ate_deg"] > 9.0 and moved["T4"]["inside"]["r_ate_deg"] < 4.0
+    assert moved["T8"]["total"]["r_ate_deg"] < moved["T4"]["total"]["r_ate_deg"]
