@@ -303,6 +303,17 @@ def test_save_load_round_trip(tmp_path):
     assert parse_board_spec(back.board) == DEFAULT_BOARD
 
 
+def test_a_file_that_is_not_yaml_is_one_input_error(tmp_path):
+    """opencv-python 5.0 raises SystemError on a YAML parse error: it must still be one clear line."""
+    from phonepose.errors import InputFileError
+
+    (tmp_path / "notes.yaml").write_text("these are my notes, not a calibration\n")
+    with pytest.raises(InputFileError, match=r"notes\.yaml: not an OpenCV YAML/XML calibration file$"):
+        load_calibration(tmp_path / "notes.yaml")
+    with pytest.raises(InputFileError, match=r"none\.yaml: no such calibration file$"):
+        load_calibration(tmp_path / "none.yaml")
+
+
 def test_board_spec_round_trip_and_errors():
     b = BoardSpec(9, 6, 25.0, 18.5, "DICT_6X6_250", legacy=True)
     assert parse_board_spec(board_spec(b)) == b
