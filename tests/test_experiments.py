@@ -119,6 +119,26 @@ def test_exp2_one_trial_end_to_end(tmp_path):
     assert "Table 6" in r.stdout
 
 
+@pytest.mark.slow
+def test_exp2_hand_eye_sequence_scores_in_the_phone_frame(tmp_path):
+    """`experiment exp2 --hand-eye`: each sequence is calibrated from itself before playback."""
+    from phonepose.experiments.common import run_sequence
+    from phonepose.experiments.exp2 import HAND_EYE_NOTE, _write_table6, make_jobs
+
+    jobs = make_jobs(tmp_path, trials=1, seed=0, config=None, correction_math="paper", paths=("TRI1",), hand_eye=True)
+    assert [(j.name, j.hand_eye) for j in jobs] == [("TRI1_01", True)]
+    seq = run_sequence(jobs[0])
+    assert (tmp_path / "hand_eye" / "TRI1_01.yaml").is_file()
+    note = seq["metrics"]["ground_truth"]
+    assert abs(note["hand_eye_rotation_deg"] - 11.0) < 0.3 and abs(note["time_offset_s"] - 0.03) <= 0.002
+    on_disk = json.loads((tmp_path / "playback" / "TRI1_01" / "metrics.json").read_text())
+    assert on_disk["ground_truth"] == note
+    # inside the view the marker trackers' r_ATE is their own (~1-2 deg), not the 11 deg rigid-body offset
+    assert on_disk["trackers"]["T4"]["inside"]["r_ate_deg"] < 4.0
+    md, _ = _write_table6(table6_rows(_sequences()), tmp_path, hand_eye=True)
+    assert HAND_EYE_NOTE in md.read_text()
+
+
 def test_experiment_bad_options_are_one_line():
     r = run("experiment", "exp2", "--trials", "7")
     assert r.returncode == 5 and "--trials must be 1..3" in r.stderr and "Traceback" not in r.stderr

@@ -22,6 +22,7 @@ class SequenceJob:
     config: str | None = None
     correction_math: str = "paper"
     rerun: bool = False
+    hand_eye: bool = False   # calibrate the session's hand-eye from itself and score in the phone's frame
 
 
 def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
@@ -42,8 +43,14 @@ def run_sequence(job: SequenceJob) -> dict:
     rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
     if rrd is not None:
         rrd.parent.mkdir(parents=True, exist_ok=True)
+    hand_eye = None
+    if job.hand_eye:
+        from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
+        hand_eye = out / "hand_eye" / f"{job.name}.yaml"
+        hand_eye.parent.mkdir(parents=True, exist_ok=True)
+        save_hand_eye(hand_eye, hand_eye_from_session(session))
     result = run_playback(session, trackers="all", out_dir=out / "playback" / job.name,
-                          correction_math=job.correction_math, rerun_path=rrd)
+                          correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye)
     return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,
             **sequence_arrays(result, session), "rerun": None if rrd is None else str(rrd)}
 
