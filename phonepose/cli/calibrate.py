@@ -172,8 +172,9 @@ def calibrate_hand_eye(
     translation: str = typer.Option("0,0,0", "--translation", help="The rigid body's origin in the phone's frame, "
                                     "metres x,y,z, measured (it is not estimated: see docs/evaluation.md)."),
 ) -> None:
-    """Estimate the rotation between the motion-capture rigid body and the phone's frame, and the
-    mocap clock's offset, from the phone's own VIO and the ground truth of one session.
+    """Estimate the mocap rigid body's rotation against the phone's frame, and the mocap clock's offset, from one session.
+
+    Uses the controller's own VIO and the motion-capture ground truth (docs/evaluation.md).
 
     Example: [bold]phonepose calibrate-hand-eye s.mcap --out hand_eye.yaml && phonepose playback s.mcap --hand-eye hand_eye.yaml[/bold]
     """
