@@ -91,7 +91,7 @@ def estimate_hand_eye(t_phone: np.ndarray, phone: Pose, t_mocap: np.ndarray, moc
     t_mocap = np.asarray(t_mocap, dtype=float)
     if len(t_phone) < 2 or len(t_mocap) < 2 or t_phone[-1] < t_mocap[0] or t_phone[0] > t_mocap[-1]:
         raise SessionContentError("the controller's VIO and the ground truth do not overlap in time")
-    A, B, a, b = _motions(t_phone, phone, t_mocap, mocap, 0.0, step_s, min_angle_deg)
+    _, _, a, b = _motions(t_phone, phone, t_mocap, mocap, 0.0, step_s, min_angle_deg)
     if len(a) < MIN_PAIRS:
         raise SessionContentError(f"only {len(a)} motions turn the phone by more than {min_angle_deg:g} deg "
                                   f"within {step_s:g} s (need {MIN_PAIRS}): turn the phone about while recording")
@@ -136,7 +136,12 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
             if not np.isfinite(pose.translation).all():
                 continue
             stamps, poses = series[m.topic]
-            stamps.append((m.msg.timestamp.ToNanoseconds() or m.log_time_ns) / 1e9)
+            # the phone's pose at its capture time; the ground truth at the time playback associates it
+            # by (its log time), so that the offset found is the one playback must shift by
+            if m.topic == Topic.GT_CONTROLLER_POSE:
+                stamps.append(m.log_time_ns / 1e9)
+            else:
+                stamps.append((m.msg.timestamp.ToNanoseconds() or m.log_time_ns) / 1e9)
             poses.append(pose)
     (tp, pp), (tm, pm) = series[Topic.CONTROLLER_VIO_POSE], series[Topic.GT_CONTROLLER_POSE]
     order_p, order_m = np.argsort(tp, kind="stable"), np.argsort(tm, kind="stable")
