@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from phonepose.calibration.hand_eye import HandEye, estimate_hand_eye, load_hand_eye, save_hand_eye
+from phonepose.calibration.hand_eye import HandEye, estimate_hand_eye, hand_eye_from_session, load_hand_eye, save_hand_eye
 from phonepose.errors import InputFileError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.playback.engine import run_playback
@@ -125,6 +125,10 @@ def test_simulated_session_cli_end_to_end(tmp_path):
     assert he.time_offset_s == pytest.approx(cfg.mocap.clock_offset_s, abs=0.002)   # 1 ms grid, noisy VIO
     assert np.degrees(he.T_controller_mocap.angle_to(truth)) < 0.3       # of the simulator's 11 deg
     assert cfg.mocap.hand_eye_rotation_deg == 11.0
+    # NaN / non-unit / inf VIO samples are skipped as playback skips them, not fatal
+    from test_reliability_cli import _bad_quaternions, rewrite
+    broken = hand_eye_from_session(rewrite(session, tmp_path / "broken.mcap", _bad_quaternions()))
+    assert np.degrees(broken.T_controller_mocap.angle_to(truth)) < 0.5 and broken.pairs < he.pairs
 
     for args, name in (((), "plain"), (("--hand-eye", str(tmp_path / "he.yaml")), "moved")):
         r = run("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)

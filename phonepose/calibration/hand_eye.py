@@ -122,6 +122,7 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
     """Estimate X from a session's controller VIO (/controller/vio/pose) and ground truth (/gt/controller/pose).
 
     ``options`` go to :func:`estimate_hand_eye`."""
+    from phonepose.playback.scheduler import raw_pose, to_pose
     from phonepose.schemas.topics import Topic
     from phonepose.session.reader import SessionReader
 
@@ -132,8 +133,8 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
             raise SessionContentError(f"{path}: no {' and no '.join(missing)}: the hand-eye calibration needs the "
                                       "controller's VIO and the motion-capture ground truth")
         for m in reader.messages(list(series)):
-            pose = Pose.from_foxglove(m.msg.pose)
-            if not np.isfinite(pose.translation).all():
+            pose = to_pose(raw_pose(m.msg.pose))     # None: NaN/inf or a non-unit quaternion, skipped as playback does
+            if pose is None:
                 continue
             stamps, poses = series[m.topic]
             # the phone's pose at its capture time; the ground truth at the time playback associates it
