@@ -202,3 +202,31 @@ def test_a_recognised_marker_without_display_pose_and_no_vio_keeps_the_last_sigh
                        marker=m, T_dvio_controller_vio=None) for i, m in enumerate([seen, unplaced])]
     est = run(FusedTracker(), obs)
     assert est[0].allclose(pose, atol=1e-12) and est[1].allclose(pose, atol=1e-12)
+
+
+def _pull_case(data_until_s: float, sighting_error_deg: float) -> tuple[Rotation, Rotation, float]:
+    """A T8 whose filter is not yet ready (no correction), a still phone at R0 whose VIO and gyro samples
+    end at ``data_until_s``, and one sighting at 0.9 s turned ``sighting_error_deg`` about x from R0."""
+    t8 = FusedTracker("T8")
+    for k in range(int(round(data_until_s * 30)) + 1):
+        t8._vio.add(k / 30, Pose(R0, np.zeros(3)))
+    for k in range(int(round(data_until_s * 200)) + 1):
+        t8._gyro.add(k / 200, np.zeros(3))
+    delta = Rotation.from_rotvec([np.radians(sighting_error_deg), 0, 0])
+    t8._last_marker = (0.9, Pose(delta * R0, np.zeros(3)))
+    return t8._pulled_by_sighting(R0), delta, t8.cfg
+
+
+def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():
+    """Where VIO has data at the image time (h = 0) the sighting moves the output by
+    s_v^2 / (s_v^2 + s_m^2) of its difference; 0.1 s past the newest VIO and gyro samples by
+    (s_v^2 + (s_w 0.1)^2) / (... + s_m^2); a flip (> 3 sigma) not at all."""
+    out, delta, c = _pull_case(data_until_s=1.0, sighting_error_deg=2.0)
+    gain = c.pull_vio_rotation_deg ** 2 / (c.pull_vio_rotation_deg ** 2 + c.pull_marker_rotation_deg ** 2)
+    assert np.degrees((out * R0.inv()).magnitude()) == pytest.approx(2.0 * gain, abs=1e-9)     # 0.165 deg
+    out, delta, c = _pull_case(data_until_s=0.8, sighting_error_deg=2.0)
+    P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * 0.1) ** 2
+    assert np.degrees((out * R0.inv()).magnitude()) == pytest.approx(2.0 * P / (P + c.pull_marker_rotation_deg ** 2),
+                                                                     abs=1e-6)                  # 1.21 deg
+    out, _, _ = _pull_case(data_until_s=0.8, sighting_error_deg=20.0)
+    assert (out * R0.inv()).magnitude() == 0.0
