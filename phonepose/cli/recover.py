@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import os
 from pathlib import Path
 
 import typer
@@ -13,7 +12,6 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.session.recover import RecoveryReport, salvage
-from phonepose.session.writer import refuse_to_replace
 
 
 def _t(ns: int | None, t0: int | None) -> str:
@@ -61,9 +59,7 @@ def recover(
 
     Exit code 0 when something was recovered; 3 when nothing could be (see docs/reliability.md).
     """
-    if os.path.exists(file) and not (os.path.exists(out) and os.path.samefile(file, out)):
-        refuse_to_replace(out, force)   # a missing input, or --out naming the input, is salvage's to report
-    r = salvage(file, out)
+    r = salvage(file, out, replace=force)
     if as_json:
         typer.echo(json.dumps({
             "path": r.path, "out": r.out, "messages": r.messages, "messages_per_topic": r.messages_per_topic,

@@ -28,7 +28,7 @@ from mcap.writer import CompressionType, Writer
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
 from phonepose.session.reader import MCAP_MAGIC
-from phonepose.session.writer import CHUNK_SIZE
+from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
 
 # opcodes (MCAP spec)
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
@@ -355,11 +355,12 @@ def _topic_of(channels, cid):
     return None if ch is None else ch[1]
 
 
-def salvage(path: str | os.PathLike, out: str | os.PathLike) -> RecoveryReport:
+def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = True) -> RecoveryReport:
     """Recover every intact chunk of ``path`` into ``out``; returns what was recovered and lost.
 
     Raises InputFileError (missing, unreadable, or the same file as ``out``), OutputError
-    (``out`` not writable) and DamagedFileError when nothing at all can be recovered.
+    (``out`` not writable, or existing while ``replace`` is false) and DamagedFileError when
+    nothing at all can be recovered.
     """
     src, dst = os.fspath(path), os.fspath(out)
     if not os.path.exists(src):
@@ -368,6 +369,7 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike) -> RecoveryReport:
         raise InputFileError(f"{src}: is a directory, not an MCAP file")
     if os.path.exists(dst) and os.path.samefile(src, dst) or Path(src).resolve() == Path(dst).resolve():
         raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another --out)")
+    refuse_to_replace(dst, replace)
     report = RecoveryReport(path=src, out=dst)
     try:
         f = open(src, "rb")
