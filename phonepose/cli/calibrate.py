@@ -179,7 +179,6 @@ def calibrate_hand_eye(
     Example: [bold]phonepose calibrate-hand-eye s.mcap --out hand_eye.yaml && phonepose playback s.mcap --hand-eye hand_eye.yaml[/bold]
     """
     from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
-    from phonepose.session.reader import check_mcap_file
 
     import numpy as np
 
@@ -189,7 +188,6 @@ def calibrate_hand_eye(
             raise ValueError
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
-    check_mcap_file(session)
     _check_out_dir(out)
     he = hand_eye_from_session(session, translation=lever)
     save_hand_eye(out, he)

@@ -248,7 +248,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     from phonepose.pipeline.corrections import CorrectionMath
     math = CorrectionMath.parse(correction_math).value
     tracker_objs = (tracker_factory or _default_trackers)(names, math)
-    gt_note = None
+    hand_eye_cal, gt_note = None, None
     if hand_eye is not None:
         from phonepose.calibration.hand_eye import load_hand_eye
         hand_eye_cal = load_hand_eye(hand_eye)
@@ -265,7 +265,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         context = read_context(reader)
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s,
-                                  hand_eye=hand_eye_cal if hand_eye is not None else None)
+                                  hand_eye=hand_eye_cal)
         stages = (stages_factory or _default_stages)(context)
         if hasattr(stages, "map_vio_samples"):
             stages.map_vio_samples = any(getattr(t, "uses_vio_samples", False) for t in tracker_objs)
