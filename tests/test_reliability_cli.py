@@ -26,6 +26,7 @@ from phonepose.playback.testdata import write_test_session
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, SessionWriter
+from test_reliability_data import mounted_tmpfs
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -516,14 +517,7 @@ def test_evaluate_reports_bad_rows(clean_run, tmp_path):
 
 def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
     """A read-only mount (root with mount permission only): playback, record and recover say so in one line."""
-    import os
-
-    mnt = tmp_path / "ro"
-    mnt.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mnt)],
-                                           capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a read-only tmpfs here")
-    try:
+    with mounted_tmpfs(tmp_path / "ro", "ro,size=1m") as mnt:
         for argv, pattern in [
             (["playback", str(good), "-q", "-t", "T1", "--out", str(mnt / "out")],
              r"cannot create output directory .*ro/out: Read-only file system$"),
@@ -533,5 +527,3 @@ def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
             code, _, err = run_inprocess(argv, capsys)
             assert code == 6, err
             assert len(err.strip().splitlines()) == 1 and re.search(pattern, err.strip()), err
-    finally:
-        subprocess.run(["umount", str(mnt)], check=False)

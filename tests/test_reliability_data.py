@@ -6,6 +6,11 @@ noise (incompressible, so several chunks per second), 400 Hz IMU, 60 Hz controll
 
 from __future__ import annotations
 
+import contextlib
+import os
+import subprocess
+from pathlib import Path
+
 import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -55,3 +60,19 @@ def read_keys(path) -> list[tuple[str, int, int, bytes]]:
     """(topic, log_time, sequence, data) of every message, in reading order."""
     with SessionReader(path) as r:
         return [(c.topic, m.log_time, m.sequence, m.data) for _, c, m in r.raw_messages()]
+
+
+@contextlib.contextmanager
+def mounted_tmpfs(where: Path, options: str):
+    """A real tmpfs mounted at ``where`` (``mount -o options``), unmounted afterwards. Mounting needs
+    root with mount permission: elsewhere the test is skipped (its ENOSPC / read-only doubles run
+    everywhere)."""
+    where.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
+                                           capture_output=True).returncode != 0:
+        import pytest
+        pytest.skip(f"cannot mount a tmpfs ({options}) here: needs root and mount permission")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=False)

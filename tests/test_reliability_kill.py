@@ -8,7 +8,6 @@ when it died must be at most the writer's flush interval (1 s of log time).
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from mcap.reader import make_reader
 
 from phonepose.session import SessionReader
 from phonepose.session.recover import salvage
+from test_reliability_data import mounted_tmpfs
 
 pytestmark = pytest.mark.slow
 
@@ -122,12 +122,7 @@ def test_sigint_sigterm_leave_a_complete_file(complete, tmp_path, sig):
 
 def test_disk_full_while_recording_is_one_line_and_the_file_recovers(tmp_path):
     """A real 2 MiB tmpfs (root with mount permission only; the ENOSPC double in test_reliability_session runs everywhere)."""
-    mnt = tmp_path / "mnt"
-    mnt.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
-                                           capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a tmpfs here")
-    try:
+    with mounted_tmpfs(tmp_path / "mnt", "size=2m") as mnt:
         out = mnt / "s.mcap"
         r = subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", *SCENARIO, "--out", str(out), "-q"],
                            capture_output=True, text=True, timeout=300)
@@ -138,5 +133,3 @@ def test_disk_full_while_recording_is_one_line_and_the_file_recovers(tmp_path):
         assert report.messages > 500 and report.chunks_recovered >= 1
         with SessionReader(tmp_path / "fixed.mcap") as reader:
             assert reader.summary().has("/display/camera/image")
-    finally:
-        subprocess.run(["umount", str(mnt)], check=False)

@@ -16,7 +16,7 @@ import pytest
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.recover import salvage
-from test_reliability_data import read_keys, session_messages, write_session
+from test_reliability_data import mounted_tmpfs, read_keys, session_messages, write_session
 
 
 class FullDisk:
@@ -102,27 +102,14 @@ def test_disk_full_during_finish_is_an_output_error(tmp_path, messages):
     assert r.messages == len(messages) and r.chunks_skipped == 0
 
 
-def _can_mount_tmpfs(where) -> bool:
-    if os.geteuid() != 0:
-        return False
-    return subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(where)],
-                          capture_output=True).returncode == 0
-
-
 def test_disk_full_on_a_real_tmpfs(tmp_path, messages):
-    mnt = tmp_path / "mnt"
-    mnt.mkdir()
-    if not _can_mount_tmpfs(mnt):
-        pytest.skip("cannot mount a tmpfs here (needs root and mount permission)")
-    try:
+    with mounted_tmpfs(tmp_path / "mnt", "size=1m") as mnt:
         with pytest.raises(OutputError, match="No space left on device"):
             with SessionWriter(mnt / "s.mcap") as w:
                 for topic, msg, t in messages:
                     w.write(topic, msg, t)
         r = salvage(mnt / "s.mcap", tmp_path / "fixed.mcap")
         assert r.messages >= 500  # the first ~1 MiB chunk: ~1 s of data
-    finally:
-        subprocess.run(["umount", str(mnt)], check=False)
 
 
 def test_writer_output_dir_not_writable(tmp_path):
