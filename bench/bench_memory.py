@@ -34,22 +34,19 @@ TARGET_RATIO = 1.1  # "does not grow": within 10 % (allocator noise) of the 1-mi
 
 _CHILD = r"""
 import json, resource, sys, time
+def status_kb(key):
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return None
 def peak_kb():
-    try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    kb = status_kb("VmHWM")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss if kb is None else kb
 def rss_kb():
-    try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
+    return status_kb("VmRSS") or 0
 from phonepose.playback.engine import run_playback
 seen = {}
 def progress(done, total):
