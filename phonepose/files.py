@@ -1,0 +1,436 @@
+"""Every file a command reads and every output it writes, by one rule (docs/reliability.md, "Outputs").
+
+Inputs are checked before the first side effect (:func:`check_input`): an existing, readable,
+regular file. A FIFO, socket or device is refused at once (reading one can wait forever).
+
+Outputs are planned, checked, written and committed by an :class:`OutputPlan`::
+
+    plan = OutputPlan(inputs=[session])
+    out = plan.dir(out_dir, "--out")
+    rrd = plan.file(rerun_path, "--rerun", suffixes=(".rrd",), what="a Rerun recording")
+    with plan:                   # every check, then the temporaries are created and locked
+        work(out.tmp, rrd.tmp)   # write into the temporaries
+    # leaving the block without an exception renames each into place; with one, removes them
+
+The rule, the same in every command:
+
+1. **Checked before any work.** The folder an output goes in must exist (it is never created);
+   an output is never an input (same path, a symlink to it, a hard link of it), an output folder
+   never holds an input, and two outputs of one command are never the same file; the name's
+   extension is the format written; an existing output is a regular file (or a folder, for a
+   folder output): a device, FIFO or socket is refused.
+2. **Written under a temporary name this module owns**, beside the target
+   (``.<name>.<pid>-<random>.phonepose-tmp``), locked while written (``flock``), and renamed into
+   place only when complete. A failed, interrupted or killed command never leaves a partial
+   output under the user's name, and an earlier output stays as it was until the new one
+   replaces it whole. A killed command's temporary is removed by the next command that writes
+   the same output; while one command writes an output, a second one stops with one line.
+3. **Replacing.** A session (``record``, ``recover``) is never replaced without ``--force``: a
+   recording cannot be made again. Any other output file is replaced whole. An output folder is
+   replaced whole when it is empty or an earlier phonepose output (it holds the
+   ``.phonepose-output`` manifest), so no file of an earlier run survives beside the new ones;
+   a folder holding anything else is refused, and so is the current directory.
+
+Written by hand: no library does exclusive temporaries with stale-lock recovery and no-clobber
+commits, and ``tempfile``'s names cannot be found again after a crash.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import errno
+import fcntl
+import json
+import os
+import secrets
+import shutil
+import stat
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from phonepose.errors import ConfigError, InputFileError, OutputError, PhoneposeError
+
+TMP_SUFFIX = ".phonepose-tmp"
+MANIFEST = ".phonepose-output"
+
+
+# ----------------------------------------------------------------------------- inputs
+def check_input(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` as a Path if it is an existing, readable, regular file; else InputFileError (one line)."""
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise InputFileError(f"{p}: no such file") from None
+    except NotADirectoryError:
+        raise InputFileError(f"{p}: no such file (a part of the path is not a directory)") from None
+    except OSError as exc:
+        raise InputFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputFileError(f"{p}: is a directory, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputFileError(f"{p}: not a regular file (a FIFO, socket or device): give a {what}")
+    if not os.access(p, os.R_OK):
+        raise InputFileError(f"{p}: cannot read (Permission denied)")
+    return p
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Same path after resolving symlinks, or the same inode (a hard link)."""
+    try:
+        if os.path.realpath(a) == os.path.realpath(b):
+            return True
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _inside(child: Path, folder: Path) -> bool:
+    c, f = os.path.realpath(child), os.path.realpath(folder)
+    return c != f and os.path.commonpath([c, f]) == f
+
+
+# ----------------------------------------------------------------------------- outputs
+@dataclass
+class _Output:
+    path: Path
+    option: str
+    tmp: Path | None = field(default=None, init=False)   # the temporary to write into (inside the plan's block)
+    _fd: int | None = field(default=None, init=False, repr=False)
+
+    @property
+    def target(self) -> Path:
+        """Where the output lands: through a symlink, the file or folder it points to (the link stays)."""
+        return Path(os.path.realpath(self.path)) if os.path.islink(self.path) else Path(os.path.abspath(self.path))
+
+    def _parent(self) -> Path:
+        return self.target.parent
+
+    def _check_parent(self) -> None:
+        parent = self._parent()
+        shown = self.path.parent if str(self.path.parent) not in ("", ".") or self.path.is_absolute() else Path(".")
+        if not parent.is_dir():
+            raise OutputError(f"{self.option} {self.path}: directory {shown} does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise OutputError(f"{self.option} {self.path}: directory {shown} is not writable")
+
+    def _check_not_input(self, inputs: Sequence[Path]) -> None:
+        for inp in inputs:
+            if _same_file(self.path, inp):
+                raise InputFileError(f"{self.option} {self.path} is the input {inp}: writing it would destroy the "
+                                     f"input; choose another name")
+
+    # -- temporaries
+    def _tmp_name(self) -> Path:
+        t = self.target
+        return t.parent / f".{t.name}.{os.getpid()}-{secrets.token_hex(4)}{TMP_SUFFIX}"
+
+    def _clear_stale(self, inputs: Sequence[Path]) -> None:
+        """Remove the temporaries a killed command left for this output; refuse if a live one holds one."""
+        t = self.target
+        for cand in sorted(t.parent.glob(f".{_glob_escape(t.name)}.*{TMP_SUFFIX}")):
+            if any(_same_file(cand, inp) for inp in inputs):
+                continue   # never delete an input, whatever its name
+            try:
+                fd = os.open(cand, os.O_RDONLY)
+            except OSError:
+                continue
+            try:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    pid = cand.name[len(t.name) + 2:].split("-", 1)[0]
+                    raise OutputError(f"{self.option} {self.path}: another phonepose (pid {pid}) is writing it; "
+                                      f"wait for it to finish or choose another {self.option}") from None
+                _remove(cand)
+            finally:
+                os.close(fd)
+
+    def _release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def abort(self) -> None:
+        if self.tmp is not None:
+            _remove(self.tmp)
+            self.tmp = None
+        self._release()
+
+
+@dataclass
+class OutputFile(_Output):
+    suffixes: tuple[str, ...] = ()
+    what: str = "this file"
+    session: bool = False     # a recording: never replaced without force
+    force: bool = False
+
+    def check(self, inputs: Sequence[Path]) -> None:
+        if self.suffixes and self.path.suffix.lower() not in self.suffixes:
+            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
+                              f"{' or '.join(self.suffixes)}")
+        self._check_parent()
+        self._check_not_input(inputs)
+        if os.path.lexists(self.path) or os.path.lexists(self.target):
+            try:
+                st = os.stat(self.target)
+            except OSError:
+                st = None
+            if st is not None and stat.S_ISDIR(st.st_mode):
+                raise OutputError(f"{self.option} {self.path}: is a directory; {self.option} takes a file name")
+            if st is not None and not stat.S_ISREG(st.st_mode):
+                raise OutputError(f"{self.option} {self.path}: not a regular file (a device, FIFO or socket); "
+                                  f"give a file name")
+            if self.session and not self.force and st is not None:
+                raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
+                                  f"replace it")
+
+    def begin(self, inputs: Sequence[Path]) -> Path:
+        self._clear_stale(inputs)
+        tmp = self._tmp_name()
+        try:
+            self._fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        self.tmp = tmp
+        return tmp
+
+    def commit(self) -> None:
+        tmp, target = self.tmp, self.target
+        assert tmp is not None and self._fd is not None
+        try:
+            os.fsync(self._fd)     # the data of the inode, whoever wrote it (rerun, the MCAP writer)
+            if self.session and not self.force:
+                os.link(tmp, target)   # no-clobber: fails if the target appeared meanwhile
+                os.unlink(tmp)
+            else:
+                if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
+                    raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+                os.rename(tmp, target)
+            _fsync_dir(target.parent)
+        except FileExistsError:
+            self.abort()
+            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
+                              f"replace it") from None
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        self.tmp = None
+        self._release()
+
+
+@dataclass
+class OutputDir(_Output):
+    command: str = ""
+
+    def check(self, inputs: Sequence[Path]) -> None:
+        target = self.target
+        cwd = os.path.realpath(os.getcwd())
+        if os.path.realpath(target) == cwd or _inside(Path(cwd), target):
+            raise OutputError(f"{self.option} {self.path}: is the current directory (or holds it) and would be "
+                              f"replaced whole; name a new folder")
+        self._check_parent()
+        for inp in inputs:
+            if _inside(inp, target) or _same_file(inp, target):
+                raise InputFileError(f"{self.option} {self.path}: holds the input {inp} and would be replaced "
+                                     f"whole; choose another {self.option}")
+        self._check_replaceable()
+
+    def _check_replaceable(self) -> None:
+        target = self.target
+        if not os.path.lexists(target):
+            return
+        if not target.is_dir():
+            raise OutputError(f"{self.option} {self.path}: exists and is not a directory")
+        entries = os.listdir(target)
+        if entries and MANIFEST not in entries:
+            raise OutputError(f"{self.option} {self.path}: holds files phonepose did not write; choose a new "
+                              f"folder, or empty it")
+
+    def begin(self, inputs: Sequence[Path]) -> Path:
+        self._clear_stale(inputs)
+        tmp = self._tmp_name()
+        try:
+            os.mkdir(tmp)
+            self._fd = os.open(tmp, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        self.tmp = tmp
+        return tmp
+
+    def commit(self) -> None:
+        tmp, target = self.tmp, self.target
+        assert tmp is not None
+        try:
+            (tmp / MANIFEST).write_text(json.dumps({"written_by": "phonepose", "command": self.command}) + "\n")
+            _fsync_tree(tmp)
+            self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
+            if os.path.lexists(target):
+                old = target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.phonepose-old"
+                if _exchange(tmp, target):
+                    old = tmp                    # tmp now holds the earlier output
+                else:                            # no renameat2: two renames, the old kept until the new is in
+                    os.rename(target, old)
+                    os.rename(tmp, target)
+                _fsync_dir(target.parent)
+                _remove(old)
+            else:
+                os.rename(tmp, target)
+                _fsync_dir(target.parent)
+        except PhoneposeError:
+            self.abort()
+            raise
+        except OSError as exc:
+            self.abort()
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        self.tmp = None
+        self._release()
+
+
+
+class OutputPlan:
+    """The outputs of one command: all checked before any work, written to temporaries, committed together."""
+
+    def __init__(self, inputs: Iterable[str | os.PathLike] = ()):
+        self.inputs = [Path(p) for p in inputs]
+        self.outputs: list[_Output] = []
+        self._open = False
+
+    def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
+             session: bool = False, force: bool = False) -> OutputFile:
+        out = OutputFile(Path(path), option, suffixes=tuple(s.lower() for s in suffixes), what=what,
+                         session=session, force=force)
+        self.outputs.append(out)
+        return out
+
+    def dir(self, path: str | os.PathLike, option: str, *, command: str = "") -> OutputDir:
+        out = OutputDir(Path(path), option, command=command)
+        self.outputs.append(out)
+        return out
+
+    def check(self) -> None:
+        """Every rule of the module docstring that can be checked before any work."""
+        for out in self.outputs:
+            out.check(self.inputs)
+        for i, a in enumerate(self.outputs):
+            for b in self.outputs[i + 1:]:
+                if os.path.realpath(a.target) == os.path.realpath(b.target) or _same_file(a.path, b.path):
+                    raise ConfigError(f"{a.option} and {b.option} name the same file {a.path}: give two names")
+                for x, y in ((a, b), (b, a)):
+                    if isinstance(y, OutputDir) and _inside(x.target, y.target):
+                        raise ConfigError(f"{x.option} {x.path} lies inside {y.option} {y.path}, which is replaced "
+                                          f"whole: write it elsewhere")
+
+    def __enter__(self) -> "OutputPlan":
+        self.check()
+        try:
+            for out in self.outputs:
+                out.begin(self.inputs)
+        except BaseException:
+            self.abort()
+            raise
+        self._open = True
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._open = False
+        if exc_type is not None:
+            self.abort()
+            return
+        try:
+            for out in self.outputs:
+                out.commit()
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        for out in self.outputs:
+            out.abort()
+
+
+def write_text_output(path: str | os.PathLike, text: str, option: str, *, inputs: Iterable[str | os.PathLike] = (),
+                      suffixes: Sequence[str] = (), what: str = "this file") -> Path:
+    """One small text output (a calibration YAML, a JSON report) by the rule above; disk full is an error."""
+    plan = OutputPlan(inputs)
+    out = plan.file(path, option, suffixes=suffixes, what=what)
+    with plan:
+        try:
+            with open(out.tmp, "w") as f:   # type: ignore[arg-type]
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return Path(path)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _glob_escape(name: str) -> str:
+    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def _remove(p: Path) -> None:
+    try:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink()
+    except FileNotFoundError:
+        pass
+    except OSError:
+        pass
+
+
+def _fsync_dir(d: Path) -> None:
+    try:
+        fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(root: Path) -> None:
+    """fsync every file of a finished output folder (ENOSPC surfaces here, not after the rename)."""
+    for dirpath, _dirs, files in os.walk(root):
+        for name in files:
+            fd = os.open(os.path.join(dirpath, name), os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        _fsync_dir(Path(dirpath))
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+_libc = None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where the system cannot."""
+    global _libc
+    if _libc is None:
+        try:
+            _libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            _libc.renameat2  # noqa: B018 - glibc >= 2.28
+        except (OSError, AttributeError):
+            _libc = False
+    if _libc is False:
+        return False
+    rc = _libc.renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), os.fspath(b))

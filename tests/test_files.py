@@ -1,0 +1,281 @@
+"""The one output rule (phonepose/files.py): checked first, written to a locked temporary, committed whole."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from phonepose.errors import ConfigError, InputFileError, OutputError
+from phonepose.files import MANIFEST, TMP_SUFFIX, OutputPlan, check_input, write_text_output
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` (relative path -> bytes): what a test compares before and after."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _write_dir(plan_dir, files: dict[str, str]) -> None:
+    for name, text in files.items():
+        p = plan_dir.tmp / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text)
+
+
+# ----------------------------------------------------------------------------- inputs
+def test_check_input_refuses_a_fifo_at_once(tmp_path):
+    fifo = tmp_path / "s.mcap"
+    os.mkfifo(fifo)
+    with pytest.raises(InputFileError) as e:
+        check_input(fifo, "session")   # never opened: opening a FIFO with no writer blocks forever
+    assert str(e.value) == f"{fifo}: not a regular file (a FIFO, socket or device): give a session"
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda p: None, "{p}: no such file"),
+    (lambda p: p.mkdir(), "{p}: is a directory, not a session"),
+])
+def test_check_input_missing_or_directory(tmp_path, make, message):
+    p = tmp_path / "x.mcap"
+    make(p)
+    with pytest.raises(InputFileError) as e:
+        check_input(p, "session")
+    assert str(e.value) == message.format(p=p)
+
+
+def test_check_input_refuses_a_device():
+    with pytest.raises(InputFileError, match="not a regular file"):
+        check_input("/dev/null", "session")
+
+
+# ----------------------------------------------------------------------------- checks before work
+def test_missing_parent_is_one_line_and_creates_nothing(tmp_path):
+    plan = OutputPlan()
+    plan.file(tmp_path / "no" / "such" / "x.rrd", "--rerun", suffixes=(".rrd",))
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    assert str(e.value) == f"--rerun {tmp_path / 'no' / 'such' / 'x.rrd'}: directory {tmp_path / 'no' / 'such'} does not exist"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("link", ["same", "symlink", "hardlink"])
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(tmp_path, link):
+    session = tmp_path / "s.mcap"
+    session.write_bytes(b"\x89MCAP0\r\n recording")
+    out = {"same": session, "symlink": tmp_path / "l.mcap", "hardlink": tmp_path / "h.mcap"}[link]
+    if link == "symlink":
+        out.symlink_to(session)
+    elif link == "hardlink":
+        os.link(session, out)
+    plan = OutputPlan(inputs=[session])
+    plan.file(out, "--out")
+    with pytest.raises(InputFileError, match=r"writing it would destroy the input"):
+        with plan:
+            raise AssertionError("the block must not run")
+    assert session.read_bytes() == b"\x89MCAP0\r\n recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"s.mcap", out.name})
+
+
+def test_an_output_folder_holding_the_input_is_refused(tmp_path):
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / MANIFEST).write_text("{}")
+    inp = d / "trackers.mcap"
+    inp.write_bytes(b"data")
+    plan = OutputPlan(inputs=[inp])
+    plan.dir(d, "--out")
+    with pytest.raises(InputFileError) as e:
+        with plan:
+            pass
+    assert str(e.value) == f"--out {d}: holds the input {inp} and would be replaced whole; choose another --out"
+    assert inp.read_bytes() == b"data"
+
+
+def test_wrong_extension_is_refused(tmp_path):
+    plan = OutputPlan()
+    plan.file(tmp_path / "out.txt", "--rerun", suffixes=(".rrd",), what="a Rerun recording")
+    with pytest.raises(ConfigError) as e:
+        with plan:
+            pass
+    assert str(e.value) == f"--rerun {tmp_path / 'out.txt'}: writes a Rerun recording; give a name ending in .rrd"
+
+
+@pytest.mark.parametrize("device", ["/dev/null", "/dev/full"])
+def test_a_device_is_never_replaced(device):
+    before = os.stat(device)
+    plan = OutputPlan()
+    plan.file(device, "--out")
+    with pytest.raises(OutputError, match="not a regular file"):
+        with plan:
+            pass
+    after = os.stat(device)
+    assert (after.st_ino, after.st_rdev) == (before.st_ino, before.st_rdev)
+
+
+def test_two_outputs_naming_one_file_are_refused(tmp_path):
+    plan = OutputPlan()
+    plan.file(tmp_path / "a.mcap", "--out")
+    plan.file(tmp_path / "a.mcap", "--rerun")
+    with pytest.raises(ConfigError, match="--out and --rerun name the same file"):
+        with plan:
+            pass
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_current_directory_is_not_an_output_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    plan = OutputPlan()
+    plan.dir(".", "--out")
+    with pytest.raises(OutputError, match="is the current directory"):
+        with plan:
+            pass
+
+
+# ----------------------------------------------------------------------------- writing and committing
+def test_a_folder_is_replaced_whole_and_only_on_success(tmp_path):
+    out = tmp_path / "run"
+    plan = OutputPlan()
+    _write = plan.dir(out, "--out", command="playback")
+    with plan:
+        _write_dir(_write, {"trajectories/T1.tum": "1", "trajectories/T2.tum": "2", "metrics.json": "{}"})
+    first = _tree(out)
+    assert set(first) == {"trajectories/T1.tum", "trajectories/T2.tum", "metrics.json", MANIFEST}
+
+    # a failed run leaves the earlier output exactly as it was, and no temporary
+    plan = OutputPlan()
+    d = plan.dir(out, "--out", command="playback")
+    with pytest.raises(RuntimeError):
+        with plan:
+            _write_dir(d, {"trajectories/T1.tum": "partial"})
+            raise RuntimeError("the session is damaged")
+    assert _tree(out) == first
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+    # a successful run replaces it whole: T2.tum of the earlier run does not survive
+    plan = OutputPlan()
+    d = plan.dir(out, "--out", command="playback")
+    with plan:
+        _write_dir(d, {"trajectories/T1.tum": "new", "metrics.json": "{new}"})
+    assert set(_tree(out)) == {"trajectories/T1.tum", "metrics.json", MANIFEST}
+    assert (out / "trajectories" / "T1.tum").read_text() == "new"
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]
+
+
+def test_a_folder_of_someone_else_is_refused_and_an_empty_one_is_used(tmp_path):
+    mine = tmp_path / "notes"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    plan = OutputPlan()
+    plan.dir(mine, "--out")
+    with pytest.raises(OutputError) as e:
+        with plan:
+            pass
+    assert str(e.value) == f"--out {mine}: holds files phonepose did not write; choose a new folder, or empty it"
+    assert (mine / "thesis.tex").read_text() == "precious"
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    plan = OutputPlan()
+    d = plan.dir(empty, "--out")
+    with plan:
+        (d.tmp / "metrics.json").write_text("{}")
+    assert set(_tree(empty)) == {"metrics.json", MANIFEST}
+
+
+def test_a_session_is_not_replaced_without_force(tmp_path):
+    s = tmp_path / "s.mcap"
+    s.write_bytes(b"old recording")
+    plan = OutputPlan()
+    plan.file(s, "--out", session=True)
+    with pytest.raises(OutputError) as e:
+        with plan:
+            pass
+    assert str(e.value) == f"{s} already exists: choose another --out, or add --force to replace it"
+    assert s.read_bytes() == b"old recording"
+    plan = OutputPlan()
+    f = plan.file(s, "--out", session=True, force=True)
+    with plan:
+        f.tmp.write_bytes(b"new recording")
+    assert s.read_bytes() == b"new recording"
+
+
+def test_a_file_written_through_a_symlink_keeps_the_link(tmp_path):
+    real = tmp_path / "real.yaml"
+    real.write_text("old")
+    link = tmp_path / "link.yaml"
+    link.symlink_to(real)
+    write_text_output(link, "new", "--out")
+    assert link.is_symlink() and real.read_text() == "new"
+
+
+_HOLD = textwrap.dedent("""
+    import sys, time
+    from phonepose.files import OutputPlan
+    plan = OutputPlan()
+    d = plan.dir(sys.argv[1], "--out")
+    with plan:
+        (d.tmp / "metrics.json").write_text("partial")
+        print("writing", flush=True)
+        time.sleep(600)
+""")
+
+
+def _start_holder(out: Path) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(out)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "writing"   # waits for the condition, however loaded the machine
+    return proc
+
+
+def test_a_second_writer_stops_and_a_killed_writers_temporary_is_cleared(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_holder(out)
+    try:
+        plan = OutputPlan()
+        plan.dir(out, "--out")
+        with pytest.raises(OutputError) as e:
+            with plan:
+                pass
+        assert str(e.value) == (f"--out {out}: another phonepose (pid {proc.pid}) is writing it; wait for it to "
+                                f"finish or choose another --out")
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    stale = [p for p in tmp_path.iterdir() if p.name.endswith(TMP_SUFFIX)]
+    assert len(stale) == 1 and not out.exists()     # the killed writer left its temporary, not a partial "run"
+    plan = OutputPlan()
+    d = plan.dir(out, "--out")
+    with plan:
+        (d.tmp / "metrics.json").write_text("complete")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert (out / "metrics.json").read_text() == "complete"
+
+
+def test_an_input_named_like_a_temporary_is_never_cleared(tmp_path):
+    out = tmp_path / "p.mcap"
+    leftover = tmp_path / f".p.mcap.123-abcd{TMP_SUFFIX}"   # what a killed command leaves: the user recovers it
+    leftover.write_bytes(b"the only copy")
+    plan = OutputPlan(inputs=[leftover])
+    f = plan.file(out, "--out", session=True)
+    with plan:
+        f.tmp.write_bytes(b"recovered")
+    assert leftover.read_bytes() == b"the only copy"
+    assert out.read_bytes() == b"recovered"
+
+
+def test_interrupted_file_write_leaves_the_old_file(tmp_path):
+    p = tmp_path / "he.yaml"
+    p.write_text("old calibration")
+    plan = OutputPlan()
+    f = plan.file(p, "--out")
+    with pytest.raises(KeyboardInterrupt):
+        with plan:
+            f.tmp.write_text("half")
+            raise KeyboardInterrupt
+    assert p.read_text() == "old calibration"
+    assert [x.name for x in tmp_path.iterdir()] == ["he.yaml"]
