@@ -26,7 +26,10 @@ The rule, the same in every command:
    replaces it whole. A killed command's temporary is removed by the next command that writes
    the same output; while one command writes an output, a second one stops with one line.
 3. **Replacing.** A session (``record``, ``recover``) is never replaced without ``--force``: a
-   recording cannot be made again. Any other output file is replaced whole. An output folder is
+   recording cannot be made again. A new recording (``in_place``) is the one exception to rule 2:
+   it is written under its final name, created exclusively, because what a killed recorder leaves
+   there is the user's data (``phonepose recover`` reads it); with ``--force`` over an existing
+   file it goes to a temporary like any output, so the old file stays until the new one is done. Any other output file is replaced whole. An output folder is
    replaced whole when it is empty or an earlier phonepose output (it holds the
    ``.phonepose-output`` manifest), so no file of an earlier run survives beside the new ones;
    a folder holding anything else is refused, and so is the current directory.
@@ -155,7 +158,8 @@ class _Output:
 
     def abort(self) -> None:
         if self.tmp is not None:
-            _remove(self.tmp)
+            if not getattr(self, "_direct", False) or _empty(self.tmp):
+                _remove(self.tmp)   # a recording under its own name is kept: the writer finished it validly
             self.tmp = None
         self._release()
 
@@ -166,6 +170,8 @@ class OutputFile(_Output):
     what: str = "this file"
     session: bool = False     # a recording: never replaced without force
     force: bool = False
+    in_place: bool = False    # a new recording: written under its final name (see the module docstring)
+    _direct: bool = field(default=False, init=False, repr=False)
 
     def check(self, inputs: Sequence[Path]) -> None:
         if self.suffixes and self.path.suffix.lower() not in self.suffixes:
@@ -188,10 +194,15 @@ class OutputFile(_Output):
                                   f"replace it")
 
     def begin(self, inputs: Sequence[Path]) -> Path:
-        self._clear_stale(inputs)
-        tmp = self._tmp_name()
+        self._direct = self.in_place and not os.path.lexists(self.target)
+        if not self._direct:
+            self._clear_stale(inputs)
+        tmp = self.target if self._direct else self._tmp_name()
         try:
             self._fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+        except FileExistsError:
+            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
+                              f"replace it") from None
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         fcntl.flock(self._fd, fcntl.LOCK_EX)
@@ -201,6 +212,16 @@ class OutputFile(_Output):
     def commit(self) -> None:
         tmp, target = self.tmp, self.target
         assert tmp is not None and self._fd is not None
+        if self._direct:
+            try:
+                os.fsync(self._fd)
+            except OSError as exc:
+                raise OutputError(f"cannot write {self.path}: {exc.strerror or exc} (the file written so far "
+                                  f"stays readable; run `phonepose recover`)") from None
+            finally:
+                self.tmp = None
+                self._release()
+            return
         try:
             os.fsync(self._fd)     # the data of the inode, whoever wrote it (rerun, the MCAP writer)
             if self.session and not self.force:
@@ -301,9 +322,10 @@ class OutputPlan:
         self._open = False
 
     def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
-             session: bool = False, force: bool = False) -> OutputFile:
+             session: bool = False, force: bool = False, in_place: bool = False) -> OutputFile:
+        """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording."""
         out = OutputFile(Path(path), option, suffixes=tuple(s.lower() for s in suffixes), what=what,
-                         session=session, force=force)
+                         session=session or in_place, force=force, in_place=in_place)
         self.outputs.append(out)
         return out
 
@@ -372,6 +394,13 @@ def write_text_output(path: str | os.PathLike, text: str, option: str, *, inputs
 # ----------------------------------------------------------------------------- helpers
 def _glob_escape(name: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def _empty(p: Path) -> bool:
+    try:
+        return os.path.getsize(p) == 0
+    except OSError:
+        return True
 
 
 def _remove(p: Path) -> None:

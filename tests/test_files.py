@@ -279,3 +279,30 @@ def test_interrupted_file_write_leaves_the_old_file(tmp_path):
             raise KeyboardInterrupt
     assert p.read_text() == "old calibration"
     assert [x.name for x in tmp_path.iterdir()] == ["he.yaml"]
+
+
+def test_a_new_recording_is_written_under_its_own_name_and_kept_when_interrupted(tmp_path):
+    s = tmp_path / "live.mcap"
+    plan = OutputPlan()
+    f = plan.file(s, "--out", in_place=True)
+    with pytest.raises(KeyboardInterrupt):
+        with plan:
+            assert f.tmp == s.absolute()      # what a killed recorder leaves is here, for `phonepose recover`
+            s.write_bytes(b"\x89MCAP0\r\n first second")
+            raise KeyboardInterrupt
+    assert s.read_bytes() == b"\x89MCAP0\r\n first second"
+    # over an existing recording only with --force, and then through a temporary
+    plan = OutputPlan()
+    plan.file(s, "--out", in_place=True)
+    with pytest.raises(OutputError, match="already exists"):
+        with plan:
+            pass
+    plan = OutputPlan()
+    f = plan.file(s, "--out", in_place=True, force=True)
+    with pytest.raises(RuntimeError):
+        with plan:
+            assert f.tmp != s.absolute()
+            f.tmp.write_bytes(b"half of the new one")
+            raise RuntimeError("camera unplugged")
+    assert s.read_bytes() == b"\x89MCAP0\r\n first second"
+    assert [p.name for p in tmp_path.iterdir()] == ["live.mcap"]
