@@ -54,23 +54,32 @@ def error(message: str, code: int = 1) -> None:
     sys.exit(code)
 
 
+def _click_exceptions():
+    """The module of click's exception classes that this typer raises: ``click.exceptions`` up to
+    typer 0.25, typer's own vendored copy from 0.26 on. Found through the public
+    ``typer.BadParameter`` so that no private module is named (typer 0.12.5 has none)."""
+    import importlib
+
+    return importlib.import_module(typer.BadParameter.__module__)
+
+
 def _usage_error(exc) -> None:
     """A typer/click usage error as one line: a bad option value is exit 5 (as ConfigError), the rest 2."""
-    from typer._click.exceptions import BadParameter, MissingParameter, NoArgsIsHelpError
-
-    if isinstance(exc, NoArgsIsHelpError):   # typer has already printed the help
+    exceptions = _click_exceptions()
+    no_args_is_help = getattr(exceptions, "NoArgsIsHelpError", ())   # click >= 8.2 only
+    if no_args_is_help and isinstance(exc, no_args_is_help):   # typer has already printed the help
         sys.exit(exc.exit_code)
     ctx = getattr(exc, "ctx", None)
     where = f"{ctx.command_path}: " if ctx is not None and ctx.command_path != "phonepose" else ""
     hint = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
     message = " ".join(exc.format_message().split())
-    code = 5 if isinstance(exc, BadParameter) and not isinstance(exc, MissingParameter) else exc.exit_code
+    code = 5 if isinstance(exc, typer.BadParameter) and not isinstance(exc, exceptions.MissingParameter) else exc.exit_code
     error(f"{where.removeprefix('phonepose ')}{message}{hint}", code)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script: every error is one line on stderr and its exit code."""
-    from typer._click.exceptions import ClickException
+    ClickException = _click_exceptions().ClickException
     from typer.exceptions import Abort
 
     try:
