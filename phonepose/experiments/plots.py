@@ -11,9 +11,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from phonepose.geometry import Pose  # noqa: E402
+from phonepose.viewer.style import TRACKER_COLORS, hex_color  # noqa: E402
 
-COLORS = {"GT": "black", "T1": "tab:gray", "T2": "tab:olive", "T3": "tab:cyan", "T4": "tab:blue",
-          "T5": "tab:purple", "T6": "tab:orange", "T7": "tab:red", "T7L": "tab:pink", "T8": "tab:green"}
+# the trackers' colours of the Rerun view (phonepose/viewer/style.py), so a tracker looks the same here
+COLORS = {"GT": "black", **{name: hex_color(rgb) for name, rgb in TRACKER_COLORS.items()}}
 
 
 def to_display_view(T_dvio_camera: Pose, poses: Pose) -> np.ndarray:

@@ -39,6 +39,7 @@ from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.sample import pose_in_frame
+from phonepose.viewer.annotations import marker_annotations
 
 
 @dataclass
@@ -189,6 +190,7 @@ class PlaybackEngine:
         if self.writer is not None:
             if tick.image is not None and tick.image_is_new:
                 self.writer.write(Topic.PIPELINE_MARKERS, _detections_message(self.stages, obs), tick.t_ns)
+                self.writer.write(Topic.PIPELINE_MARKER_ANNOTATIONS, marker_annotations(obs), tick.t_ns)
             encoded: dict[int, tuple] = {}   # trackers often return the very same Pose object (e.g. the marker's)
             for name, pose in poses.items():
                 if pose is not None:
@@ -272,7 +274,9 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         logger = None   # first: a --rerun path that cannot be written fails before any file is opened
         if rerun_path is not None or spawn:
             from phonepose.playback.rerun_log import PlaybackRerunLogger
-            logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session_name=Path(session).stem,
+            logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session=session,
+                                         params={"rate_hz": rate_hz, "correction_math": math, "start_s": start_s,
+                                                 "end_s": end_s, "hand_eye": hand_eye},
                                          rrd_path=rerun_path, spawn=spawn)
         writer = None
         if out is not None:

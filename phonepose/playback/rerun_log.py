@@ -3,159 +3,240 @@
 The engine owns the clock: :class:`PlaybackRerunLogger` sets the timelines ``tick`` (sequence)
 and ``time`` (timestamp, display clock) once per tick, then every stage logger logs its part.
 A stage with nothing to show clears its path (``rr.Clear``) so the viewer never shows a stale
-marker or pose.
+marker or pose. Entity paths, colours and the sink are those of :mod:`phonepose.viewer`
+(docs/playback.md, "Rerun", shows the tree and the layout).
 
-Entity paths (``/world`` is display_vio):
-
-    /world                                  view coordinates (static)
-    /world/display                          display body pose (Transform3D), axes
-    /world/display/camera                   T_display_camera (static)
-    /world/display/camera/image             Pinhole (static), EncodedImage (the recorded JPEG bytes)
-    /world/display/camera/image/markers     LineStrips2D of the recognised marker, id as label
-    /world/gt/pose                          GT controller pose (Transform3D + axes)
-    /world/gt/trajectory/{NNNN,open}        GT so far (LineStrips3D: closed parts + the open one)
-    /world/trackers/<name>/pose             tracker estimate (Transform3D + axes)
-    /world/trackers/<name>/trajectory/...   its trajectory so far (same layout)
-    /world/task/targets | /world/task/path  experiment targets (Boxes3D) or path (LineStrips3D), static
-    /errors/<name>/position_m, rotation_deg per-tracker error against GT (Scalars)
+A recording reads without the docs: its id is derived from the session's content and the
+playback's parameters (two different runs never merge in the viewer, the same run twice gives
+the same id), its name says session, trackers and rate; every tracker has one colour on its
+pose, its labelled dot, its trajectory and its error series; errors are in cm and degrees over
+the task window, as the tables are; the task window and the marker's in/out of view are lanes of
+a state timeline; the 3D view is framed on the display camera and the task, and stays put.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from phonepose.errors import OutputError
+from phonepose import __version__
+from phonepose.evaluation.ate import rotation_errors_deg, translation_errors
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick
+from phonepose.viewer import entities as E
+from phonepose.viewer.scene import log_camera, log_task
+from phonepose.viewer.sink import (
+    Columns,
+    open_recording,
+    time_columns,
+    transform_columns,
+)
+from phonepose.viewer.style import (
+    GT_COLOR,
+    MARKER_COLOR,
+    TASK_COLOR,
+    line_width,
+    tracker_color,
+)
 
+APPLICATION_ID = "phonepose_playback"
 TRAJECTORY_EVERY_TICKS = 20   # trajectories so far are re-logged every 20 ticks (1 s at 20 Hz)
 SEGMENT_TICKS = 100           # ... and closed for good every 100 ticks (the size stays linear)
 # Buffered rows (images, poses, errors, markers) are sent as columns every this many ticks: to a
 # .rrd file in large batches (each send_columns has a fixed cost), to a live viewer promptly.
 COLUMNS_EVERY_TICKS_FILE = 100
 COLUMNS_EVERY_TICKS_LIVE = 5
+BLUEPRINT_WAIT_TICKS = 20     # the 3D eye is framed on the display camera: wait this long for its pose
 AXIS_LENGTH_M = 0.05
-# one colour per tracker (T1..T7, then cycling)
-PALETTE = [(230, 25, 75), (245, 130, 48), (255, 225, 25), (60, 180, 75), (70, 240, 240), (0, 130, 200),
-           (145, 30, 180), (240, 50, 230), (128, 128, 0), (170, 110, 40)]
-GT_COLOR = (255, 255, 255)
+DOT_RADIUS_M = 0.006          # the labelled dot at each estimate (the axes alone look alike)
+TRAJECTORY_RADIUS_M = 0.0015
+GT_TRAJECTORY_RADIUS_M = 0.003
 
-WORLD = "/world"
-DISPLAY = "/world/display"
-CAMERA = "/world/display/camera"
-IMAGE = "/world/display/camera/image"
-MARKERS = "/world/display/camera/image/markers"
-GT_POSE = "/world/gt/pose"
-GT_TRAJECTORY = "/world/gt/trajectory"
-TASK = "/world/task"
-ERRORS = "/errors"
+# state timeline lanes: value -> (label, colour)
+TASK_STATES = {"calibration": ("calibration (before the task)", (128, 128, 128)),
+               "task": ("task (metrics window)", TASK_COLOR),
+               "after": ("after the task", (128, 128, 128))}
+MARKER_STATES = {"in_view": ("marker in view", MARKER_COLOR), "out_of_view": ("marker out of view", (214, 39, 40))}
 
 
-def tracker_pose_path(name: str) -> str:
-    return f"/world/trackers/{name}/pose"
+# ------------------------------------------------------------------ recording id and name
+def session_fingerprint(path: str | os.PathLike) -> str:
+    """A digest of the session's content, cheap for any size: the MCAP summary section (every
+    chunk's offset, size and time range, the schemas, channels and message counts) and the file
+    size; the whole file for a file without a summary. Hashing the whole 120 MB exp1 session
+    takes ~1 s, the summary ~1 ms."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        size = f.seek(0, os.SEEK_END)
+        h.update(size.to_bytes(8, "little"))
+        summary_start = 0
+        if size >= 8 + 29 + 8:          # magic, footer record (opcode, length, 20 bytes), magic
+            f.seek(size - 8 - 29)
+            footer = f.read(29)
+            if footer[0] == 0x02:
+                summary_start = int.from_bytes(footer[9:17], "little")
+        if 0 < summary_start < size:
+            f.seek(summary_start)
+            h.update(f.read())
+        else:
+            f.seek(0)
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
 
 
-def tracker_trajectory_path(name: str) -> str:
-    return f"/world/trackers/{name}/trajectory"
+def recording_id(session: str | os.PathLike, params: dict) -> str:
+    """``playback-<stem>-<16 hex>``: from the session's content and the playback's parameters
+    (``params``: anything that changes the result, e.g. trackers, rate, window, correction math;
+    a value naming a file, key ``hand_eye``, counts by its content)."""
+    p = dict(params)
+    if p.get("hand_eye") is not None:
+        p["hand_eye"] = hashlib.sha256(Path(p["hand_eye"]).read_bytes()).hexdigest()
+    doc = json.dumps({"session": session_fingerprint(session), "params": p, "phonepose": __version__},
+                     sort_keys=True, default=str)
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(session).stem)[:60]
+    return f"playback-{stem}-{hashlib.sha256(doc.encode()).hexdigest()[:16]}"
 
 
-def _transform(pose: Pose) -> rr.Transform3D:
-    return rr.Transform3D(translation=np.asarray(pose.translation, dtype=np.float32),
-                          quaternion=rr.Quaternion(xyzw=np.asarray(pose.quat_xyzw, dtype=np.float32)))
+def recording_name(session: str | os.PathLike, tracker_names: list[str], params: dict) -> str:
+    """What the viewer's sources panel shows: ``TRI2_01.mcap · T1 T2 ... T8 · 20 Hz`` (+ options set)."""
+    parts = [Path(session).name, " ".join(tracker_names)]
+    if params.get("rate_hz") is not None:
+        parts.append(f"{params['rate_hz']:g} Hz")
+    if params.get("correction_math") not in (None, "paper"):
+        parts.append(f"{params['correction_math']} correction")
+    if params.get("start_s") is not None or params.get("end_s") is not None:
+        parts.append(f"window {params.get('start_s') or 0:g}-{params.get('end_s') or 'end'} s")
+    if params.get("hand_eye") is not None:
+        parts.append(f"hand-eye {Path(params['hand_eye']).name}")
+    return " · ".join(parts)
 
 
-def default_blueprint(tracker_names: list[str]) -> rrb.Blueprint:
-    """3D scene | camera view over the error time series."""
+# ------------------------------------------------------------------ blueprint
+def _eye(context: SessionContext, camera_position: np.ndarray | None) -> rrb.EyeControls3D | None:
+    """An orbit eye on the task, from behind, above and beside the display camera, so the camera
+    frustum, the task and every trajectory are in view; fixed, so scrubbing does not move it."""
+    pts = []
+    if context.path is not None and len(context.path.waypoints):
+        pts = [[w.x, w.y, w.z] for w in context.path.waypoints]
+    elif context.targets is not None and len(context.targets.targets):
+        pts = [[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in context.targets.targets]
+    if not pts or camera_position is None:
+        return None
+    pts = np.asarray(pts, dtype=float)
+    task_center = (pts.min(axis=0) + pts.max(axis=0)) / 2
+    camera = np.asarray(camera_position, dtype=float).reshape(3)
+    v = camera - task_center                      # from the task to the camera
+    dist = max(float(np.linalg.norm(v)), 0.2)
+    center = task_center + 0.35 * v               # between the two: both in view
+    up = np.array([0.0, 0.0, 1.0])
+    side = np.cross(up, v)
+    side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    eye = center + v * 0.9 + up * (0.45 * dist) + side * (0.55 * dist)
+    return rrb.EyeControls3D(position=eye.tolist(), look_target=center.tolist(), eye_up=up.tolist())
+
+
+def default_blueprint(tracker_names: list[str], context: SessionContext | None = None,
+                      camera_position: np.ndarray | None = None) -> rrb.Blueprint:
+    """3D scene | camera image over the state timeline; the two error plots along the bottom.
+
+    Every tracker is in both plots (a comparison needs one axis), each series in its tracker's
+    colour, ours (T7L, T8) drawn thicker; the plots are wide and tall enough (about half the
+    window's width and a third of its height) that the legend lists all nine trackers.
+    """
+    eye = _eye(context, camera_position) if context is not None else None
+    task = None
+    if context is not None and context.task_start_ns is not None and context.task_end_ns is not None:
+        task = (int(context.task_start_ns), int(context.task_end_ns))
+    plot_kw = {}
+    if task is not None:
+        plot_kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.absolute(nanos=task[0]),
+                                                                  end=rrb.TimeRangeBoundary.absolute(nanos=task[1])))
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(name="3D (display_vio)", origin=WORLD),
-            rrb.Vertical(
-                rrb.Spatial2DView(name="display camera", origin=IMAGE),
-                rrb.TimeSeriesView(name="position error (m)", origin=ERRORS,
-                                   contents=[f"{ERRORS}/{n}/position_m" for n in tracker_names]),
-                rrb.TimeSeriesView(name="rotation error (deg)", origin=ERRORS,
-                                   contents=[f"{ERRORS}/{n}/rotation_deg" for n in tracker_names]),
-                row_shares=[3, 2, 2],
+        rrb.Vertical(
+            rrb.Horizontal(
+                rrb.Spatial3DView(name="3D (display_vio): GT grey, task teal, trackers in colour", origin=E.WORLD,
+                                  eye_controls=eye),
+                rrb.Vertical(
+                    rrb.Spatial2DView(name="display camera", origin=E.IMAGE),
+                    rrb.StateTimelineView(name="task window · marker in view", origin=E.STATUS),
+                    row_shares=[5, 2],
+                ),
+                column_shares=[3, 2],
             ),
-            column_shares=[3, 2],
+            rrb.Horizontal(
+                rrb.TimeSeriesView(name="position error vs GT (cm)", origin=E.POSITION_ERRORS,
+                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), **plot_kw),
+                rrb.TimeSeriesView(name="rotation error vs GT (deg)", origin=E.ROTATION_ERRORS,
+                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), **plot_kw),
+            ),
+            row_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline="time"),
-        collapse_panels=False,
+        rrb.TimePanel(timeline=E.TIME, state="collapsed",
+                      time_selection=rrb.components.AbsoluteTimeRange(*task) if task is not None else None),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
     )
 
 
-def _time_columns(idx: list[int], t_ns: list[int]) -> list:
-    return [rr.TimeColumn("tick", sequence=np.asarray(idx, dtype=np.int64)),
-            rr.TimeColumn("time", timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]"))]
-
-
+# ------------------------------------------------------------------ stage loggers
 class CameraLogger:
     """Display pose, camera (static Pinhole), the recorded JPEG bytes (buffered, sent as columns)."""
 
     def __init__(self, rec: rr.RecordingStream, context: SessionContext):
         self.rec = rec
         cam = context.camera
-        self.enabled = cam.width > 0
-        if self.enabled:
-            rec.log(CAMERA, _transform(cam.T_display_camera), static=True)
-            rec.log(IMAGE, rr.Pinhole(image_from_camera=np.asarray(cam.K, dtype=np.float32),
-                                      resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
-                                      image_plane_distance=0.1), static=True)
-        rec.log(DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
-
-        self.img_idx: list[int] = []
-        self.img_t: list[int] = []
-        self.img_blobs: list[np.ndarray] = []
-        self.img_media: list[str] = []
-        self.pose_idx: list[int] = []
-        self.pose_t: list[int] = []
-        self.pose_q: list[np.ndarray] = []
-        self.pose_p: list[np.ndarray] = []
+        self.enabled = cam is not None
+        if cam is not None:
+            log_camera(rec, cam.T_display_camera, cam.K, cam.width, cam.height)
+        rec.log(E.DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
+        self.poses = Columns(rec, E.DISPLAY, transform_columns)
+        self.images = Columns(rec, E.IMAGE, lambda f: rr.EncodedImage.columns(blob=f["blob"], media_type=f["media"]))
 
     def log(self, tick: Tick) -> None:
         # the display pose is the one at the frame's stamp: it changes with the frame
         if tick.T_dvio_display is not None and (tick.image_is_new or not self.enabled or tick.image is None):
-            self.pose_idx.append(tick.index)
-            self.pose_t.append(tick.t_ns)
-            self.pose_q.append(tick.T_dvio_display.quat_xyzw)
-            self.pose_p.append(np.asarray(tick.T_dvio_display.translation, dtype=float))
+            self.poses.add(tick.t_ns, tick.index, translation=tick.T_dvio_display.translation,
+                           quaternion=tick.T_dvio_display.quat_xyzw)
         if self.enabled and tick.image is not None and tick.image_is_new:
             fmt = (tick.image.format or "jpeg").lower()
-            self.img_idx.append(tick.index)
-            self.img_t.append(tick.t_ns)
-            self.img_blobs.append(np.frombuffer(tick.image.data, dtype=np.uint8))   # the recorded bytes, as they are
-            self.img_media.append("image/png" if "png" in fmt else "image/jpeg")
+            self.images.add(tick.t_ns, tick.index, blob=np.frombuffer(tick.image.data, dtype=np.uint8),  # as recorded
+                            media="image/png" if "png" in fmt else "image/jpeg")
 
     def flush(self) -> None:
-        if self.pose_idx:
-            self.rec.send_columns(DISPLAY, indexes=_time_columns(self.pose_idx, self.pose_t),
-                                  columns=rr.Transform3D.columns(translation=np.vstack(self.pose_p).astype(np.float32),
-                                                                 quaternion=np.vstack(self.pose_q).astype(np.float32)))
-            self.pose_idx, self.pose_t, self.pose_q, self.pose_p = [], [], [], []
-        if self.img_idx:
-            self.rec.send_columns(IMAGE, indexes=_time_columns(self.img_idx, self.img_t),
-                                  columns=rr.EncodedImage.columns(blob=self.img_blobs, media_type=self.img_media))
-            self.img_idx, self.img_t, self.img_blobs, self.img_media = [], [], [], []
+        self.poses.flush()
+        self.images.flush()
+
+
+def _marker_columns(f: dict[str, list]) -> list:
+    n = len(f["strip"])
+    return [*rr.LineStrips2D.columns(strips=f["strip"], labels=f["label"],
+                                     colors=np.tile(np.array([MARKER_COLOR], np.uint8), (n, 1)),
+                                     radii=np.full(n, 1.5, np.float32)),
+            *rr.AnyValues.columns(marker_id=np.asarray(f["id"], np.int64),
+                                  reprojection_error_px=np.asarray(f["reprojection"], np.float64),
+                                  ambiguity_ratio=np.asarray(f["ambiguity"], np.float64),
+                                  chosen_solution=np.asarray(f["solution"], np.int64))]
 
 
 class MarkerLogger:
-    """The recognised marker's corners as a closed 2D strip labelled with its id (sent as columns).
-
-    Logged once per new camera frame; a frame without the marker clears the path.
-    """
+    """The recognised marker's corners as a closed 2D strip labelled with its id, with the
+    detection's diagnostics as data on the same entity (the selection panel shows why it was
+    accepted: RMS reprojection error in px, and the planar-ambiguity ratio, i.e. the other IPPE
+    solution's reprojection error over the chosen one's). Logged once per new camera frame; a
+    frame without the marker clears the path."""
 
     def __init__(self, rec: rr.RecordingStream):
         self.rec = rec
         self.shown = False
-        self.idx: list[int] = []
-        self.t: list[int] = []
-        self.strips: list[np.ndarray] = []
-        self.labels: list[str] = []
+        self.rows = Columns(rec, E.MARKER, _marker_columns)
 
     def log(self, tick: Tick, obs: Observation) -> None:
         if tick.image is None or not tick.image_is_new:
@@ -163,56 +244,57 @@ class MarkerLogger:
         m = obs.marker
         if m is None:
             if self.shown:
-                self.flush()
-                self.rec.log(MARKERS, rr.Clear(recursive=True))
+                self.rows.flush()
+                self.rec.log(E.MARKER, rr.Clear(recursive=True))
                 self.shown = False
             return
         c = np.asarray(m.corners_px, dtype=np.float32).reshape(4, 2)
-        self.idx.append(tick.index)
-        self.t.append(tick.t_ns)
-        self.strips.append(np.vstack([c, c[:1]]))
-        self.labels.append(f"id {m.id}")
+        ratio = float(m.ambiguity_ratio)
+        self.rows.add(tick.t_ns, tick.index, strip=np.vstack([c, c[:1]]), label=f"id {m.id}", id=int(m.id),
+                      reprojection=float(m.reprojection_error_px), ambiguity=ratio if np.isfinite(ratio) else np.nan,
+                      solution=int(m.chosen_solution))
         self.shown = True
 
     def flush(self) -> None:
-        if not self.idx:
-            return
-        n = len(self.idx)
-        self.rec.send_columns(MARKERS, indexes=_time_columns(self.idx, self.t),
-                              columns=rr.LineStrips2D.columns(strips=self.strips, labels=self.labels,
-                                                              colors=np.tile(np.array([[0, 255, 0]], np.uint8), (n, 1)),
-                                                              radii=np.full(n, 1.5, np.float32)))
-        self.idx, self.t, self.strips, self.labels = [], [], [], []
+        self.rows.flush()
 
 
 class _PoseTrackLogger:
-    """A pose with axes and its trajectory so far (one tracker, or the GT).
+    """A pose (axes and a dot labelled with the name, in its colour) and its trajectory so far
+    (one tracker, or the GT).
 
-    Poses are buffered and sent as columns (``send_columns``) by the owner, which is many times
-    cheaper than one ``log`` per tick; a missing pose clears the entity at once.
+    Poses are buffered and sent as columns by the owner, which is many times cheaper than one
+    ``log`` per tick; a missing pose clears the entity at once.
 
     The trajectory so far is kept linear in size: the points of the last ``SEGMENT_TICKS`` ticks
     are re-logged at ``<trajectory>/open`` (every ``TRAJECTORY_EVERY_TICKS``); then they are
     logged once, for good, as ``<trajectory>/NNNN`` and the open part starts again from the last
     point. At any time the viewer's latest-at shows the closed parts logged so far plus the open
-    one: the trajectory so far, without re-sending it all every second.
+    one: the trajectory so far, without re-sending it all every second. Trajectories carry no
+    label: the name is on the dot, once per tracker.
     """
 
-    def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str):
+    def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str,
+                 radius: float = TRAJECTORY_RADIUS_M):
         self.rec = rec
         self.pose_path = pose_path
         self.trajectory_path = trajectory_path
         self.color = color
         self.label = label
+        self.radius = radius
         self.segments: list[list[np.ndarray]] = [[]]   # the open part: strips broken where the pose was missing
         self.open_ticks = 0
         self.closed = 0
         self.shown = False
         self.dirty = 0
-        self.rows_idx: list[int] = []
-        self.rows_t: list[int] = []
-        self.rows_q: list[np.ndarray] = []
-        self.rows_p: list[np.ndarray] = []
+        rgb = np.array([color], np.uint8)
+        self.rows = Columns(rec, pose_path, lambda f: [
+            *transform_columns(f),
+            *rr.TransformAxes3D.columns(axis_length=np.full(len(f["translation"]), AXIS_LENGTH_M, np.float32)),
+            *rr.Points3D.columns(positions=np.zeros((len(f["translation"]), 3), np.float32),
+                                 colors=np.repeat(rgb, len(f["translation"]), axis=0),
+                                 radii=np.full(len(f["translation"]), DOT_RADIUS_M, np.float32),
+                                 labels=[label] * len(f["translation"]))])
 
     def log(self, tick: Tick, pose: Pose | None) -> None:
         self.open_ticks += 1
@@ -225,30 +307,19 @@ class _PoseTrackLogger:
                 self.segments.append([])
             return
         p = np.asarray(pose.translation, dtype=float)
-        self.rows_idx.append(tick.index)
-        self.rows_t.append(tick.t_ns)
-        self.rows_q.append(pose.quat_xyzw)
-        self.rows_p.append(p)
+        self.rows.add(tick.t_ns, tick.index, translation=p, quaternion=pose.quat_xyzw)
         self.shown = True
         self.segments[-1].append(p)
         self.dirty += 1
 
     def flush_poses(self) -> None:
-        if not self.rows_idx:
-            return
-        n = len(self.rows_idx)
-        self.rec.send_columns(
-            self.pose_path, indexes=_time_columns(self.rows_idx, self.rows_t),
-            columns=[*rr.Transform3D.columns(translation=np.vstack(self.rows_p).astype(np.float32),
-                                             quaternion=np.vstack(self.rows_q).astype(np.float32)),
-                     *rr.TransformAxes3D.columns(axis_length=np.full(n, AXIS_LENGTH_M, dtype=np.float32))])
-        self.rows_idx, self.rows_t, self.rows_q, self.rows_p = [], [], [], []
+        self.rows.flush()
 
     def _strips(self) -> rr.LineStrips3D | None:
         strips = [np.asarray(s, dtype=np.float32) for s in self.segments if len(s) >= 2]
         if not strips:
             return None
-        return rr.LineStrips3D(strips, colors=[self.color], radii=0.002, labels=[self.label] * len(strips))
+        return rr.LineStrips3D(strips, colors=[self.color], radii=self.radius)
 
     def flush_trajectory(self) -> None:
         """The trajectory so far, at the current tick (the engine set the clock)."""
@@ -270,43 +341,27 @@ class TaskLogger:
     """The experiment's targets (cubes) or path (closed line), static, in display_vio."""
 
     def __init__(self, rec: rr.RecordingStream, context: SessionContext):
-        targets = context.targets
-        if targets is not None and len(targets.targets):
-            centers = np.array([[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in targets.targets],
-                               dtype=np.float32)
-            quats = [rr.Quaternion(xyzw=[t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z,
-                                         t.pose.orientation.w]) for t in targets.targets]
-            half = float(targets.cube_size_m or 0.02) / 2
-            rec.log(f"{TASK}/targets", rr.Boxes3D(centers=centers, half_sizes=[[half, half, half]] * len(centers),
-                                                 quaternions=quats, labels=[str(t.index) for t in targets.targets],
-                                                 colors=[(200, 200, 200)]), static=True)
-        path = context.path
-        if path is not None and len(path.waypoints):
-            pts = np.array([[w.x, w.y, w.z] for w in path.waypoints], dtype=np.float32)
-            if path.closed:
-                pts = np.vstack([pts, pts[:1]])
-            rec.log(f"{TASK}/path", rr.LineStrips3D([pts], colors=[(200, 200, 200)], radii=0.001,
-                                                     labels=[path.name or "path"]), static=True)
+        log_task(rec, context.targets, context.path)
 
 
 class ErrorLogger:
-    """Per-tracker position (m) and rotation (deg) error against GT, as scalars (sent in columns)."""
+    """Per-tracker position (cm) and rotation (deg) error against GT, over the task window (the
+    metrics' window, no alignment, as p_ATE / r_ATE are computed), as scalars sent in columns."""
 
     def __init__(self, rec: rr.RecordingStream, names: list[str]):
         self.rec = rec
         self.rows: dict[str, list] = {name: [] for name in names}
-        for i, name in enumerate(names):
-            color = PALETTE[i % len(PALETTE)]
-            rec.log(f"{ERRORS}/{name}/position_m", rr.SeriesLines(colors=[color], names=[name]), static=True)
-            rec.log(f"{ERRORS}/{name}/rotation_deg", rr.SeriesLines(colors=[color], names=[name]), static=True)
+        for name in names:
+            style = {"colors": [tracker_color(name)], "names": [name], "widths": [line_width(name)]}
+            rec.log(E.position_error(name), rr.SeriesLines(**style), static=True)
+            rec.log(E.rotation_error(name), rr.SeriesLines(**style), static=True)
 
     def log(self, tick: Tick, gt: Pose | None, poses: dict[str, Pose | None]) -> None:
-        if gt is None:
+        if gt is None or not tick.in_task:
             return
-        gq, gp = gt.quat_xyzw, np.asarray(gt.translation, dtype=float)
         for name, pose in poses.items():
             if pose is not None:
-                self.rows[name].append((tick.index, tick.t_ns, gq, gp, pose.quat_xyzw, np.asarray(pose.translation)))
+                self.rows[name].append((tick.index, tick.t_ns, gt, pose))
 
     def flush(self) -> None:
         for name, rows in self.rows.items():
@@ -314,55 +369,79 @@ class ErrorLogger:
                 continue
             idx = [r[0] for r in rows]
             t = [r[1] for r in rows]
-            gq = np.vstack([r[2] for r in rows])
-            eq = np.vstack([r[4] for r in rows])
-            pos = np.linalg.norm(np.vstack([r[3] for r in rows]) - np.vstack([r[5] for r in rows]), axis=1)
-            dot = np.clip(np.abs(np.sum(gq * eq, axis=1)), 0.0, 1.0)
-            rot = np.degrees(2.0 * np.arccos(dot))
-            self.rec.send_columns(f"{ERRORS}/{name}/position_m", indexes=_time_columns(idx, t),
-                                  columns=rr.Scalars.columns(scalars=pos))
-            self.rec.send_columns(f"{ERRORS}/{name}/rotation_deg", indexes=_time_columns(idx, t),
-                                  columns=rr.Scalars.columns(scalars=rot))
+            gt = Pose.from_xyzw(np.vstack([r[2].translation for r in rows]), np.vstack([r[2].quat_xyzw for r in rows]))
+            est = Pose.from_xyzw(np.vstack([r[3].translation for r in rows]), np.vstack([r[3].quat_xyzw for r in rows]))
+            index = time_columns(t, idx)
+            self.rec.send_columns(E.position_error(name), indexes=index,
+                                  columns=rr.Scalars.columns(scalars=translation_errors(gt, est) * 100.0))
+            self.rec.send_columns(E.rotation_error(name), indexes=index,
+                                  columns=rr.Scalars.columns(scalars=rotation_errors_deg(gt, est)))
             rows.clear()
 
 
-class PlaybackRerunLogger:
-    """Owns the RecordingStream and the clock; wires the stage loggers."""
+class StatusLogger:
+    """Lanes of the state timeline: where the tick lies against the task window, and whether the
+    marker is in view (the paper's practical FoV test: recognised in this frame). Logged on change."""
 
-    def __init__(self, context: SessionContext, tracker_names: list[str], *, session_name: str = "session",
+    def __init__(self, rec: rr.RecordingStream):
+        self.rec = rec
+        for path, states in ((E.STATUS_TASK, TASK_STATES), (E.STATUS_MARKER, MARKER_STATES)):
+            rec.log(path, rr.StateConfiguration(values=list(states), labels=[v[0] for v in states.values()],
+                                                colors=[v[1] for v in states.values()]), static=True)
+        self.task: str | None = None
+        self.marker: str | None = None
+        self.seen_task = False
+
+    def log(self, tick: Tick, obs: Observation) -> None:
+        self.seen_task |= tick.in_task
+        task = "task" if tick.in_task else ("after" if self.seen_task else "calibration")
+        if task != self.task:
+            self.rec.log(E.STATUS_TASK, rr.StateChange(state=task))
+            self.task = task
+        marker = "in_view" if obs.in_view else "out_of_view"
+        if tick.image is not None and marker != self.marker:
+            self.rec.log(E.STATUS_MARKER, rr.StateChange(state=marker))
+            self.marker = marker
+
+
+# ------------------------------------------------------------------ the playback's logger
+class PlaybackRerunLogger:
+    """Owns the RecordingStream and the clock; wires the stage loggers.
+
+    ``session`` and ``params`` (the playback's options that change its result: ``rate_hz``,
+    ``correction_math``, ``start_s``, ``end_s``, ``hand_eye``) make the recording id and name.
+    ``rrd_path`` is written as given (the caller checks it and may pass a temporary name).
+    """
+
+    def __init__(self, context: SessionContext, tracker_names: list[str], *, session: str | os.PathLike | None = None,
+                 params: dict | None = None, session_name: str | None = None,
                  rrd_path: str | os.PathLike | None = None, spawn: bool = False,
                  trajectory_every: int = TRAJECTORY_EVERY_TICKS, columns_every: int | None = None,
                  recording: rr.RecordingStream | None = None):
-        self.blueprint = default_blueprint(tracker_names)
+        params = dict(params or {}, trackers=list(tracker_names))
+        self.context = context
+        self.tracker_names = list(tracker_names)
+        self.blueprint_sent = False
         if recording is not None:
             self.rec = recording
         else:
-            self.rec = rr.RecordingStream("phonepose_playback", recording_id=f"playback-{session_name}")
-            if spawn:
-                try:
-                    self.rec.spawn(default_blueprint=self.blueprint)
-                except Exception as exc:  # no viewer binary, no display, port in use, ...
-                    raise OutputError(f"cannot spawn the Rerun viewer ({exc}); save a recording with --rerun FILE.rrd "
-                                      "instead") from None
-            elif rrd_path is not None:
-                try:
-                    Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
-                except OSError as exc:
-                    raise OutputError(f"cannot write {rrd_path}: {exc.strerror or exc}") from None
-                if Path(rrd_path).is_dir():
-                    raise OutputError(f"cannot write {rrd_path}: is a directory")
-                self.rec.save(os.fspath(rrd_path), default_blueprint=self.blueprint)
+            if session is not None:
+                rid, name = recording_id(session, params), recording_name(session, tracker_names, params)
+            else:   # tests and tools without a file: still one id per parameter set
+                stem = session_name or "session"
+                digest = hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()[:16]
+                rid, name = f"playback-{stem}-{digest}", f"{stem} · {' '.join(tracker_names)}"
+            self.rec = open_recording(APPLICATION_ID, rid, name=name, rrd_path=rrd_path, spawn=spawn,
+                                      start_time_ns=context.task_start_ns)
         rec = self.rec
-        rec.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.camera = CameraLogger(rec, context)
         self.markers = MarkerLogger(rec)
         self.task = TaskLogger(rec, context)
-        self.gt = _PoseTrackLogger(rec, GT_POSE, GT_TRAJECTORY, GT_COLOR, "GT")
-        self.trackers = {
-            name: _PoseTrackLogger(rec, tracker_pose_path(name), tracker_trajectory_path(name),
-                                   PALETTE[i % len(PALETTE)], name)
-            for i, name in enumerate(tracker_names)
-        }
+        self.status = StatusLogger(rec)
+        self.gt = _PoseTrackLogger(rec, E.GT_CONTROLLER, E.GT_TRAJECTORY, GT_COLOR, "GT", radius=GT_TRAJECTORY_RADIUS_M)
+        self.trackers = {name: _PoseTrackLogger(rec, E.tracker_pose(name), E.tracker_trajectory(name),
+                                                tracker_color(name), name) for name in tracker_names}
         self.errors = ErrorLogger(rec, tracker_names)
         if columns_every is None:
             columns_every = COLUMNS_EVERY_TICKS_LIVE if spawn else COLUMNS_EVERY_TICKS_FILE
@@ -370,15 +449,37 @@ class PlaybackRerunLogger:
         self.trajectory_every = max(1, int(trajectory_every))
         self._since_columns = 0
         self._since_trajectory = 0
+        self._ticks = 0
+
+    @property
+    def blueprint(self) -> rrb.Blueprint:
+        """The layout without the eye framing (that needs the display's pose, see :meth:`send_blueprint`)."""
+        return default_blueprint(self.tracker_names, self.context)
+
+    def send_blueprint(self, T_dvio_display: Pose | None) -> None:
+        """The default blueprint, its 3D eye framed on the display camera (at ``T_dvio_display``) and the task."""
+        cam_pos = None
+        if T_dvio_display is not None and self.context.camera is not None:
+            cam_pos = (T_dvio_display @ self.context.camera.T_display_camera).translation
+        elif T_dvio_display is not None:
+            cam_pos = T_dvio_display.translation
+        self.rec.send_blueprint(default_blueprint(self.tracker_names, self.context,
+                                                  None if cam_pos is None else np.asarray(cam_pos).reshape(3)),
+                                make_active=True, make_default=True)
+        self.blueprint_sent = True
 
     def set_time(self, tick: Tick) -> None:
-        self.rec.set_time("tick", sequence=tick.index)
-        self.rec.set_time("time", timestamp=np.datetime64(int(tick.t_ns), "ns"))
+        self.rec.set_time(E.TICK, sequence=tick.index)
+        self.rec.set_time(E.TIME, timestamp=np.datetime64(int(tick.t_ns), "ns"))
 
     def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
         self.set_time(tick)
+        self._ticks += 1
+        if not self.blueprint_sent and (tick.T_dvio_display is not None or self._ticks >= BLUEPRINT_WAIT_TICKS):
+            self.send_blueprint(tick.T_dvio_display)
         self.camera.log(tick)
         self.markers.log(tick, obs)
+        self.status.log(tick, obs)
         self.gt.log(tick, tick.gt_T_dvio_controller)
         for name, pose in poses.items():
             self.trackers[name].log(tick, pose)
@@ -411,5 +512,7 @@ class PlaybackRerunLogger:
         self.flush_trajectories()
 
     def close(self) -> None:
+        if not self.blueprint_sent:
+            self.send_blueprint(None)
         self.flush()
         self.rec.flush()

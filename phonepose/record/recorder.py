@@ -4,7 +4,10 @@ It writes the source's static part first, then the stream, through
 :class:`~phonepose.session.SessionWriter` (the writer flushes about once a second of log
 time, so a SIGKILL loses at most ~1 s). SIGINT / SIGTERM set a flag: the loop stops after the
 current message and the ``with`` block finishes a valid file. Optionally everything recorded
-is also logged to Rerun (saved to an .rrd file or streamed to a spawned viewer).
+is also logged to Rerun (saved to an .rrd file or streamed to a spawned viewer:
+:mod:`phonepose.record.rerun_log`). Beside every record it writes the frame-tree messages
+:class:`~phonepose.viewer.frames.FrameTree` derives from it (``/tf/...``), so the session shows in
+3D in Rerun and Foxglove as it is.
 """
 
 from __future__ import annotations
@@ -12,16 +15,14 @@ from __future__ import annotations
 import os
 import signal
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
-import numpy as np
-
-from phonepose.errors import OutputError, SessionContentError
-from phonepose.geometry import Pose
+from phonepose.errors import SessionContentError
 from phonepose.record.source import Record, Source
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionWriter
+from phonepose.viewer.frames import FrameTree
 
 ProgressCallback = Callable[[int, int | None], None]   # (log time done since start, duration) in ns
 
@@ -35,126 +36,6 @@ class RecordResult:
     frames: int               # camera images written
 
 
-class RerunLogger:
-    """Logs what is being recorded: camera images (the JPEG bytes as they are), true and VIO poses, IMU.
-
-    Entities: ``/world/display`` (mocap pose of the display) with ``camera`` under it (static
-    extrinsics, pinhole, images), ``/world/controller`` (mocap pose of the controller),
-    ``/world/display_vio`` (placed by ``/gt/calibration``) holding the display's VIO pose and the
-    controller's VIO pose mapped through the anchors, ``/imu/gyro`` and ``/imu/accel``.
-    """
-
-    def __init__(self, rrd_path: str | None = None, spawn: bool = False, application_id: str = "phonepose_record"):
-        import rerun as rr
-
-        self.rr = rr
-        self.rec = rr.RecordingStream(application_id)
-        try:
-            if spawn:
-                self.rec.spawn()
-            elif rrd_path is not None:
-                parent = os.path.dirname(os.path.abspath(rrd_path))
-                if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
-                    raise OutputError(f"cannot write {rrd_path}: directory {parent} does not exist or is not writable")
-                self.rec.save(rrd_path)
-        except (RuntimeError, OSError) as exc:   # rerun reports sink failures as RuntimeError
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            hint = "; save a recording with --rerun FILE.rrd instead" if spawn else ""
-            raise OutputError(f"cannot start Rerun logging ({rrd_path or 'viewer'}): {first}{hint}") from None
-        self.rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self._anchors: dict[str, Pose] = {}
-        # High-rate streams (poses, IMU) are sent as columns every BATCH_NS of log time: one
-        # Rerun call per entity per batch instead of one per sample (the viewer lags by <= 0.2 s).
-        self._poses: dict[str, tuple[list, list, list]] = {}
-        self._imu: tuple[list, list, list] = ([], [], [])
-        self._batch_start: int | None = None
-
-    def _transform(self, path: str, pose: Pose, axes: float | None = 0.05, static: bool = False,
-                   t_ns: int | None = None) -> None:
-        rr = self.rr
-        if not static:
-            if path not in self._poses:
-                self._poses[path] = ([], [], [])
-                if axes:
-                    self.rec.log(path, rr.TransformAxes3D(axes), static=True)
-            times, trans, quats = self._poses[path]
-            times.append(t_ns)
-            trans.append(pose.translation)
-            quats.append(pose.quat_xyzw)
-            return
-        x, y, z, w = (float(v) for v in pose.quat_xyzw)
-        self.rec.log(path, rr.Transform3D(translation=[float(v) for v in pose.translation], quaternion=[x, y, z, w]),
-                     static=True)
-
-    def _flush(self) -> None:
-        rr = self.rr
-        for path, (times, trans, quats) in self._poses.items():
-            if times:
-                self.rec.send_columns(path, indexes=[rr.TimeColumn("time", timestamp=np.array(times, "datetime64[ns]"))],
-                                      columns=rr.Transform3D.columns(translation=np.array(trans),
-                                                                     quaternion=np.array(quats)))
-                times.clear(), trans.clear(), quats.clear()
-        times, gyro, accel = self._imu
-        if times:
-            index = [rr.TimeColumn("time", timestamp=np.array(times, "datetime64[ns]"))]
-            self.rec.send_columns("/imu/gyro", indexes=index, columns=rr.Scalars.columns(scalars=np.array(gyro)))
-            self.rec.send_columns("/imu/accel", indexes=index, columns=rr.Scalars.columns(scalars=np.array(accel)))
-            times.clear(), gyro.clear(), accel.clear()
-
-    def log(self, r: Record) -> None:
-        rr, rec, m, topic = self.rr, self.rec, r.message, r.topic
-        if self._batch_start is None:
-            self._batch_start = r.log_time_ns
-        elif r.log_time_ns - self._batch_start >= BATCH_NS:
-            self._flush()
-            self._batch_start = r.log_time_ns
-        if topic == Topic.CAMERA_IMAGE:
-            rec.set_time("time", timestamp=np.datetime64(r.log_time_ns, "ns"))
-            rec.log("/world/display/camera/image", rr.EncodedImage(contents=m.data, media_type="image/jpeg"))
-        elif topic == Topic.CAMERA_CALIBRATION:
-            K = np.array(m.K).reshape(3, 3)
-            rec.log("/world/display/camera/image", rr.Pinhole(image_from_camera=K, resolution=[m.width, m.height],
-                                                                image_plane_distance=0.1), static=True)
-        elif topic in (Topic.CAMERA_EXTRINSICS, Topic.GT_CALIBRATION):
-            pose = Pose.from_xyzw([m.translation.x, m.translation.y, m.translation.z],
-                                  [m.rotation.x, m.rotation.y, m.rotation.z, m.rotation.w])
-            path = "/world/display/camera" if topic == Topic.CAMERA_EXTRINSICS else "/world/display_vio"
-            self._transform(path, pose, axes=None, static=True)
-        elif topic in _POSE_PATHS:
-            pose = Pose.from_foxglove(m.pose)
-            if topic in (Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR):
-                self._anchors[topic] = pose
-                return
-            self._transform(_POSE_PATHS[topic], pose, t_ns=r.log_time_ns)
-            if topic == Topic.CONTROLLER_VIO_POSE and len(self._anchors) == 2:
-                mapped = self._anchors[Topic.DISPLAY_ANCHOR] @ self._anchors[Topic.CONTROLLER_ANCHOR].inv() @ pose
-                self._transform("/world/display_vio/controller_mapped", mapped, t_ns=r.log_time_ns)
-        elif topic == Topic.CONTROLLER_IMU:
-            times, gyro, accel = self._imu
-            times.append(r.log_time_ns)
-            gyro.append((m.gyro_x, m.gyro_y, m.gyro_z))
-            accel.append((m.accel_x, m.accel_y, m.accel_z))
-
-    def close(self) -> None:
-        try:
-            self._flush()
-            self.rec.flush()
-        except Exception:  # pragma: no cover - best effort at shutdown
-            pass
-
-
-BATCH_NS = 200_000_000
-
-_POSE_PATHS = {
-    Topic.GT_DISPLAY_POSE: "/world/display",
-    Topic.GT_CONTROLLER_POSE: "/world/controller",
-    Topic.DISPLAY_VIO_POSE: "/world/display_vio/display",
-    Topic.CONTROLLER_VIO_POSE: "/controller_vio/controller",
-    Topic.DISPLAY_ANCHOR: None,
-    Topic.CONTROLLER_ANCHOR: None,
-}
-
-
 class Recorder:
     def __init__(self, source: Source, out: str | os.PathLike, *, progress: ProgressCallback | None = None,
                  rerun_path: str | os.PathLike | None = None, spawn: bool = False,
@@ -163,8 +44,10 @@ class Recorder:
         self.out = os.fspath(out)
         self.progress = progress
         self.progress_every_ns = progress_every_ns
-        self.rerun = RerunLogger(os.fspath(rerun_path), False) if rerun_path is not None else \
-            (RerunLogger(None, True) if spawn else None)
+        self.rerun_path = os.fspath(rerun_path) if rerun_path is not None else None
+        self.spawn = spawn
+        self.rerun = None          # opened in run(): its recording id is made from the static part
+        self.frames = FrameTree()
         self._stop = False
 
     def stop(self) -> None:
@@ -174,7 +57,12 @@ class Recorder:
     def run(self) -> RecordResult:
         handlers = self._install_signal_handlers()
         try:
-            return self._run()
+            static = list(self.source.static())
+            if self.rerun_path is not None or self.spawn:
+                from phonepose.record.rerun_log import open_record_logger
+                self.rerun = open_record_logger(self.out, static, rrd_path=self.rerun_path, spawn=self.spawn,
+                                                source=_source_kind(static))
+            return self._run(static)
         finally:
             for sig, old in handlers.items():
                 signal.signal(sig, old)
@@ -191,7 +79,7 @@ class Recorder:
             signal.signal(sig, lambda *_: self.stop())
         return old
 
-    def _run(self) -> RecordResult:
+    def _run(self, static: list[Record]) -> RecordResult:
         start = self.source.start_ns
         duration = self.source.duration_ns
         last_per_topic: dict[str, int] = {}
@@ -199,7 +87,7 @@ class Recorder:
         first = last = None
         next_progress = start
         with SessionWriter(self.out) as writer:
-            for rec in self.source.static():
+            for rec in static:
                 self._write(writer, rec, last_per_topic)
             iterator = iter(self.source)
             for rec in iterator:
@@ -226,5 +114,15 @@ class Recorder:
                                       f"({rec.log_time_ns} < {prev})")
         last_per_topic[rec.topic] = rec.log_time_ns
         writer.write(rec.topic, rec.message, rec.log_time_ns, rec.publish_time_ns)
+        for topic, msg in self.frames.derive(rec.topic, rec.message, rec.log_time_ns):
+            writer.write(topic, msg, rec.log_time_ns, rec.publish_time_ns)
         if self.rerun is not None:
             self.rerun.log(rec)
+
+
+def _source_kind(static: list[Record]) -> str:
+    """``sim``, ``phone``, ... from the session info, for the Rerun recording's name."""
+    for r in static:
+        if r.topic == Topic.SESSION_INFO:
+            return r.message.source
+    return ""

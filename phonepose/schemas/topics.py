@@ -9,7 +9,9 @@ from __future__ import annotations
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from phonepose.schemas import phonepose_pb2 as pb
@@ -48,8 +50,16 @@ class Topic:
     EXPERIMENT_PATH = "/experiment/path"
     SESSION_INFO = "/session/info"
     LOG = "/log"
+    # the frame tree (phonepose.viewer.frames): each topic places its child frame in its parent
+    TF_DISPLAY = "/tf/display"                         # display_vio -> display (from /display/vio/pose)
+    TF_CONTROLLER_VIO = "/tf/controller_vio"           # display_vio -> controller_vio (from the two anchors)
+    TF_CONTROLLER = "/tf/controller"                   # controller_vio -> controller (from /controller/vio/pose)
+    TF_MARKER = "/tf/marker"                           # controller -> marker (from /controller/marker, static)
+    CONTROLLER_MARKER_OUTLINE = "/controller/marker/outline"   # the marker square as points, in frame marker
+    CAMERA_AXIS = "/display/camera/axis"               # the camera's optical axis as points, in frame display_camera
     # playback output
     PIPELINE_MARKERS = "/pipeline/markers"
+    PIPELINE_MARKER_ANNOTATIONS = "/pipeline/markers/annotations"   # the same detections for Foxglove's Image panel
     TRACKER_POSE = "/trackers/{name}/pose"
 
 
@@ -76,7 +86,14 @@ TOPIC_TYPES: dict[str, type] = {
     Topic.EXPERIMENT_PATH: pb.PathSpec,
     Topic.SESSION_INFO: pb.SessionInfo,
     Topic.LOG: Log,
+    Topic.TF_DISPLAY: FrameTransform,
+    Topic.TF_CONTROLLER_VIO: FrameTransform,
+    Topic.TF_CONTROLLER: FrameTransform,
+    Topic.TF_MARKER: FrameTransform,
+    Topic.CONTROLLER_MARKER_OUTLINE: PointCloud,
+    Topic.CAMERA_AXIS: PointCloud,
     Topic.PIPELINE_MARKERS: pb.MarkerDetections,
+    Topic.PIPELINE_MARKER_ANNOTATIONS: ImageAnnotations,
 }
 
 

@@ -1,0 +1,277 @@
+"""What a person sees: the playback recording's id, name, colours, units, blueprint and the
+detection's diagnostics; the raw session's frame tree as Rerun's MCAP importer reads it."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+import rerun.chunk as rc
+
+from phonepose.playback.engine import run_playback
+from phonepose.playback.rerun_log import default_blueprint, recording_id
+from phonepose.playback.testdata import write_test_session
+from phonepose.schemas.topics import Frame, Topic
+from phonepose.session import SessionReader
+from phonepose.viewer import entities as E
+from phonepose.viewer.style import GT_COLOR, TASK_COLOR, TRACKER_COLORS, tracker_color
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+TRACKERS = ["T1", "T7", "T8"]
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    p = tmp_path_factory.mktemp("viewer") / "s.mcap"
+    write_test_session(p, duration_s=2.5)
+    return p
+
+
+@pytest.fixture(scope="module")
+def played(session, tmp_path_factory):
+    out = tmp_path_factory.mktemp("viewer-pb")
+    rrd = out / "s.rrd"
+    result = run_playback(session, trackers=TRACKERS, out_dir=out / "o", rerun_path=rrd)
+    return result, rrd, _entities(rrd)
+
+
+def _entities(rrd) -> dict[str, list]:
+    """entity path -> its record batches."""
+    found: dict[str, list] = {}
+    for chunk in rc.RrdReader(str(rrd)).stream().to_chunks():
+        found.setdefault(chunk.entity_path, []).append((chunk, chunk.to_record_batch()))
+    return found
+
+
+def _values(entity: list, column: str) -> list:
+    """Every instance of ``column`` in the entity's rows, flattened (a row holds a list of instances)."""
+    out = []
+    for _, batch in entity:
+        if column in batch.schema.names:
+            for v in batch.column(column).to_pylist():
+                if v is not None:
+                    out += v if isinstance(v, list) else [v]
+    return out
+
+
+def _rgb(packed: int) -> tuple[int, int, int]:
+    return (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255
+
+
+def _recording_id_of(rrd) -> str:
+    recs = rc.RrdReader(str(rrd)).recordings()
+    assert len(recs) == 1
+    return recs[0].recording_id
+
+
+def test_recording_id_is_the_same_for_the_same_inputs_and_differs_otherwise(session, tmp_path):
+    params = {"rate_hz": 20.0, "correction_math": "paper", "start_s": None, "end_s": None, "hand_eye": None,
+              "trackers": TRACKERS}
+    same = recording_id(session, params)
+    assert same == recording_id(session, dict(params))
+    assert same.startswith("playback-s-") and re.fullmatch(r"playback-s-[0-9a-f]{16}", same)
+    others = {recording_id(session, {**params, "rate_hz": 10.0}),
+              recording_id(session, {**params, "trackers": ["T1"]}),
+              recording_id(session, {**params, "correction_math": "se3"}),
+              recording_id(session, {**params, "start_s": 0.5})}
+    other_session = tmp_path / "s.mcap"          # the same name, another content
+    write_test_session(other_session, duration_s=2.0)
+    others.add(recording_id(other_session, params))
+    copy = tmp_path / "copy" / "s.mcap"          # the same content elsewhere: the same recording
+    copy.parent.mkdir()
+    shutil.copyfile(session, copy)
+    assert recording_id(copy, params) == same
+    assert same not in others and len(others) == 5
+
+
+def test_two_playbacks_are_two_recordings_and_a_rerun_is_the_same_one(session, played, tmp_path):
+    _, rrd, _ = played
+    again = tmp_path / "again.rrd"
+    run_playback(session, trackers=TRACKERS, out_dir=tmp_path / "o1", rerun_path=again)
+    other = tmp_path / "other.rrd"
+    run_playback(session, trackers=TRACKERS, out_dir=tmp_path / "o2", rerun_path=other, rate_hz=10)
+    assert _recording_id_of(again) == _recording_id_of(rrd)
+    assert _recording_id_of(other) != _recording_id_of(rrd)
+
+
+def test_recording_name_and_no_wall_clock_timeline(played):
+    _, rrd, found = played
+    names = _values(found.get(rr.RECORDING_PROPERTIES_PATH, []), "RecordingInfo:name")
+    assert names == ["s.mcap · T1 T7 T8 · 20 Hz"]
+    timelines = {t for entity in found.values() for chunk, _ in entity for t in chunk.timeline_names}
+    assert timelines == {"tick", "time"}          # no log_time: the recording lasts as long as the session
+
+
+def test_each_tracker_has_one_colour_on_every_entity(played):
+    _, _, found = played
+    seen = {}
+    for name in TRACKERS:
+        dots = {_rgb(c) for c in _values(found[E.tracker_pose(name)], "Points3D:colors")}
+        labels = set(_values(found[E.tracker_pose(name)], "Points3D:labels"))
+        lines = {_rgb(c) for path in found if path.startswith(E.tracker_trajectory(name) + "/")
+                 for c in _values(found[path], "LineStrips3D:colors")}
+        series = {_rgb(c) for path in (E.position_error(name), E.rotation_error(name))
+                  for c in _values(found[path], "SeriesLines:colors")}
+        assert dots == lines == series == {tracker_color(name)}, name
+        assert labels == {name}
+        seen[name] = tracker_color(name)
+    assert len(set(seen.values())) == len(TRACKERS)
+    gt = {_rgb(c) for path in found if path.startswith(E.GT_TRAJECTORY + "/")
+          for c in _values(found[path], "LineStrips3D:colors")}
+    assert gt == {GT_COLOR} and GT_COLOR not in TRACKER_COLORS.values() and TASK_COLOR not in TRACKER_COLORS.values()
+
+
+def test_errors_are_cm_and_degrees_over_the_task_window(played):
+    result, _, found = played
+    gt = dict(zip(result.gt_stamps_ns.tolist(), result.gt.translation))
+    for name in TRACKERS:
+        traj = result.trajectories[name]
+        est = dict(zip(traj.stamps_ns.tolist(), traj.poses.translation))
+        rows = [(t, v) for chunk, batch in found[E.position_error(name)] if "Scalars:scalars" in batch.schema.names
+                for t, v in zip(batch.column("time").cast("int64").to_pylist(), batch.column("Scalars:scalars").to_pylist())
+                if v is not None]
+        assert rows and all(t in gt and t in est for t, _ in rows)   # task-window ticks with GT only
+        for t, v in rows:
+            assert v[0] == pytest.approx(100.0 * np.linalg.norm(gt[t] - est[t]), abs=1e-6)
+        p_ate_cm = 100.0 * result.metrics["trackers"][name]["total"]["p_ate_m"]
+        assert np.sqrt(np.mean([v[0] ** 2 for _, v in rows])) == pytest.approx(p_ate_cm, rel=1e-6)
+
+
+def test_detection_diagnostics_are_data_on_the_detection(played):
+    result, _, found = played
+    marker = found[E.MARKER]
+    errors = _values(marker, "reprojection_error_px")
+    ratios = _values(marker, "ambiguity_ratio")
+    with SessionReader(result.out_dir / "trackers.mcap") as r:
+        dets = [m.msg.detections[0] for m in r.messages([Topic.PIPELINE_MARKERS]) if m.msg.detections]
+    assert len(errors) == len(dets) > 0
+    assert errors == pytest.approx([d.reprojection_error_px for d in dets])
+    assert ratios == pytest.approx([d.ambiguity_ratio for d in dets])
+
+
+def test_status_lanes_mark_the_task_window_and_the_marker_in_view(played):
+    _, _, found = played
+    assert _values(found[E.STATUS_TASK], "StateChange:state") == ["calibration", "task", "after"]
+    states = _values(found[E.STATUS_MARKER], "StateChange:state")
+    assert {"in_view", "out_of_view"} <= set(states)
+    assert all(a != b for a, b in zip(states, states[1:]))     # logged on change only
+
+
+def _blueprint_rows(rrd) -> dict[str, list]:
+    reader = rc.RrdReader(str(rrd))
+    (store,) = reader.blueprints()
+    rows: dict[str, list] = {}
+    for chunk in reader.stream(store=store).to_chunks():
+        batch = chunk.to_record_batch()
+        for n in batch.schema.names:
+            if ":" in n:
+                for v in batch.column(n).to_pylist():
+                    if v is not None:
+                        rows.setdefault(n, []).extend(v if isinstance(v, list) else [v])
+    return rows
+
+
+def test_blueprint_holds_the_documented_views_and_an_eye_on_the_task(played):
+    _, rrd, found = played
+    rows = _blueprint_rows(rrd)
+    views = dict(zip([str(v) for v in rows["ViewBlueprint:space_origin"]], rows["ViewBlueprint:class_identifier"]))
+    expected = {E.WORLD: "3D", E.IMAGE: "2D", E.STATUS: "StateTimeline", E.POSITION_ERRORS: "TimeSeries",
+                E.ROTATION_ERRORS: "TimeSeries"}
+    assert {o: str(views.get(o, "")) for o in expected} == expected
+    doc = (DOCS / "playback.md").read_text()
+    for origin in expected:
+        assert f"`{origin}`" in doc, origin
+    # every entity the documented tree names for playback exists in the recording
+    for path in (E.DISPLAY, E.CAMERA, E.IMAGE, E.MARKER, E.GT_CONTROLLER, E.tracker_pose("T8"), E.TASK_PATH,
+                 E.position_error("T8"), E.rotation_error("T8"), E.STATUS_TASK, E.STATUS_MARKER):
+        assert f"`{path.replace('T8', '<name>')}" in doc, path
+    present = set(found)
+    for path in (E.DISPLAY, E.CAMERA, E.IMAGE, E.MARKER, E.GT_CONTROLLER, E.tracker_pose("T8"),
+                 E.position_error("T8"), E.rotation_error("T8"), E.STATUS_TASK, E.STATUS_MARKER):
+        assert path in present, path
+
+
+def test_the_eye_looks_between_the_camera_and_the_task_from_behind_the_camera():
+    from types import SimpleNamespace
+
+    from phonepose.playback.rerun_log import _eye
+
+    path = SimpleNamespace(waypoints=[SimpleNamespace(x=-0.1, y=1.0, z=0.0), SimpleNamespace(x=0.1, y=1.2, z=0.2)])
+    task_center, camera = np.array([0.0, 1.1, 0.1]), np.array([0.0, 0.0, 0.1])
+    eye = _eye(SimpleNamespace(path=path, targets=None), camera)
+    target = np.array(eye.look_target.as_arrow_array().to_pylist()[0])
+    position = np.array(eye.position.as_arrow_array().to_pylist()[0])
+    # the target lies on the segment task centre -> camera; the eye is behind the camera, above it
+    along = np.dot(target - task_center, camera - task_center) / np.dot(camera - task_center, camera - task_center)
+    assert 0 < along < 1 and np.allclose(np.cross(target - task_center, camera - task_center), 0, atol=1e-6)
+    assert position[1] < camera[1] and position[2] > camera[2]
+    assert _eye(SimpleNamespace(path=None, targets=None), camera) is None    # no task: the viewer's own framing
+
+
+# ------------------------------------------------------------------ the raw session in Rerun
+def _rerun_cli() -> str:
+    exe = Path(sys.executable).parent / "rerun"
+    return str(exe) if exe.exists() else shutil.which("rerun")
+
+
+def _recorded_session(tmp_path) -> Path:
+    from phonepose.record.sim import default_config, record_sim
+
+    out = tmp_path / "raw.mcap"
+    record_sim(out, scenario="exp2", path="TRI1", seed=0, config=default_config().replace(camera=dict(rate_hz=2.0)))
+    return out
+
+
+@pytest.mark.slow
+def test_rerun_mcap_convert_connects_camera_controller_and_marker_to_the_root(tmp_path):
+    session = _recorded_session(tmp_path)
+    rrd = tmp_path / "raw.rrd"
+    r = subprocess.run([_rerun_cli(), "mcap", "convert", str(session), "-o", str(rrd), "--application-id", "phonepose"],
+                       capture_output=True, text=True, env=dict(os.environ, RERUN_ANALYTICS="0"))
+    assert r.returncode == 0, r.stderr
+    parent: dict[str, str] = {}
+    for chunk in rc.RrdReader(str(rrd)).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        for kind in ("Transform3D", "Pinhole"):
+            if f"{kind}:child_frame" in batch.schema.names:
+                for p, c in zip(batch.column(f"{kind}:parent_frame").to_pylist(),
+                                batch.column(f"{kind}:child_frame").to_pylist()):
+                    p, c = (p[0] if isinstance(p, list) else p), (c[0] if isinstance(c, list) else c)
+                    assert parent.setdefault(c, p) == p, f"{c} has two parents"
+
+    def root(frame: str) -> list[str]:
+        chain = [frame]
+        while chain[-1] in parent:
+            chain.append(parent[chain[-1]])
+            assert len(chain) < 10
+        return chain
+
+    image_plane = f"{Frame.DISPLAY_CAMERA}_image_plane"   # the importer's frame of the camera image
+    assert root(image_plane) == [image_plane, Frame.DISPLAY_CAMERA, Frame.DISPLAY, Frame.DISPLAY_VIO, Frame.WORLD]
+    assert root(Frame.MARKER) == [Frame.MARKER, Frame.CONTROLLER, Frame.CONTROLLER_VIO, Frame.DISPLAY_VIO, Frame.WORLD]
+    drawn = {chunk.entity_path for chunk in rc.RrdReader(str(rrd)).stream().to_chunks()
+             if "Points3D:positions" in chunk.to_record_batch().schema.names}
+    assert {Topic.CONTROLLER_MARKER_OUTLINE, Topic.CAMERA_AXIS} <= drawn   # something drawn in each body's frame
+
+
+@pytest.mark.slow
+def test_the_recorders_rerun_output_uses_the_playback_tree(tmp_path):
+    from phonepose.record.sim import default_config, record_sim
+
+    rrd = tmp_path / "rec.rrd"
+    record_sim(tmp_path / "s.mcap", scenario="exp2", path="TRI1", seed=0,
+               config=default_config().replace(camera=dict(rate_hz=2.0)), rerun_path=rrd)
+    found = _entities(rrd)
+    for path in (E.WORLD, E.DISPLAY, E.CAMERA, E.IMAGE, E.CONTROLLER_VIO, E.GT_CONTROLLER, E.GT_DISPLAY, E.TASK_PATH,
+                 E.IMU_GYRO, E.IMU_ACCEL):
+        assert path in found, path
+    assert not any(p.startswith("/world/display_vio") or p.startswith("/controller_vio") for p in found)
+    (rec,) = rc.RrdReader(str(rrd)).recordings()
+    assert rec.recording_id.startswith("record-s-") and rec.application_id == "phonepose_record"
