@@ -13,6 +13,7 @@ from phonepose.errors import ConfigError, OutputError
 from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import tracker_names
 from phonepose.playback import rerun_log as paths
+from phonepose.viewer import entities as E
 from phonepose.playback.engine import run_playback
 from phonepose.playback.testdata import write_test_session
 from phonepose.schemas.topics import Topic, tracker_pose_topic
@@ -186,7 +187,7 @@ def test_rrd_read_back(session, tmp_path, monkeypatch):
     r = run_playback(session, trackers=["T1", "T7"], out_dir=tmp_path / "o", rerun_path=rrd)
     assert rrd.exists() and r.rerun_path == str(rrd)
     found = _rrd_columns(rrd)
-    image = found[paths.IMAGE]
+    image = found[E.IMAGE]
     assert "EncodedImage:blob" in image["columns"] and "tick" in image["timelines"] and "time" in image["timelines"]
     assert "Pinhole:image_from_camera" in image["columns"]
     # the recorded JPEG bytes, untouched
@@ -196,20 +197,20 @@ def test_rrd_read_back(session, tmp_path, monkeypatch):
              for b in batch.column("EncodedImage:blob").to_pylist() if b is not None]
     flat = [bytes(b[0] if isinstance(b, list) and b and not isinstance(b[0], int) else b) for b in blobs]
     assert first_jpeg in flat
-    markers = found[paths.MARKERS]
+    markers = found[E.MARKER]
     assert "LineStrips2D:strips" in markers["columns"] and "tick" in markers["timelines"]
     assert "LineStrips2D:labels" in markers["columns"]
     assert "Clear:is_recursive" in markers["columns"]            # cleared when the marker left the view
-    for p in (paths.GT_POSE, paths.tracker_pose_path("T1"), paths.tracker_pose_path("T7")):
+    for p in (E.GT_CONTROLLER, E.tracker_pose("T1"), E.tracker_pose("T7")):
         assert "Transform3D:translation" in found[p]["columns"] and "tick" in found[p]["timelines"], p
-    for p in (paths.GT_TRAJECTORY, paths.tracker_trajectory_path("T7")):
+    for p in (E.GT_TRAJECTORY, E.tracker_trajectory("T7")):
         closed, open_ = found[p + "/0000"], found[p + "/open"]
         assert "LineStrips3D:strips" in closed["columns"] and "LineStrips3D:strips" in open_["columns"], p
         assert "Clear:is_recursive" in open_["columns"]      # emptied when its points were closed
         first = [x for b in closed["batches"] for x in b.column("LineStrips3D:strips").to_pylist() if x]
         assert len(first) == 1 and len(first[0][0]) >= 30      # about 40 ticks of points, one strip
-    assert "Scalars:scalars" in found["/errors/T7/position_m"]["columns"]
-    assert "Scalars:scalars" in found["/errors/T1/rotation_deg"]["columns"]
+    assert "Scalars:scalars" in found[E.position_error("T7")]["columns"]
+    assert "Scalars:scalars" in found[E.rotation_error("T1")]["columns"]
     import rerun.chunk as rc
 
     reader = rc.RrdReader(str(rrd))
@@ -222,8 +223,8 @@ def test_rrd_read_back(session, tmp_path, monkeypatch):
             if n in ("ViewBlueprint:space_origin", "ViewContents:query"):
                 values += [str(v) for v in batch.column(n).to_pylist()]
     text = " ".join(values)
-    assert "'/world'" in text and f"'{paths.IMAGE}'" in text
-    assert "/errors/T1/position_m" in text and "/errors/T7/rotation_deg" in text
+    assert "'/world'" in text and f"'{E.IMAGE}'" in text
+    assert E.POSITION_ERRORS in text and E.ROTATION_ERRORS in text
 
 
 @pytest.mark.slow
@@ -269,7 +270,7 @@ def test_progress_callback_counts_every_tick(session):
 
 
 def test_cli_rerun_option_and_spawn_conflict(session, tmp_path, capsys):
-    rrd = tmp_path / "x" / "s.rrd"
+    rrd = tmp_path / "s.rrd"
     code, out, err = cli(capsys, session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd)
     assert code == 0, err
     assert rrd.exists() and rrd.stat().st_size > 10_000 and "rerun:" in out

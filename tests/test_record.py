@@ -312,7 +312,7 @@ def test_unwritable_rerun_path_is_an_output_error(tmp_path):
     from phonepose.record.recorder import Recorder
 
     with pytest.raises(OutputError, match="cannot write"):
-        Recorder(_ListSource([]), tmp_path / "x.mcap", rerun_path=tmp_path / "missing" / "x.rrd")
+        Recorder(_ListSource([]), tmp_path / "x.mcap", rerun_path=tmp_path / "missing" / "x.rrd").run()
 
 
 def test_rerun_file_is_written(tmp_path):

@@ -258,7 +258,7 @@ def test_rerun_mcap_convert_connects_camera_controller_and_marker_to_the_root(tm
     assert root(Frame.MARKER) == [Frame.MARKER, Frame.CONTROLLER, Frame.CONTROLLER_VIO, Frame.DISPLAY_VIO, Frame.WORLD]
     drawn = {chunk.entity_path for chunk in rc.RrdReader(str(rrd)).stream().to_chunks()
              if "Points3D:positions" in chunk.to_record_batch().schema.names}
-    assert {Topic.CONTROLLER_MARKER_OUTLINE, Topic.CAMERA_AXIS} <= drawn   # something drawn in each body's frame
+    assert {Topic.CONTROLLER_MARKER_OUTLINE, Topic.CAMERA_FRUSTUM} <= drawn   # something drawn in each body's frame
 
 
 @pytest.mark.slow

@@ -56,7 +56,7 @@ class Topic:
     TF_CONTROLLER = "/tf/controller"                   # controller_vio -> controller (from /controller/vio/pose)
     TF_MARKER = "/tf/marker"                           # controller -> marker (from /controller/marker, static)
     CONTROLLER_MARKER_OUTLINE = "/controller/marker/outline"   # the marker square as points, in frame marker
-    CAMERA_AXIS = "/display/camera/axis"               # the camera's optical axis as points, in frame display_camera
+    CAMERA_FRUSTUM = "/display/camera/frustum"         # the camera's view as points, in frame display_camera
     # playback output
     PIPELINE_MARKERS = "/pipeline/markers"
     PIPELINE_MARKER_ANNOTATIONS = "/pipeline/markers/annotations"   # the same detections for Foxglove's Image panel
@@ -91,7 +91,7 @@ TOPIC_TYPES: dict[str, type] = {
     Topic.TF_CONTROLLER: FrameTransform,
     Topic.TF_MARKER: FrameTransform,
     Topic.CONTROLLER_MARKER_OUTLINE: PointCloud,
-    Topic.CAMERA_AXIS: PointCloud,
+    Topic.CAMERA_FRUSTUM: PointCloud,
     Topic.PIPELINE_MARKERS: pb.MarkerDetections,
     Topic.PIPELINE_MARKER_ANNOTATIONS: ImageAnnotations,
 }

@@ -16,8 +16,8 @@ The bodies are placed by what the devices themselves knew (their VIO and the sha
 the tree exists in every session, with or without motion capture; the ground truth stays in the
 ``/gt/...`` PoseInFrame topics (frame ``world``), which Foxglove draws as poses in the same scene.
 ``/controller/marker/outline`` (a ``foxglove.PointCloud`` in frame ``marker``) draws the marker
-square on the phone's screen and ``/display/camera/axis`` (frame ``display_camera``) the camera's
-optical axis: Rerun's importer shows frames only through something drawn in them (a transform
+square on the phone's screen and ``/display/camera/frustum`` (frame ``display_camera``) the
+camera's view: Rerun's importer shows frames only through something drawn in them (a transform
 alone draws nothing), and a point cloud is the one Foxglove geometry it maps.
 
 The existing topics are kept as they are; these are written beside them (docs/format.md).
@@ -34,7 +34,7 @@ from phonepose.schemas.topics import Frame, Topic
 from phonepose.session.sample import frame_transform
 
 OUTLINE_STEP_M = 0.001         # point spacing along the marker square's outline
-CAMERA_AXIS_M = 0.1            # length of the drawn optical axis of the display camera
+FRUSTUM_DEPTH_M = 0.1          # depth of the display camera's drawn frustum
 
 
 def _stamp_ns(msg, log_time_ns: int) -> int:
@@ -64,12 +64,19 @@ def marker_outline(size_m: float, t_ns: int) -> PointCloud:
     return _point_cloud(Frame.MARKER, np.column_stack([xy, np.zeros(len(xy))]), t_ns)
 
 
-def camera_axis(t_ns: int) -> PointCloud:
-    """The display camera's optical axis, 0 to 10 cm ahead, as points every 2 mm, in frame
-    ``display_camera``: where the camera looks (and, for Rerun's automatic framing, which fits
-    what is drawn, the camera's place next to the phone's)."""
-    z = np.arange(0.0, CAMERA_AXIS_M + 1e-9, 2 * OUTLINE_STEP_M)
-    return _point_cloud(Frame.DISPLAY_CAMERA, np.column_stack([np.zeros_like(z), np.zeros_like(z), z]), t_ns)
+def camera_frustum(K, width: int, height: int, t_ns: int) -> PointCloud:
+    """The display camera's view as points every 2 mm along the edges of its frustum, out to
+    ``FRUSTUM_DEPTH_M``, in frame ``display_camera``: Rerun's automatic framing fits what is
+    drawn, so the camera is in view next to the phone (Foxglove draws its own from the calibration)."""
+    K = np.asarray(K, dtype=float).reshape(3, 3)
+    u = np.array([0.0, width, width, 0.0])
+    v = np.array([0.0, 0.0, height, height])
+    d = FRUSTUM_DEPTH_M
+    corners = np.column_stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, np.full(4, d)])
+    segments = [(np.zeros(3), c) for c in corners] + [(corners[i], corners[(i + 1) % 4]) for i in range(4)]
+    pts = [a + (b - a) * f for a, b in segments
+           for f in np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b - a) / (2 * OUTLINE_STEP_M))))]
+    return _point_cloud(Frame.DISPLAY_CAMERA, np.asarray(pts), t_ns)
 
 
 class FrameTree:
@@ -97,8 +104,8 @@ class FrameTree:
             T = self._anchors[Topic.DISPLAY_ANCHOR] @ self._anchors[Topic.CONTROLLER_ANCHOR].inv()
             return [(Topic.TF_CONTROLLER_VIO, frame_transform(T, Frame.DISPLAY_VIO, Frame.CONTROLLER_VIO,
                                                               _stamp_ns(msg, log_time_ns)))]
-        if topic == Topic.CAMERA_EXTRINSICS:
-            return [(Topic.CAMERA_AXIS, camera_axis(_stamp_ns(msg, log_time_ns)))]
+        if topic == Topic.CAMERA_CALIBRATION and msg.width > 0 and len(msg.K) == 9 and msg.K[0] > 0:
+            return [(Topic.CAMERA_FRUSTUM, camera_frustum(msg.K, msg.width, msg.height, _stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CONTROLLER_MARKER:
             t = _stamp_ns(msg, log_time_ns)
             out: list[tuple[str, object]] = [
