@@ -18,7 +18,7 @@ from phonepose.errors import PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.recover import salvage
-from phonepose.session.sample import sample_messages, write_sample
+from phonepose.testing.sample import sample_messages, write_sample
 
 FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_EXAMPLES", "150")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

@@ -16,7 +16,7 @@ from google.protobuf.descriptor import FieldDescriptor
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas.topics import TOPIC_TYPES, Topic
 from test_reliability_cli import rewrite
 

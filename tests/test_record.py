@@ -20,6 +20,7 @@ from phonepose.record.sim import T0_NS, default_config, record_sim
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
+from phonepose.session import codec
 
 PHONEPOSE = [sys.executable, "-m", "phonepose"]
 # A cheap camera rate keeps these tests fast; everything else is the default world.
@@ -113,7 +114,7 @@ def test_calibration_events_before_the_task(session):
     assert cm1.frame_id == Frame.DISPLAY_VIO
     assert cm1.fix_timestamp.ToNanoseconds() < cm1.timestamp.ToNanoseconds() <= events[0].log_time_ns
     assert events[1].log_time_ns < info.task_start.ToNanoseconds()
-    fix, align = Pose.from_foxglove(cm1.pose_fix_vio), Pose.from_foxglove(cm1.pose_align_vio)
+    fix, align = codec.pose_of(cm1.pose_fix_vio), codec.pose_of(cm1.pose_align_vio)
     # the mapped VIO pose moved by about the anchor error while the real phone went onto the CG object
     assert 0.02 < fix.distance_to(align) < 0.15
     assert not cm2.HasField("pose_fix_vio")
@@ -123,11 +124,11 @@ def test_anchor_mapping_through_the_recorded_topics(session):
     """T_dvio_ctrl = T_dvio_anchor · T_cvio_anchor⁻¹ · T_cvio_ctrl from the file, against GT."""
     out, _ = session
     with SessionReader(out) as r:
-        da = Pose.from_foxglove(r.first(Topic.DISPLAY_ANCHOR).pose)
-        ca = Pose.from_foxglove(r.first(Topic.CONTROLLER_ANCHOR).pose)
+        da = codec.pose_of(r.first(Topic.DISPLAY_ANCHOR).pose)
+        ca = codec.pose_of(r.first(Topic.CONTROLLER_ANCHOR).pose)
         cal = r.first(Topic.GT_CALIBRATION)
-        vio = [(m.msg.timestamp.ToNanoseconds(), Pose.from_foxglove(m.msg.pose)) for m in r.messages([Topic.CONTROLLER_VIO_POSE])]
-        gt = [(m.log_time_ns, Pose.from_foxglove(m.msg.pose)) for m in r.messages([Topic.GT_CONTROLLER_POSE])]
+        vio = [(m.msg.timestamp.ToNanoseconds(), codec.pose_of(m.msg.pose)) for m in r.messages([Topic.CONTROLLER_VIO_POSE])]
+        gt = [(m.log_time_ns, codec.pose_of(m.msg.pose)) for m in r.messages([Topic.GT_CONTROLLER_POSE])]
     T_world_dvio = Pose.from_xyzw([cal.translation.x, cal.translation.y, cal.translation.z],
                                   [cal.rotation.x, cal.rotation.y, cal.rotation.z, cal.rotation.w])
     gt_t = np.array([t for t, _ in gt])

@@ -36,6 +36,7 @@ from phonepose.record.live.session import T_DISPLAY_CAMERA
 from phonepose.record.live.tls import ensure_certificate
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
+from phonepose.session import codec
 
 W, H, FPS = 640, 480, 30.0
 K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1]])
@@ -314,7 +315,7 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     tap_true = next(true for kind, _, true in phone.sent if kind == "anchor")
     assert abs(da.msg.timestamp.ToNanoseconds() - tap_true) <= 1e9 / FPS / 2 + 3e6
     drawn = T_dvio_controller(frame_s)
-    got = Pose.from_foxglove(da.msg.pose)
+    got = codec.pose_of(da.msg.pose)
     assert np.linalg.norm(got.translation - drawn.translation) < 0.005
     assert float(got.angle_to(drawn)) < np.deg2rad(3)
     assert da.msg.frame_id == Frame.DISPLAY_VIO and ca.msg.frame_id == Frame.CONTROLLER_VIO
