@@ -19,6 +19,7 @@ from phonepose.errors import ConfigError
 from phonepose.pipeline.trackers import PAPER_TRACKERS
 from phonepose.playback import run_playback
 from phonepose.record.sim import default_config, record_sim
+from conftest import wait_until
 
 PATHS = ("TRI1", "REC1", "TRI2")
 # a cheap camera rate keeps the sessions short to simulate and to play back (~1 s each)
@@ -270,15 +271,12 @@ def test_cli_runs_reports_failures_and_resumes(sessions, tmp_path):
 @pytest.mark.slow
 def test_killed_batch_keeps_finished_units_and_the_rerun_completes(sessions, one_worker, tmp_path):
     import signal
-    import time
 
     out = tmp_path / "r.parquet"
     args = [sys.executable, "-m", "phonepose", "batch", *sessions, "-t", "paper", "--out", str(out), "--workers", "1"]
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        deadline = time.monotonic() + 120
-        while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: out.exists() or proc.poll() is not None, what="the batch's first table")
     finally:
         os.killpg(proc.pid, signal.SIGKILL)      # the batch and its worker, at once
         proc.wait()

@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 import tomllib
 
 import numpy as np
@@ -21,6 +20,7 @@ from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
 from phonepose.session import codec
+from conftest import DEADLINE_S, wait_until
 
 PHONEPOSE = [sys.executable, "-m", "phonepose"]
 # A cheap camera rate keeps these tests fast; everything else is the default world.
@@ -143,7 +143,7 @@ def test_anchor_mapping_through_the_recorded_topics(session):
 
 # ---------------------------------------------------------------- CLI
 def test_cli_help():
-    r = subprocess.run([*PHONEPOSE, "record", "sim", "--help"], capture_output=True, text=True, timeout=60)
+    r = subprocess.run([*PHONEPOSE, "record", "sim", "--help"], capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0
     for opt in ("--scenario", "--path", "--trial", "--seed", "--out", "--config", "--rerun", "--spawn"):
         assert opt in r.stdout
@@ -154,7 +154,7 @@ def test_cli_bad_config_is_one_line_and_exit_5(tmp_path):
     bad.write_text("[network]\ncontroller_latency_s = 7\n")
     out = tmp_path / "x.mcap"
     r = subprocess.run([*PHONEPOSE, "record", "sim", "--out", str(out), "--config", str(bad)],
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 5
     assert "Traceback" not in r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
@@ -168,7 +168,7 @@ def test_cli_records_and_summarises(tmp_path):
     out = tmp_path / "s.mcap"
     r = subprocess.run([*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
                         "--seed", "3", "--out", str(out), "--config", str(cfg), "--quiet"],
-                       capture_output=True, text=True, timeout=120)
+                       capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0, r.stderr
     assert "exp2 REC1 trial 2" in r.stdout and "done" in r.stdout
     with SessionReader(out) as reader:
@@ -179,26 +179,24 @@ def test_cli_records_and_summarises(tmp_path):
     before = out.read_bytes()
     again = [*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
              "--seed", "4", "--out", str(out), "--config", str(cfg), "--quiet"]
-    r = subprocess.run(again, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(again, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 6 and r.stderr == f"phonepose: error: {out} already exists: choose another --out, " \
                                               "or add --force to replace it\n"
     assert out.read_bytes() == before
     # --force replaces it
-    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0, r.stderr
     with SessionReader(out) as reader:
         assert reader.first(Topic.SESSION_INFO).seed == 4
 
 
 # ---------------------------------------------------------------- stopping
-def _wait_for_size(path, size, proc, timeout=60.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if os.path.exists(path) and os.path.getsize(path) > size:
-            return
+def _wait_for_size(path, size, proc):
+    def grown():
         assert proc.poll() is None, proc.communicate()
-        time.sleep(0.05)
-    raise AssertionError("recording did not start")
+        return os.path.exists(path) and os.path.getsize(path) > size
+
+    wait_until(grown, what=f"the recording to pass {size} bytes")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
@@ -208,7 +206,7 @@ def test_sigint_and_sigterm_finish_a_valid_file(tmp_path, sig):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for_size(out, 2_000_000, proc)
     proc.send_signal(sig)
-    stdout, stderr = proc.communicate(timeout=60)
+    stdout, stderr = proc.communicate(timeout=DEADLINE_S)
     assert proc.returncode == 0, stderr
     assert "interrupted, file is valid" in stdout
     with SessionReader(out) as r:          # has a summary: the file was finished
@@ -236,7 +234,7 @@ def test_sigkill_loses_at_most_about_one_second(tmp_path):
         if last > 6e9:                     # 6 s of session handed to the writer
             break
     proc.kill()
-    proc.wait(timeout=30)
+    proc.wait(timeout=DEADLINE_S)
     count, max_t = 0, 0
     with open(out, "rb") as f:
         try:
