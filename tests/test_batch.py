@@ -19,7 +19,6 @@ from phonepose.errors import ConfigError
 from phonepose.pipeline.trackers import PAPER_TRACKERS
 from phonepose.playback import run_playback
 from phonepose.record.sim import default_config, record_sim
-from conftest import wait_until
 
 PATHS = ("TRI1", "REC1", "TRI2")
 # a cheap camera rate keeps the sessions short to simulate and to play back (~1 s each)
@@ -268,20 +267,33 @@ def test_cli_runs_reports_failures_and_resumes(sessions, tmp_path):
     assert "nothing to run" in r2.stderr
 
 
+# The batch in a child that stops after its first unit: progress() runs after the table was written
+# (immediately for the first unit), so the kill comes with exactly that unit in the file and two to go,
+# however fast or loaded the machine (killing when the file appears raced the remaining ~1 s units).
+_HOLD_AFTER_FIRST_UNIT = """
+import sys, time
+from phonepose.batch import run_batch
+def hold(done, total, rows):
+    print(done, total, len(rows), flush=True)
+    time.sleep(600)
+run_batch(sys.argv[2:], sys.argv[1], trackers="paper", workers=1, progress=hold)
+"""
+
+
 @pytest.mark.slow
 def test_killed_batch_keeps_finished_units_and_the_rerun_completes(sessions, one_worker, tmp_path):
     import signal
 
     out = tmp_path / "r.parquet"
-    args = [sys.executable, "-m", "phonepose", "batch", *sessions, "-t", "paper", "--out", str(out), "--workers", "1"]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD_AFTER_FIRST_UNIT, str(out), *sessions],
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        wait_until(lambda: out.exists() or proc.poll() is not None, what="the batch's first table")
+        assert proc.stdout.readline().split() == ["1", "3", "7"]   # waits for the first unit, however long
     finally:
-        os.killpg(proc.pid, signal.SIGKILL)      # the batch and its worker, at once
+        os.killpg(proc.pid, signal.SIGKILL)      # the batch and its worker (busy with unit 2), at once
         proc.wait()
     kept = pq.read_table(out).to_pylist()       # a complete table: written to a temporary file, then renamed
-    assert len(kept) in (7, 14) and {r["status"] for r in kept} == {"ok"}
+    assert len(kept) == 7 and {r["status"] for r in kept} == {"ok"}
     rerun = run_batch(sessions, out, trackers="paper", workers=1)
-    assert rerun.skipped == len(kept) and rerun.rows_run == 21 - len(kept) and rerun.errors == 0
+    assert rerun.skipped == 7 and rerun.rows_run == 14 and rerun.errors == 0
     assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))   # the same as in one go
