@@ -24,6 +24,7 @@ import rerun as rr
 from phonepose.geometry import Pose
 from phonepose.record.source import Record
 from phonepose.schemas.topics import Topic
+from phonepose.session import codec
 from phonepose.viewer import entities as E
 from phonepose.viewer.scene import log_body_marker, log_camera, log_task
 from phonepose.viewer.sink import Columns, open_recording, transform_columns
@@ -78,6 +79,13 @@ class RecordRerunLogger:
                               quaternion=np.asarray(pose.quat_xyzw, float).reshape(4))
 
     def log(self, r: Record) -> None:
+        """Show one record; a broken pose (codec.BrokenPose) is not shown."""
+        try:
+            self._log(r)
+        except codec.BrokenPose:
+            pass
+
+    def _log(self, r: Record) -> None:
         m, topic, t = r.message, r.topic, r.log_time_ns
         if self._batch_start is None:
             self._batch_start = t
@@ -91,26 +99,26 @@ class RecordRerunLogger:
         elif topic == Topic.CAMERA_CALIBRATION:
             log_camera(self.rec, K=np.array(m.K).reshape(3, 3), width=m.width, height=m.height)
         elif topic == Topic.CAMERA_EXTRINSICS:
-            log_camera(self.rec, T_display_camera=_transform_pose(m))
+            log_camera(self.rec, T_display_camera=codec.transform_of(m))
         elif topic == Topic.GT_CALIBRATION:
-            self._T_dvio_world = _transform_pose(m).inv()
+            self._T_dvio_world = codec.transform_of(m).inv()
         elif topic == Topic.EXPERIMENT_TARGETS:
             log_task(self.rec, targets=m)
         elif topic == Topic.EXPERIMENT_PATH:
             log_task(self.rec, path=m)
         elif topic == Topic.DISPLAY_VIO_POSE:
-            self._pose(E.DISPLAY, Pose.from_foxglove(m.pose), t)
+            self._pose(E.DISPLAY, codec.pose_of(m.pose), t)
         elif topic in (Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR):
-            self._anchors[topic] = Pose.from_foxglove(m.pose)
+            self._anchors[topic] = codec.pose_of(m.pose)
         elif topic == Topic.CONTROLLER_VIO_POSE:
             if len(self._anchors) == 2:
                 mapped = self._anchors[Topic.DISPLAY_ANCHOR] @ self._anchors[Topic.CONTROLLER_ANCHOR].inv() \
-                    @ Pose.from_foxglove(m.pose)
+                    @ codec.pose_of(m.pose)
                 self._pose(E.CONTROLLER_VIO, mapped, t)
         elif topic in (Topic.GT_CONTROLLER_POSE, Topic.GT_DISPLAY_POSE):
             if self._T_dvio_world is not None:
                 path = E.GT_CONTROLLER if topic == Topic.GT_CONTROLLER_POSE else E.GT_DISPLAY
-                self._pose(path, self._T_dvio_world @ Pose.from_foxglove(m.pose), t)
+                self._pose(path, self._T_dvio_world @ codec.pose_of(m.pose), t)
         elif topic == Topic.CONTROLLER_IMU:
             self._gyro.add(t, v=(m.gyro_x, m.gyro_y, m.gyro_z))
             self._accel.add(t, v=(m.accel_x, m.accel_y, m.accel_z))
@@ -125,11 +133,6 @@ class RecordRerunLogger:
             self.rec.flush()
         except Exception:  # pragma: no cover - best effort at shutdown
             pass
-
-
-def _transform_pose(m) -> Pose:
-    return Pose.from_xyzw([m.translation.x, m.translation.y, m.translation.z],
-                          [m.rotation.x, m.rotation.y, m.rotation.z, m.rotation.w])
 
 
 def open_record_logger(out: str | os.PathLike, static: list[Record], *, rrd_path: str | os.PathLike | None = None,

@@ -9,7 +9,6 @@ import numpy as np
 from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
-from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 
 from phonepose.pipeline.types import Observation
 from phonepose.viewer.style import MARKER_COLOR

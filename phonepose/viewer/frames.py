@@ -29,18 +29,12 @@ import numpy as np
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 
-from phonepose.geometry import Pose
 from phonepose.schemas.topics import Frame, Topic
-from phonepose.session.sample import frame_transform
+from phonepose.session import codec
+from phonepose.session.codec import frame_transform
 
 OUTLINE_STEP_M = 0.001         # point spacing along the marker square's outline
 FRUSTUM_DEPTH_M = 0.1          # depth of the display camera's drawn frustum
-
-
-def _stamp_ns(msg, log_time_ns: int) -> int:
-    ts = getattr(msg, "timestamp", None)
-    ns = ts.ToNanoseconds() if ts is not None else 0
-    return ns if ns > 0 else int(log_time_ns)
 
 
 def _point_cloud(frame: str, pts: np.ndarray, t_ns: int) -> PointCloud:
@@ -88,28 +82,35 @@ class FrameTree:
     """
 
     def __init__(self) -> None:
-        self._anchors: dict[str, Pose] = {}
+        self._anchors: dict = {}
 
     def derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, object]]:
+        """The frame-tree messages for this record; none for a broken pose (codec.BrokenPose)."""
+        try:
+            return self._derive(topic, msg, log_time_ns)
+        except codec.BrokenPose:
+            return []
+
+    def _derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, object]]:
         if topic == Topic.DISPLAY_VIO_POSE:
-            return [(Topic.TF_DISPLAY, frame_transform(Pose.from_foxglove(msg.pose), Frame.DISPLAY_VIO, Frame.DISPLAY,
-                                                       _stamp_ns(msg, log_time_ns)))]
+            return [(Topic.TF_DISPLAY, frame_transform(codec.pose_of(msg.pose), Frame.DISPLAY_VIO, Frame.DISPLAY,
+                                                       codec.stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CONTROLLER_VIO_POSE:
-            return [(Topic.TF_CONTROLLER, frame_transform(Pose.from_foxglove(msg.pose), Frame.CONTROLLER_VIO,
-                                                          Frame.CONTROLLER, _stamp_ns(msg, log_time_ns)))]
+            return [(Topic.TF_CONTROLLER, frame_transform(codec.pose_of(msg.pose), Frame.CONTROLLER_VIO,
+                                                          Frame.CONTROLLER, codec.stamp_ns(msg, log_time_ns)))]
         if topic in (Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR):
-            self._anchors[topic] = Pose.from_foxglove(msg.pose)
+            self._anchors[topic] = codec.pose_of(msg.pose)
             if len(self._anchors) < 2:
                 return []
             T = self._anchors[Topic.DISPLAY_ANCHOR] @ self._anchors[Topic.CONTROLLER_ANCHOR].inv()
             return [(Topic.TF_CONTROLLER_VIO, frame_transform(T, Frame.DISPLAY_VIO, Frame.CONTROLLER_VIO,
-                                                              _stamp_ns(msg, log_time_ns)))]
+                                                              codec.stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CAMERA_CALIBRATION and msg.width > 0 and len(msg.K) == 9 and msg.K[0] > 0:
-            return [(Topic.CAMERA_FRUSTUM, camera_frustum(msg.K, msg.width, msg.height, _stamp_ns(msg, log_time_ns)))]
+            return [(Topic.CAMERA_FRUSTUM, camera_frustum(msg.K, msg.width, msg.height, codec.stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CONTROLLER_MARKER:
-            t = _stamp_ns(msg, log_time_ns)
+            t = codec.stamp_ns(msg, log_time_ns)
             out: list[tuple[str, object]] = [
-                (Topic.TF_MARKER, frame_transform(Pose.from_foxglove(msg.pose_in_body), Frame.CONTROLLER, Frame.MARKER, t))]
+                (Topic.TF_MARKER, frame_transform(codec.pose_of(msg.pose_in_body, required=False), Frame.CONTROLLER, Frame.MARKER, t))]
             if msg.size_m > 0:
                 out.append((Topic.CONTROLLER_MARKER_OUTLINE, marker_outline(float(msg.size_m), t)))
             return out
