@@ -80,7 +80,6 @@ def _usage_error(exc) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script: every error is one line on stderr and its exit code."""
     ClickException = _click_exceptions().ClickException
-    from typer.exceptions import Abort
 
     try:
         rv = app(args=argv, prog_name="phonepose", standalone_mode=False)
@@ -88,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
         error(str(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
-    except (KeyboardInterrupt, Abort):
+    except (KeyboardInterrupt, typer.Abort):
         error("interrupted", 130)
     except BrokenPipeError:
         sys.exit(0)
