@@ -68,6 +68,5 @@ def test_mcap_core_decodes_the_frame_tree_and_the_image_annotations(tmp_path):
     d, a = seen[0]
     assert a.timestamp == d.timestamp                            # matched to the image by its capture time
     loop = a.points[0]
-    assert [(p.x, p.y) for p in loop.points] == pytest.approx(list(zip(d.detections[0].corners_px[0::2],
-                                                                       d.detections[0].corners_px[1::2])))
+    assert [v for p in loop.points for v in (p.x, p.y)] == pytest.approx(list(d.detections[0].corners_px))
     assert a.texts[0].text.startswith(f"id {d.detections[0].id}: ")
