@@ -65,8 +65,13 @@ def test_session_follows_the_contract(session):
     expected = {Topic.SESSION_INFO, Topic.CAMERA_IMAGE, Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS,
                 Topic.DISPLAY_VIO_POSE, Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_VIO_POSE, Topic.CONTROLLER_ANCHOR,
                 Topic.CONTROLLER_IMU, Topic.CONTROLLER_MARKER, Topic.GT_CONTROLLER_POSE, Topic.GT_DISPLAY_POSE,
-                Topic.GT_CALIBRATION, Topic.CALIBRATION_EVENTS, Topic.EXPERIMENT_PATH, Topic.LOG}
+                Topic.GT_CALIBRATION, Topic.CALIBRATION_EVENTS, Topic.EXPERIMENT_PATH, Topic.LOG,
+                # the frame tree for Rerun and Foxglove (phonepose/viewer/frames.py)
+                Topic.TF_DISPLAY, Topic.TF_CONTROLLER_VIO, Topic.TF_CONTROLLER, Topic.TF_MARKER,
+                Topic.CONTROLLER_MARKER_OUTLINE, Topic.CAMERA_FRUSTUM}
     assert set(by_topic) == expected
+    assert len(by_topic[Topic.TF_DISPLAY]) == len(by_topic[Topic.DISPLAY_VIO_POSE])
+    assert len(by_topic[Topic.TF_CONTROLLER]) == len(by_topic[Topic.CONTROLLER_VIO_POSE])
     for topic in (Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS, Topic.CONTROLLER_MARKER, Topic.GT_CALIBRATION,
                   Topic.EXPERIMENT_PATH, Topic.SESSION_INFO):
         assert len(by_topic[topic]) == 1 and by_topic[topic][0].log_time_ns == T0_NS
