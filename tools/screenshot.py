@@ -30,7 +30,6 @@ import urllib.parse
 import urllib.request
 from pathlib import Path
 
-
 CHROMIUM_ARGS = [
     "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",   # software WebGL
     "--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync",

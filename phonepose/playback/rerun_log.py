@@ -21,6 +21,7 @@ import json
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -123,14 +124,16 @@ def recording_name(session: str | os.PathLike, tracker_names: list[str], params:
 def _eye(context: SessionContext, camera_position: np.ndarray | None) -> rrb.EyeControls3D | None:
     """An orbit eye on the task, from behind, above and beside the display camera, so the camera
     frustum, the task and every trajectory are in view; fixed, so scrubbing does not move it."""
-    pts = []
-    if context.path is not None and len(context.path.waypoints):
-        pts = [[w.x, w.y, w.z] for w in context.path.waypoints]
-    elif context.targets is not None and len(context.targets.targets):
-        pts = [[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in context.targets.targets]
-    if not pts or camera_position is None:
+    path: Any = context.path
+    targets: Any = context.targets
+    points: list[list[float]] = []
+    if path is not None and len(path.waypoints):
+        points = [[w.x, w.y, w.z] for w in path.waypoints]
+    elif targets is not None and len(targets.targets):
+        points = [[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in targets.targets]
+    if not points or camera_position is None:
         return None
-    pts = np.asarray(pts, dtype=float)
+    pts = np.asarray(points, dtype=float)
     task_center = (pts.min(axis=0) + pts.max(axis=0)) / 2
     camera = np.asarray(camera_position, dtype=float).reshape(3)
     v = camera - task_center                      # from the task to the camera
@@ -155,9 +158,9 @@ def default_blueprint(tracker_names: list[str], context: SessionContext | None =
     task = None
     if context is not None and context.task_start_ns is not None and context.task_end_ns is not None:
         task = (int(context.task_start_ns), int(context.task_end_ns))
-    plot_kw = {}
+    axis_x = None
     if task is not None:
-        plot_kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.absolute(nanos=task[0]),
+        axis_x = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.absolute(nanos=task[0]),
                                                                   end=rrb.TimeRangeBoundary.absolute(nanos=task[1])))
     return rrb.Blueprint(
         rrb.Vertical(
@@ -173,9 +176,9 @@ def default_blueprint(tracker_names: list[str], context: SessionContext | None =
             ),
             rrb.Horizontal(
                 rrb.TimeSeriesView(name="position error vs GT (cm)", origin=E.POSITION_ERRORS,
-                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), **plot_kw),
+                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), axis_x=axis_x),
                 rrb.TimeSeriesView(name="rotation error vs GT (deg)", origin=E.ROTATION_ERRORS,
-                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), **plot_kw),
+                                   plot_legend=rrb.PlotLegend(corner="LeftTop"), axis_x=axis_x),
             ),
             row_shares=[3, 2],
         ),
@@ -205,9 +208,10 @@ class CameraLogger:
         if tick.T_dvio_display is not None and (tick.image_is_new or not self.enabled or tick.image is None):
             self.poses.add(tick.t_ns, tick.index, translation=tick.T_dvio_display.translation,
                            quaternion=tick.T_dvio_display.quat_xyzw)
-        if self.enabled and tick.image is not None and tick.image_is_new:
-            fmt = (tick.image.format or "jpeg").lower()
-            self.images.add(tick.t_ns, tick.index, blob=np.frombuffer(tick.image.data, dtype=np.uint8),  # as recorded
+        image: Any = tick.image
+        if self.enabled and image is not None and tick.image_is_new:
+            fmt = (image.format or "jpeg").lower()
+            self.images.add(tick.t_ns, tick.index, blob=np.frombuffer(image.data, dtype=np.uint8),  # as recorded
                             media="image/png" if "png" in fmt else "image/jpeg")
 
     def flush(self) -> None:
@@ -352,9 +356,9 @@ class ErrorLogger:
         self.rec = rec
         self.rows: dict[str, list] = {name: [] for name in names}
         for name in names:
-            style = {"colors": [tracker_color(name)], "names": [name], "widths": [line_width(name)]}
-            rec.log(E.position_error(name), rr.SeriesLines(**style), static=True)
-            rec.log(E.rotation_error(name), rr.SeriesLines(**style), static=True)
+            style = rr.SeriesLines(colors=[tracker_color(name)], names=[name], widths=[line_width(name)])
+            rec.log(E.position_error(name), style, static=True)
+            rec.log(E.rotation_error(name), style, static=True)
 
     def log(self, tick: Tick, gt: Pose | None, poses: dict[str, Pose | None]) -> None:
         if gt is None or not tick.in_task:

@@ -17,6 +17,7 @@ import hashlib
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -44,7 +45,7 @@ def record_recording_id(out: str | os.PathLike, static: list[Record]) -> str:
     for r in static:
         h.update(r.topic.encode())
         h.update(r.log_time_ns.to_bytes(8, "little", signed=True))
-        h.update(r.message.SerializeToString(deterministic=True))
+        h.update(r.message.SerializeToString(deterministic=True))  # type: ignore[attr-defined]
     stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(out).stem)[:60]
     return f"record-{stem}-{h.hexdigest()[:16]}"
 
@@ -86,7 +87,8 @@ class RecordRerunLogger:
             pass
 
     def _log(self, r: Record) -> None:
-        m, topic, t = r.message, r.topic, r.log_time_ns
+        m: Any = r.message
+        topic, t = r.topic, r.log_time_ns
         if self._batch_start is None:
             self._batch_start = t
         elif t - self._batch_start >= BATCH_NS:

@@ -20,7 +20,7 @@ def log_camera(rec: rr.RecordingStream, T_display_camera: Pose | None = None, K=
                                          quaternion=rr.Quaternion(xyzw=np.asarray(T_display_camera.quat_xyzw,
                                                                                   np.float32).reshape(4))),
                 static=True)
-    if K is not None:
+    if K is not None and width is not None and height is not None:
         rec.log(E.IMAGE, rr.Pinhole(image_from_camera=np.asarray(K, np.float32).reshape(3, 3),
                                     resolution=[int(width), int(height)], camera_xyz=rr.ViewCoordinates.RDF,
                                     image_plane_distance=IMAGE_PLANE_DISTANCE_M), static=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -37,7 +38,7 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
         if spawn:
             rec.spawn(default_blueprint=blueprint)
         elif rrd_path is not None:
-            path = os.fspath(rrd_path)
+            path: str = os.fspath(rrd_path)
             if os.path.isdir(path):
                 raise OutputError(f"cannot write {path}: is a directory")
             rec.save(path, default_blueprint=blueprint)
@@ -48,7 +49,7 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
         if spawn:
             raise OutputError(f"cannot spawn the Rerun viewer ({first}); save a recording with --rerun FILE.rrd "
                               "instead") from None
-        raise OutputError(f"cannot write {os.fspath(rrd_path)}: {first}") from None
+        raise OutputError(f"cannot write {rrd_path}: {first}") from None
     rec.send_recording_name(name)
     if start_time_ns is not None:
         rec.send_recording_start_time_nanos(int(start_time_ns))
@@ -72,7 +73,7 @@ class Columns:
     Rows carry their own ``time`` (and ``tick``), so a flush at any moment is correct.
     """
 
-    def __init__(self, rec: rr.RecordingStream, path: str, make: Callable[[dict[str, list]], list],
+    def __init__(self, rec: rr.RecordingStream, path: str, make: Callable[[dict[str, list]], Any],
                  with_ticks: bool = True):
         self.rec = rec
         self.path = path
@@ -88,6 +89,7 @@ class Columns:
     def add(self, t_ns: int, tick: int | None = None, **fields) -> None:
         self.t.append(int(t_ns))
         if self.with_ticks:
+            assert tick is not None, "a Columns with ticks needs the tick of every row"
             self.ticks.append(int(tick))
         for key, value in fields.items():
             self.fields.setdefault(key, []).append(value)
@@ -101,7 +103,7 @@ class Columns:
         self.t, self.ticks, self.fields = [], [], {}
 
 
-def transform_columns(fields: dict[str, list]) -> list:
+def transform_columns(fields: dict[str, list]) -> Any:
     """``Columns`` maker for rows added with ``translation=`` and ``quaternion=`` (xyzw)."""
     return rr.Transform3D.columns(translation=np.asarray(fields["translation"], dtype=np.float32).reshape(-1, 3),
                                   quaternion=np.asarray(fields["quaternion"], dtype=np.float32).reshape(-1, 4))
