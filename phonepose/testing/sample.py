@@ -12,12 +12,15 @@ import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 
 from phonepose.geometry import Pose
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
+from phonepose.viewer.frames import FrameTree
 
 T0_NS = 1_700_000_000_000_000_000
 
@@ -92,6 +95,16 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, object, int]]:
         (Topic.PIPELINE_MARKERS, det, t0_ns),
         (tracker_pose_topic("T7"), pose_in_frame(p, Frame.DISPLAY_VIO, t0_ns), t0_ns),
     ]
+    # the frame tree the recorder writes beside these (/tf/..., the marker and camera point clouds)
+    tree = FrameTree()
+    out += [(topic, msg, t) for source, m, t in list(out) for topic, msg in tree.derive(source, m, t)]
+    ann = ImageAnnotations()
+    _stamp(ann, t0_ns)
+    loop = ann.points.add(type=PointsAnnotation.LINE_LOOP, thickness=2.0)
+    _stamp(loop, t0_ns)
+    for x, y in zip(det.detections[0].corners_px[0::2], det.detections[0].corners_px[1::2]):
+        loop.points.add(x=x, y=y)
+    out.append((Topic.PIPELINE_MARKER_ANNOTATIONS, ann, t0_ns))
     return out
 
 

@@ -35,6 +35,9 @@ from phonepose.session.codec import frame_transform
 
 OUTLINE_STEP_M = 0.001         # point spacing along the marker square's outline
 FRUSTUM_DEPTH_M = 0.1          # depth of the display camera's drawn frustum
+# every topic FrameTree writes (derived from the session's own records, never from a source)
+FRAME_TREE_TOPICS = frozenset({Topic.TF_DISPLAY, Topic.TF_CONTROLLER_VIO, Topic.TF_CONTROLLER, Topic.TF_MARKER,
+                               Topic.CONTROLLER_MARKER_OUTLINE, Topic.CAMERA_FRUSTUM})
 
 
 def _point_cloud(frame: str, pts: np.ndarray, t_ns: int) -> PointCloud:
