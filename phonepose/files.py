@@ -171,6 +171,7 @@ class OutputFile(_Output):
     session: bool = False     # a recording: never replaced without force
     force: bool = False
     in_place: bool = False    # a new recording: written under its final name (see the module docstring)
+    rewritten: bool = False   # committed by checkpoint() as the command goes (a batch's table)
     _direct: bool = field(default=False, init=False, repr=False)
 
     def check(self, inputs: Sequence[Path]) -> None:
@@ -209,9 +210,41 @@ class OutputFile(_Output):
         self.tmp = tmp
         return tmp
 
+    def checkpoint(self) -> Path:
+        """Rename what the temporary holds into place now and go on with a fresh, locked temporary
+        (returned, and in ``tmp``): for an output rewritten whole while the command runs (a batch's
+        table). The new temporary is locked before the old one is renamed, so a second command finds
+        the output locked for as long as this one runs."""
+        tmp, fd, target = self.tmp, self._fd, self.target
+        assert tmp is not None and fd is not None and not self._direct and not self.session
+        new = self._tmp_name()
+        try:
+            new_fd = os.open(new, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        fcntl.flock(new_fd, fcntl.LOCK_EX)
+        try:
+            os.fsync(fd)
+            if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
+                raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+            os.rename(tmp, target)
+            _fsync_dir(target.parent)
+        except BaseException as exc:
+            os.close(new_fd)
+            _remove(new)
+            if isinstance(exc, OSError):
+                raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+            raise
+        os.close(fd)
+        self.tmp, self._fd = new, new_fd
+        return new
+
     def commit(self) -> None:
         tmp, target = self.tmp, self.target
         assert tmp is not None and self._fd is not None
+        if self.rewritten:    # what it wrote is in place (checkpoint); the last temporary was not used
+            self.abort()
+            return
         if self._direct:
             try:
                 os.fsync(self._fd)
@@ -322,10 +355,12 @@ class OutputPlan:
         self._open = False
 
     def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
-             session: bool = False, force: bool = False, in_place: bool = False) -> OutputFile:
-        """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording."""
+             session: bool = False, force: bool = False, in_place: bool = False,
+             rewritten: bool = False) -> OutputFile:
+        """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording;
+        ``rewritten``: the command puts each complete version in place with ``checkpoint()``."""
         out = OutputFile(Path(path), option, suffixes=tuple(s.lower() for s in suffixes), what=what,
-                         session=session or in_place, force=force, in_place=in_place)
+                         session=session or in_place, force=force, in_place=in_place, rewritten=rewritten)
         self.outputs.append(out)
         return out
 
@@ -375,15 +410,18 @@ class OutputPlan:
             out.abort()
 
 
-def write_text_output(path: str | os.PathLike, text: str, option: str, *, inputs: Iterable[str | os.PathLike] = (),
-                      suffixes: Sequence[str] = (), what: str = "this file") -> Path:
-    """One small text output (a calibration YAML, a JSON report) by the rule above; disk full is an error."""
+def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *,
+                      inputs: Iterable[str | os.PathLike] = (), suffixes: Sequence[str] = (),
+                      what: str = "this file") -> Path:
+    """One small output held in memory (a calibration YAML, a PNG, a JSON report) by the rule above;
+    disk full is an error. ``text`` may be bytes."""
     plan = OutputPlan(inputs)
     out = plan.file(path, option, suffixes=suffixes, what=what)
+    data = text.encode() if isinstance(text, str) else bytes(text)
     with plan:
         try:
-            with open(out.tmp, "w") as f:   # type: ignore[arg-type]
-                f.write(text)
+            with open(out.tmp, "wb") as f:   # type: ignore[arg-type]
+                f.write(data)
                 f.flush()
                 os.fsync(f.fileno())
         except OSError as exc:

@@ -1,12 +1,15 @@
 """The ``phonepose`` command line (typer + rich).
 
 Each command lives in its own module of this package; ``main`` turns every
-:class:`~phonepose.errors.PhoneposeError` into one line on stderr and its exit code.
+:class:`~phonepose.errors.PhoneposeError` into one line on stderr and its exit code, and makes
+SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the way out).
 """
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import typer
 
@@ -68,21 +71,57 @@ def _usage_error(exc) -> None:
     error(f"{where.removeprefix('phonepose ')}{message}{hint}", code)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: the same clean stop."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated
+
+
+def _flags_read_as_flags(command) -> None:
+    """``--quiet`` in --help without a ``<bool>`` value placeholder (typer shows one for flags)."""
+    for param in getattr(command, "params", []):
+        if getattr(param, "is_flag", False) and not getattr(param, "count", False):
+            param.metavar = ""
+    get_help = getattr(command, "get_help_option", None)
+    if get_help is not None and getattr(command, "context_class", None) is not None:
+        help_option = get_help(command.context_class(command, info_name=command.name))
+        if help_option is not None:
+            help_option.metavar = ""
+    for sub in getattr(command, "commands", {}).values():
+        _flags_read_as_flags(sub)
+
+
+def command():
+    """The click command of ``app``, as ``phonepose`` runs it."""
+    cmd = typer.main.get_command(app)
+    _flags_read_as_flags(cmd)
+    return cmd
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script: every error is one line on stderr and its exit code."""
     from typer._click.exceptions import ClickException
     from typer.exceptions import Abort
 
+    in_main = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
-        rv = app(args=argv, prog_name="phonepose", standalone_mode=False)
+        rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
+    except Terminated:
+        error("terminated (SIGTERM)", 143)
     except (KeyboardInterrupt, Abort):
         error("interrupted", 130)
     except BrokenPipeError:
         sys.exit(0)
     except OSError as exc:   # an OS failure no module turned into a PhoneposeError: still one line
         error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
     sys.exit(rv if isinstance(rv, int) and not isinstance(rv, bool) else 0)

@@ -52,10 +52,7 @@ class RerunLogger:
         try:
             if spawn:
                 self.rec.spawn()
-            elif rrd_path is not None:
-                parent = os.path.dirname(os.path.abspath(rrd_path))
-                if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
-                    raise OutputError(f"cannot write {rrd_path}: directory {parent} does not exist or is not writable")
+            elif rrd_path is not None:    # checked before (phonepose.files): the temporary the caller owns
                 self.rec.save(rrd_path)
         except (RuntimeError, OSError) as exc:   # rerun reports sink failures as RuntimeError
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -136,9 +133,12 @@ class RerunLogger:
             accel.append((m.accel_x, m.accel_y, m.accel_z))
 
     def close(self) -> None:
+        """Send what is batched and close the sink: a .rrd gets its footer now, before the caller
+        renames it into place (rerun writes the footer only when the sink is dropped)."""
         try:
             self._flush()
             self.rec.flush()
+            self.rec.disconnect()
         except Exception:  # pragma: no cover - best effort at shutdown
             pass
 
