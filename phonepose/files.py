@@ -72,9 +72,9 @@ def check_input(path: str | os.PathLike, what: str = "file") -> Path:
     except OSError as exc:
         raise InputFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise InputFileError(f"{p}: is a directory, not a {what}")
+        raise InputFileError(f"{p}: is a directory, not {_a(what)}")
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(f"{p}: not a regular file (a FIFO, socket or device): give a {what}")
+        raise InputFileError(f"{p}: not a regular file (a FIFO, socket or device): give {_a(what)}")
     if not os.access(p, os.R_OK):
         raise InputFileError(f"{p}: cannot read (Permission denied)")
     return p
@@ -175,11 +175,8 @@ class OutputFile(_Output):
     _direct: bool = field(default=False, init=False, repr=False)
 
     def check(self, inputs: Sequence[Path]) -> None:
-        if self.suffixes and self.path.suffix.lower() not in self.suffixes:
-            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
-                              f"{' or '.join(self.suffixes)}")
-        self._check_parent()
         self._check_not_input(inputs)
+        st = None
         if os.path.lexists(self.path) or os.path.lexists(self.target):
             try:
                 st = os.stat(self.target)
@@ -190,9 +187,13 @@ class OutputFile(_Output):
             if st is not None and not stat.S_ISREG(st.st_mode):
                 raise OutputError(f"{self.option} {self.path}: not a regular file (a device, FIFO or socket); "
                                   f"give a file name")
-            if self.session and not self.force and st is not None:
-                raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
-                                  f"replace it")
+        if self.suffixes and self.path.suffix.lower() not in self.suffixes:
+            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
+                              f"{_one_of(self.suffixes)}")
+        self._check_parent()
+        if self.session and not self.force and st is not None:
+            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
+                              f"replace it")
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._direct = self.in_place and not os.path.lexists(self.target)
@@ -292,6 +293,11 @@ class OutputDir(_Output):
                 raise InputFileError(f"{self.option} {self.path}: holds the input {inp} and would be replaced "
                                      f"whole; choose another {self.option}")
         self._check_replaceable()
+
+    def final(self, path: str | os.PathLike) -> Path:
+        """Where ``path``, written inside the temporary, is once the folder is committed (as the user named it)."""
+        assert self.tmp is not None
+        return self.path / Path(path).relative_to(self.tmp)
 
     def _check_replaceable(self) -> None:
         target = self.target
@@ -410,6 +416,15 @@ class OutputPlan:
             out.abort()
 
 
+def check_output(path: str | os.PathLike, option: str, *, inputs: Iterable[str | os.PathLike] = (),
+                 suffixes: Sequence[str] = (), what: str = "this file") -> None:
+    """Rule 1 for one file output, now: a command that works minutes before it writes (a camera
+    capture) fails before the work, not after. Writing it later checks again."""
+    plan = OutputPlan(inputs)
+    plan.file(path, option, suffixes=suffixes, what=what)
+    plan.check()
+
+
 def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *,
                       inputs: Iterable[str | os.PathLike] = (), suffixes: Sequence[str] = (),
                       what: str = "this file") -> Path:
@@ -430,6 +445,16 @@ def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *
 
 
 # ----------------------------------------------------------------------------- helpers
+def _a(noun: str) -> str:
+    word = noun.split()[0] if noun.split() else noun
+    vowel = word[:1] in "AEFHILMNORSX" if word.isupper() else word[:1].lower() in "aeiou"   # an MCAP file
+    return f"{'an' if vowel else 'a'} {noun}"
+
+
+def _one_of(items: Sequence[str]) -> str:
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
+
+
 def _glob_escape(name: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
 

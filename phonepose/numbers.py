@@ -14,10 +14,14 @@ from phonepose.errors import ConfigError
 SEED_MAX = 2**32 - 1      # the seeds a session records (int64 field) and numpy takes, with room for derived ones
 SECONDS_MAX = 1e6         # a time offset into a session: 11.6 days is far past any recording
 RATE_MAX_HZ = 1000.0      # ticks per second: 8x the fastest camera the simulator has (120 Hz)
+WORKERS_MAX = 256         # local worker processes (batch --workers, experiment --jobs)
+UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
 
 
 def _show(value) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
+    if isinstance(value, float):
+        return str(int(value)) if value.is_integer() and abs(value) < 1e16 else f"{value:g}"
+    return str(value)
 
 
 def _range_text(lo, hi, lo_open: bool, hi_open: bool, integer: bool) -> str:
@@ -49,6 +53,7 @@ def check_number(name: str, value, lo=None, hi=None, *, lo_open: bool = False, h
             not (hi is not None and (value > hi or (hi_open and value == hi)))
     if not ok:
         extra = " or " + " or ".join(_show(a) for a in also) if also else ""
-        raise ConfigError(f"{name} {_show(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
+        sep = "" if name.endswith("=") else " "     # "--rate inf", "--param rate_hz=inf"
+        raise ConfigError(f"{name}{sep}{_show(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
                           f"{extra}{' ' + unit if unit else ''}")
     return value

@@ -7,6 +7,7 @@ SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the w
 
 from __future__ import annotations
 
+import functools
 import signal
 import sys
 import threading
@@ -66,7 +67,7 @@ def _usage_error(exc) -> None:
     ctx = getattr(exc, "ctx", None)
     where = f"{ctx.command_path}: " if ctx is not None and ctx.command_path != "phonepose" else ""
     hint = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
-    message = " ".join(exc.format_message().split())
+    message = " ".join(exc.format_message().split()).replace("Value error, ", "")   # typer's coercion prefix
     code = 5 if isinstance(exc, BadParameter) and not isinstance(exc, MissingParameter) else exc.exit_code
     error(f"{where.removeprefix('phonepose ')}{message}{hint}", code)
 
@@ -79,8 +80,33 @@ def _terminate(signum, frame) -> None:
     raise Terminated
 
 
-def _flags_read_as_flags(command) -> None:
-    """``--quiet`` in --help without a ``<bool>`` value placeholder (typer shows one for flags)."""
+class Interrupted(BaseException):
+    """An interrupt on its way to ``main``: typer turns a KeyboardInterrupt into a silent exit 130."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
+def _reporting_interrupts(callback):
+    @functools.wraps(callback)
+    def run(*args, **kwargs):
+        try:
+            return callback(*args, **kwargs)
+        except KeyboardInterrupt as exc:
+            detail = f": {exc}" if str(exc) else ""
+            if isinstance(exc, Terminated):
+                raise Interrupted(f"terminated (SIGTERM){detail}", 143) from None
+            raise Interrupted(f"interrupted{detail}", 130) from None
+    run._reports_interrupts = True
+    return run
+
+
+def _prepare(command) -> None:
+    """Every command of the tree: interrupts reported (one line, 130 or 143), and ``--quiet`` in --help
+    without a ``<bool>`` value placeholder (typer shows one for flags)."""
+    if getattr(command, "callback", None) is not None and not getattr(command.callback, "_reports_interrupts", False):
+        command.callback = _reporting_interrupts(command.callback)
     for param in getattr(command, "params", []):
         if getattr(param, "is_flag", False) and not getattr(param, "count", False):
             param.metavar = ""
@@ -90,13 +116,13 @@ def _flags_read_as_flags(command) -> None:
         if help_option is not None:
             help_option.metavar = ""
     for sub in getattr(command, "commands", {}).values():
-        _flags_read_as_flags(sub)
+        _prepare(sub)
 
 
 def command():
     """The click command of ``app``, as ``phonepose`` runs it."""
     cmd = typer.main.get_command(app)
-    _flags_read_as_flags(cmd)
+    _prepare(cmd)
     return cmd
 
 
@@ -113,6 +139,8 @@ def main(argv: list[str] | None = None) -> None:
         error(str(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
+    except Interrupted as exc:
+        error(str(exc), exc.code)
     except Terminated:
         error("terminated (SIGTERM)", 143)
     except (KeyboardInterrupt, Abort):

@@ -31,7 +31,10 @@ class ProgressBar(Progress):
 PIPED_WIDTH = 1000   # a table printed into a pipe or file is never cut to 80 columns
 
 
-def stdout_console() -> Console:
-    """The console for a command's results: the terminal's width, or unlimited when piped."""
+def stdout_console(min_width: int = 0) -> Console:
+    """The console for a command's results: the terminal's width (at least ``min_width``), or
+    unlimited when piped."""
     console = Console()
-    return console if console.is_terminal else Console(width=PIPED_WIDTH)
+    if not console.is_terminal:
+        return Console(width=PIPED_WIDTH)
+    return console if console.width >= min_width else Console(width=min_width)
