@@ -41,3 +41,7 @@ class OutputError(PhoneposeError):
     """Output cannot be written (directory not writable, disk full)."""
 
     exit_code = 6
+
+
+# What a recorder's disk-full error adds: the file it wrote so far is a valid prefix (docs/reliability.md).
+RECOVER_HINT = " (the file written so far stays readable; run `phonepose recover`)"

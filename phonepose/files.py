@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from phonepose.errors import ConfigError, InputFileError, OutputError, PhoneposeError
+from phonepose.errors import RECOVER_HINT, ConfigError, InputFileError, OutputError, PhoneposeError
 
 TMP_SUFFIX = ".phonepose-tmp"
 MANIFEST = ".phonepose-output"
@@ -280,6 +280,7 @@ class OutputFile(_Output):
 @dataclass
 class OutputDir(_Output):
     command: str = ""
+    _written_in: Path | None = field(default=None, init=False, repr=False)   # the temporary, kept for final()
 
     def check(self, inputs: Sequence[Path]) -> None:
         target = self.target
@@ -295,9 +296,10 @@ class OutputDir(_Output):
         self._check_replaceable()
 
     def final(self, path: str | os.PathLike) -> Path:
-        """Where ``path``, written inside the temporary, is once the folder is committed (as the user named it)."""
-        assert self.tmp is not None
-        return self.path / Path(path).relative_to(self.tmp)
+        """Where ``path``, written inside the temporary, is once the folder is committed (as the user
+        named it); also after the commit."""
+        assert self._written_in is not None, "final() names a path of the plan's block"
+        return self.path / Path(path).relative_to(self._written_in)
 
     def _check_replaceable(self) -> None:
         target = self.target
@@ -319,7 +321,7 @@ class OutputDir(_Output):
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         fcntl.flock(self._fd, fcntl.LOCK_EX)
-        self.tmp = tmp
+        self.tmp = self._written_in = tmp
         return tmp
 
     def commit(self) -> None:
@@ -402,7 +404,13 @@ class OutputPlan:
     def __exit__(self, exc_type, exc, tb) -> None:
         self._open = False
         if exc_type is not None:
+            temporaries = [(o.tmp, o.path) for o in self.outputs if o.tmp is not None]
+            kept = any(getattr(o, "_direct", False) and o.tmp is not None and not _empty(o.tmp) for o in self.outputs)
             self.abort()
+            if isinstance(exc, PhoneposeError):
+                message = _in_users_terms(str(exc), temporaries, kept)
+                if message != str(exc):
+                    raise type(exc)(message) from None
             return
         try:
             for out in self.outputs:
@@ -414,6 +422,7 @@ class OutputPlan:
     def abort(self) -> None:
         for out in self.outputs:
             out.abort()
+
 
 
 def check_output(path: str | os.PathLike, option: str, *, inputs: Iterable[str | os.PathLike] = (),
@@ -445,6 +454,14 @@ def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *
 
 
 # ----------------------------------------------------------------------------- helpers
+def _in_users_terms(message: str, temporaries: list[tuple[Path, Path]], kept: bool) -> str:
+    """An error from inside a plan's block, naming the user's outputs instead of their temporaries; a
+    recorder's "run `phonepose recover`" hint only where the file stays (a new recording, ``in_place``)."""
+    for tmp, path in temporaries:
+        message = message.replace(str(tmp), str(path))
+    return message if kept else message.replace(RECOVER_HINT, "")
+
+
 def _a(noun: str) -> str:
     word = noun.split()[0] if noun.split() else noun
     vowel = word[:1] in "AEFHILMNORSX" if word.isupper() else word[:1].lower() in "aeiou"   # an MCAP file

@@ -17,7 +17,7 @@ from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinatio
 from phonepose.batch.run import error_rows, one_line, run_unit
 from phonepose.batch.table import ResultTable, sort_key
 from phonepose.errors import ConfigError
-from phonepose.files import OutputFile, OutputPlan
+from phonepose.files import OutputFile, OutputPlan, check_input
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX, check_number
 
 WRITE_INTERVAL_S = 1.0   # at most one rewrite of the table per second while units finish (and always at the end)
@@ -87,6 +87,9 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
     combos = param_combinations(sweep)
+    for s in sessions:     # a missing one may exist on the cluster's workers: its rows will say; a FIFO never
+        if os.path.lexists(s):
+            check_input(s, "session")
     outputs = OutputPlan(inputs=sessions)
     table_output = outputs.file(out, "--out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
     outputs.check()

@@ -97,8 +97,9 @@ def batch(
         try:
             result = execute_batch(prepared, progress=progress, on_start=on_start)
         except KeyboardInterrupt as exc:    # Ctrl-C or SIGTERM: the workers are gone, the finished rows kept
-            raise type(exc)(f"{len(prepared.table.rows)} finished rows are in {out}; the next run with the "
-                            "same --out goes on from there") from None
+            n = len(prepared.table.rows)
+            raise type(exc)(f"{n} finished row{'s' if n != 1 else ''} {'are' if n != 1 else 'is'} in {out}; the next "
+                            "run with the same --out goes on from there") from None
     stdout_console().print(summary_table(summarize(result.rows)))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "

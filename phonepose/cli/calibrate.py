@@ -15,7 +15,7 @@ from phonepose.cli import app
 from phonepose.cli.options import Paper, number
 from phonepose.cli.output import stdout_console
 from phonepose.errors import ConfigError
-from phonepose.files import check_output, write_text_output
+from phonepose.files import check_input, check_output, write_text_output
 
 MAX_IMAGE_SIDE_PX = 20_000   # a marker image larger than this is no screen's and would take gigabytes
 MAX_CAMERA_INDEX = 1023      # cv2.VideoCapture's index (V4L2 /dev/videoN); -1 ("any") crashes OpenCV here
@@ -189,6 +189,7 @@ def calibrate_hand_eye(
             raise ValueError
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
+    check_input(session, "session")
     check_output(out, "--out", inputs=[session], suffixes=(".yaml", ".yml", ".xml", ".json"),
                  what="an OpenCV FileStorage file (YAML, XML or JSON)")
     he = hand_eye_from_session(session, translation=lever)

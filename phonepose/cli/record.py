@@ -65,7 +65,8 @@ def sim(
                        seconds=f"{done_ns / 1e9:.1f}" + ("" if total is None else f"/{total:.1f}") + " s")
 
         result = record_sim(out, scenario=scenario.value, path=path.value, trial=trial, seed=seed, config=cfg,
-                            config_file=config, progress=progress, rerun_path=rerun, spawn=spawn, force=force)
+                            config_file=config, progress=progress, rerun_path=rerun, spawn=spawn, force=force,
+                            stop_on_signals=True)
     wall = time.perf_counter() - t0
     what = f"exp2 {path.value} trial {trial}" if scenario == Scenario.exp2 else f"exp1 trial {trial}"
     status = "interrupted, file is valid" if result.interrupted else "done"

@@ -20,11 +20,14 @@ __all__ = ["PATHS", "SCENARIOS", "TABLE4", "TRIALS", "T0_NS", "SimConfig", "SimS
 def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | None = "TRI1", trial: int = 1,
                seed: int = 0, config: SimConfig | str | os.PathLike | None = None,
                progress: ProgressCallback | None = None, rerun_path: str | os.PathLike | None = None,
-               spawn: bool = False, force: bool = False, config_file: str | os.PathLike | None = None) -> RecordResult:
+               spawn: bool = False, force: bool = False, config_file: str | os.PathLike | None = None,
+               stop_on_signals: bool = False) -> RecordResult:
     """Simulate one session and record it to ``out`` (a new file; an existing one only with ``force``).
 
     ``config``: a :class:`SimConfig`, a TOML file overriding the defaults, or None (defaults);
     ``config_file``: the TOML file a given SimConfig was read from (an input no output may replace).
+    ``stop_on_signals``: Ctrl-C and SIGTERM end the recording early and leave a finished file
+    (``record sim``); otherwise they stop the caller (an experiment) like anywhere else.
     ``progress(done_ns, total_ns)`` is called about every 0.1 s of session time. ``out`` and
     ``rerun_path`` follow phonepose.files: checked before the simulation starts; the session is
     written under its own name (a killed recording is there for ``phonepose recover``), the .rrd
@@ -48,6 +51,7 @@ def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | No
     session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg)
     with plan:
         result = Recorder(SimSource(session), session_out.tmp, progress=progress,
-                          rerun_path=rrd.tmp if rrd is not None else None, spawn=spawn).run()
+                          rerun_path=rrd.tmp if rrd is not None else None, spawn=spawn,
+                          stop_on_signals=stop_on_signals).run()
     result.path = os.fspath(out)
     return result

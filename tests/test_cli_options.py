@@ -1,0 +1,120 @@
+"""What every command shares: checked numbers, choices as enums, --help that reads right, piped tables, SIGTERM."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from hypothesis import given, strategies as st
+
+from phonepose.cli import options
+from phonepose.errors import ConfigError
+from phonepose.numbers import check_number
+
+
+# ----------------------------------------------------------------------------- numbers
+@given(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-2**80, 2**80)))
+def test_check_number_accepts_exactly_the_finite_values_in_range(value):
+    if 0 < value <= 1000:                      # NaN and inf fail this too
+        assert check_number("--rate", value, 0, 1000, lo_open=True) == value
+    else:
+        with pytest.raises(ConfigError) as e:
+            check_number("--rate", value, 0, 1000, lo_open=True, unit="Hz")
+        assert re.fullmatch(r"--rate \S+: expected a finite number in \(0, 1000\] Hz", str(e.value)), str(e.value)
+
+
+@pytest.mark.parametrize("value, message", [
+    (-1, "--seed -1: expected an integer in [0, 4294967295]"),
+    (2**32, "--seed 4294967296: expected an integer in [0, 4294967295]"),
+    (1.5, "--seed 1.5: expected an integer in [0, 4294967295]"),
+])
+def test_integers(value, message):
+    with pytest.raises(ConfigError) as e:
+        check_number("--seed", value, 0, 2**32 - 1, integer=True)
+    assert str(e.value) == message
+    assert check_number("--seed", 7, 0, 2**32 - 1, integer=True) == 7
+
+
+def test_also_allows_a_sentinel():
+    assert check_number("--align-frames", -1, 1, integer=True, also=(-1,)) == -1
+    with pytest.raises(ConfigError, match=r"^--align-frames 0: expected an integer >= 1 or -1$"):
+        check_number("--align-frames", 0, 1, integer=True, also=(-1,))
+
+
+# ----------------------------------------------------------------------------- choices
+def test_choice_enums_list_what_the_implementations_accept():
+    """The light enums of the CLI and the modules that implement the choices agree."""
+    from phonepose.calibration.board import PAPER_MM
+    from phonepose.evaluation.trajectory import FORMATS
+    from phonepose.pipeline.corrections import CorrectionMath
+    from phonepose.record.sim.scenarios import PATHS, SCENARIOS
+
+    assert [c.value for c in options.CorrectionMath] == [c.value for c in CorrectionMath]
+    assert [c.value for c in options.Scenario] == list(SCENARIOS)
+    assert sorted(c.value for c in options.SimPath) == sorted(PATHS)
+    assert [c.value for c in options.Paper] == [*PAPER_MM, "fit"]
+    assert [c.value for c in options.TrajectoryFormat] == list(FORMATS)
+
+
+def _run(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True, **kw)
+
+
+# ----------------------------------------------------------------------------- --help
+HELP = [["playback"], ["record", "sim"], ["batch"], ["experiment", "exp2"], ["evaluate"], ["board"],
+        ["calibrate-camera"], ["demo"]]
+
+
+@pytest.mark.parametrize("command", HELP, ids=" ".join)
+def test_flags_read_as_flags_in_help(command):
+    r = _run(*command, "--help", env={**os.environ, "COLUMNS": "120"})
+    assert r.returncode == 0, r.stderr
+    assert "<bool>" not in r.stdout
+    assert re.search(r"--help\s+Show this message and exit\.", r.stdout), r.stdout
+
+
+def test_help_shows_defaults_choices_and_paper():
+    r = _run("playback", "--help", env={**os.environ, "COLUMNS": "160"})
+    assert "[default: (./playback-<session>)]" in r.stdout          # rich markup no longer eats it
+    assert "<paper|se3>" in r.stdout                                 # --correction-math is a choice
+    assert "'paper' (T1-T7)" in r.stdout                             # --tracker lists paper
+    r = _run("evaluate", "--help", env={**os.environ, "COLUMNS": "160"})
+    for choice in ("<rpg|ape|rpe|paper>", "<posyaw|se3|sim3|none>", "<tum|euroc|kitti>"):
+        assert choice in r.stdout, r.stdout
+
+
+# ----------------------------------------------------------------------------- piped output
+def test_info_does_not_cut_topic_names_when_piped(tmp_path):
+    from phonepose.playback.testdata import write_test_session
+
+    write_test_session(tmp_path / "s.mcap", duration_s=1.0)
+    r = _run("info", str(tmp_path / "s.mcap"), env={**os.environ, "COLUMNS": "40"})   # a pipe, 40 columns
+    assert r.returncode == 0, r.stderr
+    for topic in ("/controller/vio/pose", "/display/camera/calibration", "foxglove.CameraCalibration"):
+        assert topic in r.stdout, r.stdout
+    assert "…" not in r.stdout
+
+
+# ----------------------------------------------------------------------------- SIGTERM
+def test_sigterm_stops_a_command_like_ctrl_c_and_removes_its_temporaries(tmp_path):
+    """One handler in main: SIGTERM is a KeyboardInterrupt where the command runs, so the output's
+    temporary is removed on the way out and the line says why (exit 143)."""
+    from phonepose.files import TMP_SUFFIX
+
+    out = tmp_path / "demo"
+    p = subprocess.Popen([sys.executable, "-m", "phonepose", "demo", "--out", str(out)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and not list(tmp_path.glob(f".demo.*{TMP_SUFFIX}/TRI2_01.mcap")):
+        assert p.poll() is None, p.communicate()
+        time.sleep(0.05)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "phonepose: error: terminated (SIGTERM)"
+    assert list(tmp_path.iterdir()) == []          # no temporary, no partial output
