@@ -24,7 +24,10 @@ The rule, the same in every command:
    place only when complete. A failed, interrupted or killed command never leaves a partial
    output under the user's name, and an earlier output stays as it was until the new one
    replaces it whole. A killed command's temporary is removed by the next command that writes
-   the same output; while one command writes an output, a second one stops with one line.
+   the same output; while one command writes an output, a second one stops with one line. An
+   output rewritten while the command runs (a batch's table) puts each complete version in place
+   the same way (:meth:`OutputFile.checkpoint`). An error from inside names the user's paths, never
+   a temporary's.
 3. **Replacing.** A session (``record``, ``recover``) is never replaced without ``--force``: a
    recording cannot be made again. A new recording (``in_place``) is the one exception to rule 2:
    it is written under its final name, created exclusively, because what a killed recorder leaves

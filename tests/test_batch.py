@@ -292,3 +292,25 @@ def test_killed_batch_keeps_finished_units_and_the_rerun_completes(sessions, one
     rerun = run_batch(sessions, out, trackers="paper", workers=1)
     assert rerun.skipped == len(kept) and rerun.rows_run == 21 - len(kept) and rerun.errors == 0
     assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))   # the same as in one go
+
+
+@pytest.mark.parametrize("where", ["main thread (SIGALRM)", "worker thread (tick check)"])
+def test_a_unit_past_its_time_budget_becomes_error_rows(sessions, where):
+    """A session that would play forever (or a Dask worker's thread) cannot hold a batch: --unit-timeout."""
+    import threading
+
+    from phonepose.batch.plan import Unit
+    from phonepose.batch.run import run_unit
+
+    unit = Unit("s.mcap", sessions[0], (("rate_hz", 20.0),), ("T1", "T4"))
+    rows = []
+    if where.startswith("main"):
+        rows = run_unit(unit, budget_s=0.01)
+    else:
+        t = threading.Thread(target=lambda: rows.extend(run_unit(unit, budget_s=0.01)))
+        t.start()
+        t.join(timeout=300)
+    assert [r["tracker"] for r in rows] == ["T1", "T4"]
+    assert {r["status"] for r in rows} == {"error"}
+    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (--unit-timeout)"}
+    assert run_unit(unit, budget_s=600)[0]["status"] == "ok"

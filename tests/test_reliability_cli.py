@@ -578,7 +578,8 @@ def markdown_table(tmp: Path) -> str:
         line = err.getvalue().strip().replace(str(d) + "/", "").replace(str(tmp) + "/", "").replace(str(d), "DIR")
         if len(line) > 160:
             line = line[:157] + "..."
-        rows.append(f"| {_cell(case.what)} | `{argv[0]}` | {code} | {_code(line)} |")
+        command = " ".join(argv[:2]) if argv[0] in ("record", "experiment") else argv[0]
+        rows.append(f"| {_cell(case.what)} | `{command}` | {code} | {_code(line)} |")
     for cid, what, fn, message in WARNING_CASES:
         msg = message.replace("\\(", "(").replace("\\)", ")")
         rows.append(f"| {_cell(what)} | `playback` | 0 | {_code('phonepose: warning: ' + msg)} (samples skipped) |")
