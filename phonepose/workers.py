@@ -43,7 +43,10 @@ def die_with_parent(parent_pid: int) -> None:
 
 
 def _initialize(parent_pid: int, initializer: Callable[[], None] | None) -> None:
+    from phonepose.errors import quiet_library_warnings
+
     die_with_parent(parent_pid)
+    quiet_library_warnings()          # a worker prints on the same terminal as its parent
     if initializer is not None:
         initializer()
 

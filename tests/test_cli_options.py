@@ -118,3 +118,27 @@ def test_sigterm_stops_a_command_like_ctrl_c_and_removes_its_temporaries(tmp_pat
     assert p.returncode == 143, err
     assert err.strip().splitlines()[-1] == "phonepose: error: terminated (SIGTERM)"
     assert list(tmp_path.iterdir()) == []          # no temporary, no partial output
+
+
+# ----------------------------------------------------------------------------- library noise
+def test_library_warnings_stay_off_the_terminal():
+    """An absurd but finite input (a gyro of 1e200) overflows in numpy; the user sees phonepose's own lines
+    about it, not numpy's RuntimeWarnings (main and every worker call this)."""
+    import warnings
+
+    import numpy as np
+
+    from phonepose.errors import quiet_library_warnings
+
+    old = np.geterr()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            quiet_library_warnings()
+            big = np.array([1e200, 1e200])
+            assert np.isinf(big * big).all()                        # ufunc overflow: no warning
+            np.linalg.norm(np.full((3, 3), 1e300))                  # numpy's own RuntimeWarning: filtered
+            warnings.warn("a phonepose warning stays", UserWarning)
+        assert [str(w.message) for w in caught] == ["a phonepose warning stays"]
+    finally:
+        np.seterr(**old)

@@ -15,7 +15,7 @@ import threading
 import typer
 
 from phonepose import __version__
-from phonepose.errors import PhoneposeError
+from phonepose.errors import PhoneposeError, quiet_library_warnings
 
 app = typer.Typer(
     name="phonepose",
@@ -131,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     from typer._click.exceptions import ClickException
     from typer.exceptions import Abort
 
+    quiet_library_warnings()
     in_main = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
