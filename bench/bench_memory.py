@@ -8,7 +8,7 @@ imports and the session's setup, before the first tick (the fixed cost), and its
 last tick (the streaming part; after it the trajectories are assembled and the metrics, which
 need every pose for the alignment, are computed: that part is O(session length) by nature).
 
-The sessions are the kind of the hand-made playback test session (phonepose.playback.testdata):
+The sessions are the kind of the hand-made playback test session (phonepose.testing.playback_session):
 30 Hz 640x480 JPEG frames of a rendered 5 cm marker circling in view, display + controller VIO
 at 30 Hz, anchors, GT at 60 Hz, IMU at 100 Hz. They are written streaming, in log-time order,
 with the frames of one 2 s circle rendered once and reused (the poses repeat with the same
@@ -70,12 +70,12 @@ def write_streaming_session(path: Path, duration_s: float, width: int = 640, hei
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
     from phonepose.geometry import Pose
-    from phonepose.pipeline.synthetic import encode_jpeg, pinhole_camera, render_marker
-    from phonepose.playback.testdata import ANCHOR_ERROR, MARKER, T0_NS, T_DVIO_ANCHOR, T_WORLD_DVIO, T_camera_marker_at
+    from phonepose.testing.marker_images import encode_jpeg, pinhole_camera, render_marker
+    from phonepose.testing.playback_session import ANCHOR_ERROR, MARKER, T0_NS, T_DVIO_ANCHOR, T_WORLD_DVIO, T_camera_marker_at
     from phonepose.schemas import phonepose_pb2 as pb
     from phonepose.schemas.topics import Frame, Topic
     from phonepose.session import SessionWriter
-    from phonepose.session.sample import frame_transform, pose_in_frame
+    from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
     from scipy.spatial.transform import Rotation
 
     cam = pinhole_camera(f=250.0 * width / 320, width=width, height=height)
@@ -107,7 +107,7 @@ def write_streaming_session(path: Path, duration_s: float, width: int = 640, hei
         yield T0_NS, Topic.CAMERA_CALIBRATION, calib
         yield T0_NS, Topic.CAMERA_EXTRINSICS, frame_transform(Pose.identity(), Frame.DISPLAY, Frame.DISPLAY_CAMERA, T0_NS)
         spec = pb.MarkerSpec(dictionary=MARKER.dictionary, id=MARKER.id, size_m=MARKER.size_m)
-        MARKER.T_body_marker.to_foxglove(spec.pose_in_body)
+        encode_pose(MARKER.T_body_marker, spec.pose_in_body)
         spec.timestamp.FromNanoseconds(T0_NS)
         yield T0_NS, Topic.CONTROLLER_MARKER, spec
         yield T0_NS, Topic.GT_CALIBRATION, frame_transform(T_WORLD_DVIO, Frame.WORLD, Frame.DISPLAY_VIO, T0_NS)
@@ -116,8 +116,8 @@ def write_streaming_session(path: Path, duration_s: float, width: int = 640, hei
         ev = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1, frame_id=Frame.DISPLAY_VIO)
         ev.timestamp.FromNanoseconds(ns(0.2))
         ev.fix_timestamp.FromNanoseconds(ns(0.1))
-        ctrl_true(0.2).to_foxglove(ev.pose_fix_vio)
-        (T_DVIO_ANCHOR @ T_cvio_anchor.inv() @ map_c @ ctrl_true(0.2)).to_foxglove(ev.pose_align_vio)
+        encode_pose(ctrl_true(0.2), ev.pose_fix_vio)
+        encode_pose(T_DVIO_ANCHOR @ T_cvio_anchor.inv() @ map_c @ ctrl_true(0.2), ev.pose_align_vio)
         yield ns(0.2), Topic.CALIBRATION_EVENTS, ev
         ev2 = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM2, frame_id=Frame.DISPLAY_VIO)
         ev2.timestamp.FromNanoseconds(ns(0.25))

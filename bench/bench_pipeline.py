@@ -9,7 +9,7 @@
 - ``shared + 7 trackers``: SharedStages.process (JPEG decode + recognition + anchor mapping)
   plus all seven trackers stepping, per tick.
 
-Frames are rendered with phonepose.pipeline.synthetic (5 cm DICT_4X4_50 marker, fx = 500,
+Frames are rendered with phonepose.testing.marker_images (5 cm DICT_4X4_50 marker, fx = 500,
 blur + noise + JPEG q85). OpenCV is pinned to one thread so the figures do not depend on what
 the other core is doing.
 """
@@ -25,7 +25,7 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary, marker_object_points
 from phonepose.pipeline.shared import SharedStages
-from phonepose.pipeline.synthetic import encode_jpeg, looking_at, pinhole_camera, render_marker
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
 

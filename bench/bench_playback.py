@@ -40,7 +40,7 @@ def _make_session(tmp: Path) -> tuple[Path, str]:
     except (OSError, subprocess.TimeoutExpired) as exc:
         why = str(exc)
     print(f"simulator not available ({why}); using the hand-made playback test session (640x480, 20 s)")
-    from phonepose.playback.testdata import write_test_session
+    from phonepose.testing.playback_session import write_test_session
 
     hand = tmp / "hand.mcap"
     write_test_session(hand, duration_s=20.0, width=640, height=480, in_view_fraction=0.5)

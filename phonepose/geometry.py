@@ -7,14 +7,28 @@ A :class:`Pose` ``T_a_b`` maps points from frame ``b`` into frame ``a``:
 Quaternion order, stated once: **x, y, z, w** (scalar last), as scipy, Foxglove and TUM files
 use it. A Pose may hold one pose or a stack of N poses (``len(pose)``); every operation
 broadcasts like scipy's Rotation.
+
+Raw poses (the end of this module) are plain tuples ``(qx, qy, qz, qw, x, y, z)`` with the same
+meaning, for the streams playback keeps thousands of samples of: a scipy Rotation costs tens of
+microseconds to build, a tuple nothing (measured: 6 µs vs 229 µs per interpolation).
+
+This module knows no file or message format: phonepose/session/codec.py converts protobuf
+messages to and from these types.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
 import numpy as np
-from foxglove_schemas_protobuf.Pose_pb2 import Pose as FgPose
 from scipy.spatial.transform import Rotation, Slerp
+
+# A quaternion whose norm is further than this from 1 is not a rotation: inputs carrying one are
+# skipped (or refused), never normalised into something plausible (docs/format.md, docs/reliability.md).
+QUAT_NORM_TOL = 1e-3
+
+RawPose = tuple[float, float, float, float, float, float, float]   # (qx, qy, qz, qw, x, y, z)
 
 
 @dataclass(frozen=True)
@@ -49,9 +63,9 @@ class Pose:
         return cls.from_rotvec(np.asarray(tvec, dtype=float).reshape(3), np.asarray(rvec, dtype=float).reshape(3))
 
     @classmethod
-    def from_foxglove(cls, pose: FgPose) -> "Pose":
-        p, q = pose.position, pose.orientation
-        return cls.from_xyzw([p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+    def from_raw(cls, raw: RawPose) -> "Pose":
+        """From a raw ``(qx, qy, qz, qw, x, y, z)`` tuple (its quaternion is unit already)."""
+        return cls(Rotation.from_quat(raw[:4]), np.array(raw[4:], dtype=float))
 
     @classmethod
     def concatenate(cls, poses: "list[Pose]") -> "Pose":
@@ -75,13 +89,11 @@ class Pose:
         """(rvec, tvec) as float64 column vectors for OpenCV."""
         return self.rotation.as_rotvec().reshape(3, 1), self.translation.reshape(3, 1).astype(float)
 
-    def to_foxglove(self, out: FgPose | None = None) -> FgPose:
-        msg = FgPose() if out is None else out
-        # tolist() gives Python floats in one call (playback writes one per tracker per tick)
-        p, o = msg.position, msg.orientation
-        p.x, p.y, p.z = np.asarray(self.translation, dtype=float).tolist()
-        o.x, o.y, o.z, o.w = self.quat_xyzw.tolist()
-        return msg
+    def as_raw(self) -> RawPose:
+        """A single pose as a raw ``(qx, qy, qz, qw, x, y, z)`` tuple of Python floats."""
+        q = self.quat_xyzw.tolist()
+        t = np.asarray(self.translation, dtype=float).tolist()
+        return (q[0], q[1], q[2], q[3], t[0], t[1], t[2])
 
     # ----------------------------------------------------------------- algebra
     def __matmul__(self, other: "Pose") -> "Pose":
@@ -140,3 +152,61 @@ def interpolate_many(times: np.ndarray, poses: Pose, query: np.ndarray) -> Pose:
     q = np.asarray(query, dtype=float)
     trans = np.column_stack([np.interp(q, times, poses.translation[:, k]) for k in range(3)])
     return Pose(slerp(q), trans)
+
+
+# ----------------------------------------------------------------------------- raw poses
+# Written by hand for speed (see the module docstring); tests/test_geometry.py checks every branch
+# against scipy. Quaternions are unit, x, y, z, w.
+_NEAR_PARALLEL = 0.9999995   # |q0 . q1| above this: linear blend (sin(theta) ~ 1e-3 would lose digits)
+
+
+def quat_slerp(q0, q1, a: float) -> tuple[float, float, float, float]:
+    """Spherical linear interpolation from ``q0`` (a = 0) to ``q1`` (a = 1), the short way round."""
+    dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3]
+    if dot < 0.0:
+        q1 = (-q1[0], -q1[1], -q1[2], -q1[3])
+        dot = -dot
+    if dot > _NEAR_PARALLEL:
+        w0, w1 = 1.0 - a, a
+    else:
+        theta = math.acos(min(1.0, dot))
+        s = math.sin(theta)
+        w0 = math.sin((1.0 - a) * theta) / s
+        w1 = math.sin(a * theta) / s
+    q = (w0 * q0[0] + w1 * q1[0], w0 * q0[1] + w1 * q1[1], w0 * q0[2] + w1 * q1[2], w0 * q0[3] + w1 * q1[3])
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def quat_mul(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product ``a · b`` (rotation ``b`` first, then ``a``)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def quat_rotate(q, v) -> tuple[float, float, float]:
+    """The vector ``v`` rotated by the unit quaternion ``q``."""
+    x, y, z, w = q
+    # v + 2w (q_v x v) + 2 q_v x (q_v x v)
+    cx, cy, cz = y * v[2] - z * v[1], z * v[0] - x * v[2], x * v[1] - y * v[0]
+    ccx, ccy, ccz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
+    return (v[0] + 2 * (w * cx + ccx), v[1] + 2 * (w * cy + ccy), v[2] + 2 * (w * cz + ccz))
+
+
+def raw_interpolate(s0: RawPose, s1: RawPose, a: float) -> RawPose:
+    """The raw pose a fraction ``a`` of the way from ``s0`` to ``s1``: slerp rotation, linear translation."""
+    q = quat_slerp(s0[:4], s1[:4], a)
+    b = 1.0 - a
+    return q + (b * s0[4] + a * s1[4], b * s0[5] + a * s1[5], b * s0[6] + a * s1[6])
+
+
+def raw_compose(a: RawPose, b: RawPose) -> RawPose:
+    """Raw ``a · b`` (as ``Pose.__matmul__``), the quaternion renormalised."""
+    t = quat_rotate(a[:4], b[4:])
+    q = quat_mul(a[:4], b[:4])
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n, t[0] + a[4], t[1] + a[5], t[2] + a[6])

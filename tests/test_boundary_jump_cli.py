@@ -11,7 +11,7 @@ import pytest
 
 from phonepose.evaluation.trajectory import load_in_view, write_in_view
 from phonepose.playback.engine import run_playback
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 
 
 def phonepose(*args):

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from phonepose.session.sample import sample_messages, write_sample
+from phonepose.testing.sample import sample_messages, write_sample
 
 
 def run(*args):

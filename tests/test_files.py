@@ -13,6 +13,7 @@ import pytest
 
 from phonepose.errors import ConfigError, InputFileError, OutputError
 from phonepose.files import MANIFEST, TMP_SUFFIX, OutputPlan, check_input, write_text_output
+from conftest import DEADLINE_S
 
 
 def _tree(root: Path) -> dict[str, bytes]:
@@ -245,7 +246,7 @@ def test_a_second_writer_stops_and_a_killed_writers_temporary_is_cleared(tmp_pat
                                 f"finish or choose another --out")
     finally:
         proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=60)
+        proc.wait(timeout=DEADLINE_S)
     stale = [p for p in tmp_path.iterdir() if p.name.endswith(TMP_SUFFIX)]
     assert len(stale) == 1 and not out.exists()     # the killed writer left its temporary, not a partial "run"
     plan = OutputPlan()

@@ -8,7 +8,6 @@ Bounded example counts keep this fast enough for CI.
 from __future__ import annotations
 
 import os
-import tempfile
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -18,38 +17,38 @@ from phonepose.errors import PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.recover import salvage
-from phonepose.session.sample import sample_messages, write_sample
+from phonepose.testing.sample import sample_messages, write_sample
 
 FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_EXAMPLES", "150")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
-_DIR = tempfile.mkdtemp(prefix="phonepose-fuzz-")
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> str:
+    """The folder every example writes its input (and recover its output) into."""
+    return str(tmp_path_factory.mktemp("fuzz"))
 
 
-def _multi_chunk_session() -> bytes:
-    """Every message type, three times, flushed after every message: many small chunks."""
-    path = os.path.join(_DIR, "multi.mcap")
-    with SessionWriter(path, flush_every_ns=1) as w:
+@pytest.fixture(scope="module")
+def bases(work) -> list[bytes]:
+    """The valid sessions the mutations start from: the sample, and every message type three times
+    flushed after every message (many small chunks)."""
+    sample = os.path.join(work, "sample.mcap")
+    write_sample(sample)
+    multi = os.path.join(work, "multi.mcap")
+    with SessionWriter(multi, flush_every_ns=1) as w:
         for k in range(3):
             for topic, msg, t in sample_messages(t0_ns=1_700_000_000_000_000_000 + k * 10**9):
                 w.write(topic, msg, t)
-    with open(path, "rb") as f:
-        return f.read()
-
-
-def _sample_session() -> bytes:
-    path = os.path.join(_DIR, "sample.mcap")
-    write_sample(path)
-    with open(path, "rb") as f:
-        return f.read()
-
-
-BASES = [_sample_session(), _multi_chunk_session()]
+    out = []
+    for path in (sample, multi):
+        with open(path, "rb") as f:
+            out.append(f.read())
+    return out
 
 
 @st.composite
-def mutated(draw) -> bytes:
-    data = bytearray(BASES[draw(st.integers(0, len(BASES) - 1))])
+def mutated(draw, bases: list[bytes]) -> bytes:
+    data = bytearray(bases[draw(st.integers(0, len(bases) - 1))])
     n = len(data)
     kind = draw(st.sampled_from(["truncate", "flip", "overwrite", "splice", "insert", "duplicate"]))
     if kind == "truncate":
@@ -71,8 +70,8 @@ def mutated(draw) -> bytes:
     return bytes(data[:b] + data[a:b] + data[b:])  # duplicate a range
 
 
-def _write(data: bytes, name: str = "in.mcap") -> str:
-    path = os.path.join(_DIR, name)
+def _write(work: str, data: bytes, name: str = "in.mcap") -> str:
+    path = os.path.join(work, name)
     with open(path, "wb") as f:
         f.write(data)
     return path
@@ -84,17 +83,18 @@ def _read_everything(path: str) -> int:
         return sum(1 for _ in r.messages())
 
 
-def test_bases_are_valid_sessions():
+def test_bases_are_valid_sessions(work, bases):
     n = len(sample_messages())
-    assert _read_everything(_write(BASES[0])) == n
-    assert _read_everything(_write(BASES[1])) == 3 * n
+    assert _read_everything(_write(work, bases[0])) == n
+    assert _read_everything(_write(work, bases[1])) == 3 * n
 
 
 @FUZZ
-@given(data=st.one_of(mutated(), st.binary(max_size=2048),
-                      st.binary(max_size=512).map(lambda b: b"\x89MCAP0\r\n" + b)))
-def test_reader_raises_only_our_errors(data):
-    path = _write(data)
+@given(draw=st.data())
+def test_reader_raises_only_our_errors(work, bases, draw):
+    data = draw.draw(st.one_of(mutated(bases), st.binary(max_size=2048),
+                               st.binary(max_size=512).map(lambda b: b"\x89MCAP0\r\n" + b)))
+    path = _write(work, data)
     try:
         _read_everything(path)
     except PhoneposeError as exc:
@@ -102,11 +102,11 @@ def test_reader_raises_only_our_errors(data):
 
 
 @FUZZ
-@given(data=mutated())
-def test_info_raises_only_our_errors(data):
+@given(draw=st.data())
+def test_info_raises_only_our_errors(work, bases, draw):
     from phonepose.cli.info import info
 
-    path = _write(data)
+    path = _write(work, draw.draw(mutated(bases)))
     try:
         info(path, as_json=True)
     except PhoneposeError as exc:
@@ -114,10 +114,10 @@ def test_info_raises_only_our_errors(data):
 
 
 @FUZZ
-@given(data=st.one_of(mutated(), st.binary(min_size=1, max_size=2048)))
-def test_recover_raises_only_our_errors_and_writes_readable_files(data):
-    path = _write(data)
-    out = os.path.join(_DIR, "out.mcap")
+@given(draw=st.data())
+def test_recover_raises_only_our_errors_and_writes_readable_files(work, bases, draw):
+    path = _write(work, draw.draw(st.one_of(mutated(bases), st.binary(min_size=1, max_size=2048))))
+    out = os.path.join(work, "out.mcap")
     try:
         report = salvage(path, out)
     except PhoneposeError as exc:
@@ -140,9 +140,9 @@ _TYPES = sorted({cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}.
 
 @FUZZ
 @given(idx=st.integers(0, len(_TYPES) - 1), payload=st.binary(max_size=512))
-def test_decoders_raise_only_our_error(idx, payload):
+def test_decoders_raise_only_our_error(work, bases, idx, payload):
     """Random bytes through the reader's decode path: a message or SessionContentError."""
-    path = _write(BASES[0], "decode.mcap")
+    path = _write(work, bases[0], "decode.mcap")
     with SessionReader(path) as r:
         name, cls = _TYPES[idx]
 
@@ -164,11 +164,11 @@ def test_decoders_raise_only_our_error(idx, payload):
 
 
 @pytest.mark.parametrize("payload", [b"\xff" * 16, b"\x0a\xff\xff\xff\xff\x0f", b"\x0a\x02\xc3\x28"])
-def test_known_undecodable_payloads(tmp_path, payload):
+def test_known_undecodable_payloads(work, bases, payload):
     """Hand-picked bad payloads: truncated varint, huge length, invalid UTF-8 in a string field."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-    path = _write(BASES[0], "decode2.mcap")
+    path = _write(work, bases[0], "decode2.mcap")
     with SessionReader(path) as r:
         class _O:
             pass

@@ -6,26 +6,30 @@ negative or huge values, replayed end to end. Only a clean run, warnings, or a P
 from __future__ import annotations
 
 import contextlib
-import os
 import io
 import math
-import tempfile
-from pathlib import Path
+import os
 
+import pytest
 from google.protobuf.descriptor import FieldDescriptor
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas.topics import TOPIC_TYPES, Topic
 from test_reliability_cli import rewrite
 
 FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_FIELDS", "25")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
-_DIR = Path(tempfile.mkdtemp(prefix="phonepose-fieldfuzz-"))
-GOOD = _DIR / "good.mcap"
-write_test_session(GOOD, duration_s=1.5)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """A folder with the valid session every example mutates (good.mcap), and their outputs."""
+    d = tmp_path_factory.mktemp("fieldfuzz")
+    write_test_session(d / "good.mcap", duration_s=1.5)
+    return d
 
 _NUMERIC = {FieldDescriptor.TYPE_DOUBLE, FieldDescriptor.TYPE_FLOAT, FieldDescriptor.TYPE_INT32,
             FieldDescriptor.TYPE_INT64, FieldDescriptor.TYPE_UINT32, FieldDescriptor.TYPE_FIXED32}
@@ -71,7 +75,7 @@ def _set(msg, path, value) -> None:
 
 @FUZZ
 @given(target=st.sampled_from(TARGETS), value=VALUES, every=st.sampled_from([1, 3, 50]))
-def test_random_field_values_give_a_result_or_our_error(target, value, every):
+def test_random_field_values_give_a_result_or_our_error(work, target, value, every):
     from phonepose.cli import main
 
     topic, path = target
@@ -84,11 +88,11 @@ def test_random_field_values_give_a_result_or_our_error(target, value, every):
             seen["n"] += 1
         return [(t, msg, log_time)]
 
-    bad = rewrite(GOOD, _DIR / "bad.mcap", mutate)
+    bad = rewrite(work / "good.mcap", work / "bad.mcap", mutate)
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         try:
-            main(["playback", str(bad), "-q", "-t", "T1", "-t", "T4", "-t", "T7", "--out", str(_DIR / "out")])
+            main(["playback", str(bad), "-q", "-t", "T1", "-t", "T4", "-t", "T7", "--out", str(work / "out")])
             code = 0
         except SystemExit as exc:
             code = exc.code or 0

@@ -22,6 +22,7 @@ from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import MarkerObservation, Observation, Tick
 from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.session.codec import encode_pose
 
 FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_EXAMPLES", "150")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -100,8 +101,8 @@ def test_a_bad_cm1_event_is_ignored_not_used():
     """T2 (CM1) keeps its previous offset when an event's poses are NaN or unset, and says so once."""
     (t2,) = make_trackers(["T2"])
     good = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
-    Pose.from_xyzw([0.1, 0, 0], [0, 0, 0, 1]).to_foxglove(good.pose_fix_vio)
-    Pose.identity().to_foxglove(good.pose_align_vio)
+    encode_pose(Pose.from_xyzw([0.1, 0, 0], [0, 0, 0, 1]), good.pose_fix_vio)
+    encode_pose(Pose.identity(), good.pose_align_vio)
     vio = Pose.from_xyzw([1.0, 2.0, 3.0], [0, 0, 0, 1])
     est = t2.step(Observation(Tick(index=0, t_ns=1, events=[good]), None, vio))
     assert np.allclose(est.translation, [1.1, 2.0, 3.0])

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 from hypothesis import given, settings, strategies as st
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
-from phonepose.geometry import Pose, interpolate, interpolate_many
+from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_mul, quat_rotate, quat_slerp, raw_compose,
+                                raw_interpolate)
 
 finite = st.floats(-10, 10, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite).map(np.array)
@@ -37,11 +38,6 @@ def test_relative_pose(a, b):
     assert (b @ a.relative_to(b)).allclose(a, atol=1e-8)
 
 
-@given(poses)
-def test_foxglove_round_trip(p):
-    assert Pose.from_foxglove(p.to_foxglove()).allclose(p, atol=1e-12)
-
-
 @given(poses, poses, st.floats(0, 1))
 def test_interpolation_end_points_and_monotone(a, b, s):
     assert interpolate(1.0, a, 3.0, b, 1.0).allclose(a, atol=1e-9)
@@ -67,11 +63,84 @@ def test_interpolate_many_matches_single():
 def test_quaternion_order_is_xyzw():
     p = Pose.from_xyzw([0, 0, 0], [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)])  # 90 deg about z
     assert np.allclose(p.apply([1, 0, 0]), [0, 1, 0])
-    fg = p.to_foxglove()
-    assert np.isclose(fg.orientation.w, np.cos(np.pi / 4)) and np.isclose(fg.orientation.z, np.sin(np.pi / 4))
+    assert np.allclose(p.quat_xyzw, [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)])
 
 
 def test_cv_round_trip():
     p = Pose.from_rotvec([0.1, 0.2, 0.3], [0.3, -0.2, 0.1])
     rvec, tvec = p.as_cv()
     assert Pose.from_cv(rvec, tvec).allclose(p, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- raw poses against scipy
+unit_quat = quat.map(lambda q: tuple(q / np.linalg.norm(q)))
+fractions = st.floats(0, 1)
+
+
+def _angle(q_a, q_b) -> float:
+    """Rotation angle between two quaternions (q and -q are the same rotation)."""
+    return float((Rotation.from_quat(q_a).inv() * Rotation.from_quat(q_b)).magnitude())
+
+
+def _scipy_slerp(q0, q1, a: float):
+    return Slerp([0.0, 1.0], Rotation.from_quat([q0, q1]))([a]).as_quat()[0]
+
+
+@given(unit_quat, unit_quat, fractions)
+def test_slerp_matches_scipy(q0, q1, a):
+    got = quat_slerp(q0, q1, a)
+    assert abs(np.linalg.norm(got) - 1.0) < 1e-12
+    assert _angle(got, _scipy_slerp(q0, q1, a)) < 1e-7
+
+
+@given(unit_quat, unit_quat, fractions)
+def test_slerp_takes_the_short_way_when_the_dot_product_is_negative(q0, q1, a):
+    flipped = tuple(-v for v in q1)            # the same rotation, the other hemisphere: dot < 0 for one of them
+    assert _angle(quat_slerp(q0, flipped, a), quat_slerp(q0, q1, a)) < 1e-7
+    assert _angle(quat_slerp(q0, flipped, a), _scipy_slerp(q0, q1, a)) < 1e-7
+
+
+@given(unit_quat, vec3.filter(lambda v: np.linalg.norm(v) > 1e-3), st.floats(1e-9, 1.9e-3), fractions, st.booleans())
+def test_slerp_of_near_parallel_quaternions_blends_linearly_and_matches_scipy(q0, axis, angle, a, flip):
+    """Below 2e-3 rad apart (|dot| > 0.9999995) the blend is linear: its error is ~angle^3, far below 1e-9 rad."""
+    r1 = Rotation.from_quat(q0) * Rotation.from_rotvec(angle * axis / np.linalg.norm(axis))
+    q1 = tuple(r1.as_quat() * (-1 if flip else 1))
+    assert abs(np.dot(q0, q1)) > 0.9999995          # the branch under test
+    got = quat_slerp(q0, q1, a)
+    assert _angle(got, _scipy_slerp(q0, q1, a)) < 1e-9
+    assert abs(_angle(q0, got) - a * angle) < 1e-9
+
+
+def test_slerp_end_points_and_the_exact_opposite_sign():
+    q = (0.0, 0.0, np.sin(0.3), np.cos(0.3))
+    assert quat_slerp(q, q, 0.5) == q
+    assert np.allclose(quat_slerp(q, tuple(-v for v in q), 0.25), q)   # -q is q: no turn at all
+
+
+@given(unit_quat, unit_quat)
+def test_quat_mul_matches_scipy(a, b):
+    assert _angle(quat_mul(a, b), (Rotation.from_quat(a) * Rotation.from_quat(b)).as_quat()) < 1e-9
+
+
+@given(unit_quat, vec3)
+def test_quat_rotate_matches_scipy(q, v):
+    assert np.allclose(quat_rotate(q, tuple(v)), Rotation.from_quat(q).apply(v), atol=1e-9)
+
+
+@given(poses, poses)
+def test_raw_compose_is_pose_composition(a, b):
+    got = Pose.from_raw(raw_compose(a.as_raw(), b.as_raw()))
+    assert got.allclose(a @ b, atol=1e-9)
+
+
+@given(poses, poses, fractions)
+def test_raw_interpolate_is_pose_interpolation(a, b, s):
+    got = Pose.from_raw(raw_interpolate(a.as_raw(), b.as_raw(), s))
+    assert got.allclose(interpolate(0.0, a, 1.0, b, s), atol=1e-7)
+
+
+@given(poses)
+def test_raw_round_trip(p):
+    raw = p.as_raw()
+    assert len(raw) == 7 and all(type(v) is float for v in raw)
+    assert Pose.from_raw(raw).allclose(p, atol=1e-12)

@@ -15,7 +15,7 @@ from phonepose.calibration.hand_eye import HandEye, estimate_hand_eye, hand_eye_
 from phonepose.errors import InputFileError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.playback.engine import run_playback
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 
 X_TRUE = Pose(Rotation.from_rotvec(np.radians([-9.0, 3.0, 5.5])), np.array([0.004, -0.002, 0.003]))
 Z_TRUE = Pose(Rotation.from_euler("zyx", [70.0, 4.0, -2.0], degrees=True), np.array([1.5, -0.3, 0.9]))

@@ -11,7 +11,7 @@ from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import (MarkerRecognizer, aruco_dictionary, marker_object_points,
                                         push_edges_outward)
-from phonepose.pipeline.synthetic import looking_at, pinhole_camera, project_corners, render_marker
+from phonepose.testing.marker_images import looking_at, pinhole_camera, project_corners, render_marker
 from phonepose.pipeline.types import MarkerModel
 
 CAMERA = pinhole_camera()

@@ -8,10 +8,11 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from phonepose.geometry import Pose
 from phonepose.pipeline.anchors import controller_in_display_vio
 from phonepose.pipeline.shared import SharedStages, detections_message
-from phonepose.pipeline.synthetic import encode_jpeg, looking_at, pinhole_camera, render_marker
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
 from phonepose.schemas.topics import Frame
+from phonepose.session import codec
 
 T_DISPLAY_CAMERA = Pose.from_rotvec([0.0, 0.0, 0.0], [0.0, 0.07, 0.0])
 CAMERA = pinhole_camera(T_display_camera=T_DISPLAY_CAMERA)
@@ -65,8 +66,8 @@ def test_detections_message():
     (det,) = msg.detections
     assert det.id == 7 and len(det.corners_px) == 8
     np.testing.assert_allclose(np.reshape(det.corners_px, (4, 2)), obs.marker.corners_px)
-    assert Pose.from_foxglove(det.pose_in_camera).allclose(obs.marker.T_camera_marker, atol=1e-9)
-    assert Pose.from_foxglove(det.controller_in_display_vio).allclose(obs.marker.T_dvio_controller, atol=1e-9)
+    assert codec.pose_of(det.pose_in_camera).allclose(obs.marker.T_camera_marker, atol=1e-9)
+    assert codec.pose_of(det.controller_in_display_vio).allclose(obs.marker.T_dvio_controller, atol=1e-9)
     empty = detections_message(stages.process(tick(1, jpeg(None), 200, new=True)))
     assert len(empty.detections) == 0
 

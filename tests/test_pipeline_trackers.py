@@ -12,6 +12,7 @@ from phonepose.pipeline.trackers import (TRACKERS, CorrectionKind, Method, make_
                                          tracker_names)
 from phonepose.pipeline.types import MarkerObservation, Observation, Tick
 from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.session.codec import encode_pose
 
 rng = np.random.default_rng(7)
 
@@ -22,8 +23,8 @@ def random_pose() -> Pose:
 
 def cm1_event(fix: Pose, align: Pose) -> pb.CalibrationEvent:
     e = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
-    fix.to_foxglove(e.pose_fix_vio)
-    align.to_foxglove(e.pose_align_vio)
+    encode_pose(fix, e.pose_fix_vio)
+    encode_pose(align, e.pose_align_vio)
     return e
 
 

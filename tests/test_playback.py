@@ -14,9 +14,10 @@ from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import tracker_names
 from phonepose.playback import rerun_log as paths
 from phonepose.playback.engine import run_playback
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas.topics import Topic, tracker_pose_topic
 from phonepose.session import SessionReader
+from phonepose.session import codec
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +82,7 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     for i in (0, traj.stamps_ns.size // 2, traj.stamps_ns.size - 1):
         m = msgs[int(traj.stamps_ns[i])]
         assert m.frame_id == "display_vio" and m.timestamp.ToNanoseconds() == traj.stamps_ns[i]
-        assert Pose.from_foxglove(m.pose).allclose(traj.poses[i], atol=1e-12)
+        assert codec.pose_of(m.pose).allclose(traj.poses[i], atol=1e-12)
 
 
 def test_determinism_byte_identical(session, tmp_path):

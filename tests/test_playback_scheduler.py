@@ -15,7 +15,7 @@ from phonepose.playback.scheduler import PoseStream, TickScheduler
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.sample import frame_transform, pose_in_frame
+from phonepose.session.codec import frame_transform, pose_in_frame
 
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000

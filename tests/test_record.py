@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 import tomllib
 
 import numpy as np
@@ -20,6 +19,8 @@ from phonepose.record.sim import T0_NS, default_config, record_sim
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
+from phonepose.session import codec
+from conftest import DEADLINE_S, wait_until
 
 PHONEPOSE = [sys.executable, "-m", "phonepose"]
 # A cheap camera rate keeps these tests fast; everything else is the default world.
@@ -113,7 +114,7 @@ def test_calibration_events_before_the_task(session):
     assert cm1.frame_id == Frame.DISPLAY_VIO
     assert cm1.fix_timestamp.ToNanoseconds() < cm1.timestamp.ToNanoseconds() <= events[0].log_time_ns
     assert events[1].log_time_ns < info.task_start.ToNanoseconds()
-    fix, align = Pose.from_foxglove(cm1.pose_fix_vio), Pose.from_foxglove(cm1.pose_align_vio)
+    fix, align = codec.pose_of(cm1.pose_fix_vio), codec.pose_of(cm1.pose_align_vio)
     # the mapped VIO pose moved by about the anchor error while the real phone went onto the CG object
     assert 0.02 < fix.distance_to(align) < 0.15
     assert not cm2.HasField("pose_fix_vio")
@@ -123,11 +124,11 @@ def test_anchor_mapping_through_the_recorded_topics(session):
     """T_dvio_ctrl = T_dvio_anchor · T_cvio_anchor⁻¹ · T_cvio_ctrl from the file, against GT."""
     out, _ = session
     with SessionReader(out) as r:
-        da = Pose.from_foxglove(r.first(Topic.DISPLAY_ANCHOR).pose)
-        ca = Pose.from_foxglove(r.first(Topic.CONTROLLER_ANCHOR).pose)
+        da = codec.pose_of(r.first(Topic.DISPLAY_ANCHOR).pose)
+        ca = codec.pose_of(r.first(Topic.CONTROLLER_ANCHOR).pose)
         cal = r.first(Topic.GT_CALIBRATION)
-        vio = [(m.msg.timestamp.ToNanoseconds(), Pose.from_foxglove(m.msg.pose)) for m in r.messages([Topic.CONTROLLER_VIO_POSE])]
-        gt = [(m.log_time_ns, Pose.from_foxglove(m.msg.pose)) for m in r.messages([Topic.GT_CONTROLLER_POSE])]
+        vio = [(m.msg.timestamp.ToNanoseconds(), codec.pose_of(m.msg.pose)) for m in r.messages([Topic.CONTROLLER_VIO_POSE])]
+        gt = [(m.log_time_ns, codec.pose_of(m.msg.pose)) for m in r.messages([Topic.GT_CONTROLLER_POSE])]
     T_world_dvio = Pose.from_xyzw([cal.translation.x, cal.translation.y, cal.translation.z],
                                   [cal.rotation.x, cal.rotation.y, cal.rotation.z, cal.rotation.w])
     gt_t = np.array([t for t, _ in gt])
@@ -142,7 +143,7 @@ def test_anchor_mapping_through_the_recorded_topics(session):
 
 # ---------------------------------------------------------------- CLI
 def test_cli_help():
-    r = subprocess.run([*PHONEPOSE, "record", "sim", "--help"], capture_output=True, text=True, timeout=60)
+    r = subprocess.run([*PHONEPOSE, "record", "sim", "--help"], capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0
     for opt in ("--scenario", "--path", "--trial", "--seed", "--out", "--config", "--rerun", "--spawn"):
         assert opt in r.stdout
@@ -153,7 +154,7 @@ def test_cli_bad_config_is_one_line_and_exit_5(tmp_path):
     bad.write_text("[network]\ncontroller_latency_s = 7\n")
     out = tmp_path / "x.mcap"
     r = subprocess.run([*PHONEPOSE, "record", "sim", "--out", str(out), "--config", str(bad)],
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 5
     assert "Traceback" not in r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
@@ -167,7 +168,7 @@ def test_cli_records_and_summarises(tmp_path):
     out = tmp_path / "s.mcap"
     r = subprocess.run([*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
                         "--seed", "3", "--out", str(out), "--config", str(cfg), "--quiet"],
-                       capture_output=True, text=True, timeout=120)
+                       capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0, r.stderr
     assert "exp2 REC1 trial 2" in r.stdout and "done" in r.stdout
     with SessionReader(out) as reader:
@@ -178,26 +179,24 @@ def test_cli_records_and_summarises(tmp_path):
     before = out.read_bytes()
     again = [*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
              "--seed", "4", "--out", str(out), "--config", str(cfg), "--quiet"]
-    r = subprocess.run(again, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(again, capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 6 and r.stderr == f"phonepose: error: {out} already exists: choose another --out, " \
                                               "or add --force to replace it\n"
     assert out.read_bytes() == before
     # --force replaces it
-    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=DEADLINE_S)
     assert r.returncode == 0, r.stderr
     with SessionReader(out) as reader:
         assert reader.first(Topic.SESSION_INFO).seed == 4
 
 
 # ---------------------------------------------------------------- stopping
-def _wait_for_size(path, size, proc, timeout=60.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if os.path.exists(path) and os.path.getsize(path) > size:
-            return
+def _wait_for_size(path, size, proc):
+    def grown():
         assert proc.poll() is None, proc.communicate()
-        time.sleep(0.05)
-    raise AssertionError("recording did not start")
+        return os.path.exists(path) and os.path.getsize(path) > size
+
+    wait_until(grown, what=f"the recording to pass {size} bytes")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
@@ -207,7 +206,7 @@ def test_sigint_and_sigterm_finish_a_valid_file(tmp_path, sig):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_for_size(out, 2_000_000, proc)
     proc.send_signal(sig)
-    stdout, stderr = proc.communicate(timeout=60)
+    stdout, stderr = proc.communicate(timeout=DEADLINE_S)
     assert proc.returncode == 0, stderr
     assert "interrupted, file is valid" in stdout
     with SessionReader(out) as r:          # has a summary: the file was finished
@@ -235,7 +234,7 @@ def test_sigkill_loses_at_most_about_one_second(tmp_path):
         if last > 6e9:                     # 6 s of session handed to the writer
             break
     proc.kill()
-    proc.wait(timeout=30)
+    proc.wait(timeout=DEADLINE_S)
     count, max_t = 0, 0
     with open(out, "rb") as f:
         try:

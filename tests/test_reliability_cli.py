@@ -1,6 +1,6 @@
 """Bad input at the command line: one line on stderr, the documented exit code, no traceback.
 
-Each case builds its input from a small valid session (phonepose.playback.testdata), runs the
+Each case builds its input from a small valid session (phonepose.testing.playback_session), runs the
 CLI in-process (``phonepose.cli.main``) and checks the exit code and message. The same CASES
 generate the table in docs/reliability.md: ``python tests/test_reliability_cli.py``.
 Warnings (skipped samples) are checked through a real subprocess, where logging prints them.
@@ -23,7 +23,7 @@ import pytest
 from mcap.writer import Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, SessionWriter
@@ -97,6 +97,20 @@ def _bad_quaternions():
                 msg.pose.orientation.w = 5.0          # non-unit
             elif i % 6 == 5:
                 msg.pose.position.y = math.inf
+        return [(topic, msg, t)]
+    return fn
+
+
+def _foreign_payloads():
+    """Every other controller VIO payload is another message's bytes (an IMU sample) under PoseInFrame."""
+    from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+    k = itertools.count()
+
+    def fn(topic, msg, t):
+        if topic == Topic.CONTROLLER_VIO_POSE and next(k) % 2 == 1:
+            imu = pb.Imu(frame_id=msg.frame_id, gyro_x=0.5, accel_z=9.81)
+            imu.timestamp.CopyFrom(msg.timestamp)
+            msg = PoseInFrame.FromString(imu.SerializeToString())
         return [(topic, msg, t)]
     return fn
 
@@ -520,6 +534,8 @@ WARNING_CASES = [
      r"/controller/vio/pose: 12 sample\(s\) skipped: duplicate or non-monotonic timestamp"),
     ("bad-quaternions", "controller VIO with NaN / |q| = 5 / inf position in every other sample",
      _bad_quaternions(), r"/controller/vio/pose: 30 sample\(s\) skipped: NaN/inf value or non-unit quaternion"),
+    ("foreign-payloads", "controller VIO where every other payload is an IMU message's bytes", _foreign_payloads(),
+     r"/controller/vio/pose: 30 sample\(s\) skipped: no pose in the message \(neither position nor orientation set\)"),
     ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
      r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
 ]

@@ -19,7 +19,8 @@ from phonepose.geometry import Pose
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.sample import T0_NS, pose_in_frame
+from phonepose.session.codec import pose_in_frame
+from phonepose.testing.sample import T0_NS
 
 IMU_HZ, CAM_HZ, VIO_HZ = 400, 30, 60
 

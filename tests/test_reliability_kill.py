@@ -12,7 +12,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from mcap.reader import make_reader
 from phonepose.session import SessionReader
 from phonepose.session.recover import salvage
 from test_reliability_data import mounted_tmpfs
+from conftest import DEADLINE_S, wait_until
 
 pytestmark = pytest.mark.slow
 
@@ -72,7 +72,7 @@ def test_sigkill_at_random_moments_loses_at_most_a_second(complete, tmp_path):
                 child.send_signal(signal.SIGKILL)
                 break
         reported = max([reported] + [int(x) for x in child.stdout.read().split()])  # written before death
-        child.wait(timeout=60)
+        child.wait(timeout=DEADLINE_S)
         assert child.returncode == -signal.SIGKILL
         with pytest.raises(Exception):
             SessionReader(out)       # no summary: the file needs recover
@@ -102,14 +102,11 @@ def test_sigint_sigterm_leave_a_complete_file(complete, tmp_path, sig):
     out = tmp_path / "stopped.mcap"
     child = subprocess.Popen([sys.executable, "-m", "phonepose", "record", "sim", *SCENARIO, "--out", str(out), "-q"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and child.poll() is None:
-        if out.exists() and out.stat().st_size > 4_000_000:   # a few seconds into the session
-            break
-        time.sleep(0.02)
+    wait_until(lambda: child.poll() is not None or (out.exists() and out.stat().st_size > 4_000_000),
+               what="the recording to pass 4 MB")                 # a few seconds into the session
     assert child.poll() is None, "recording ended before the signal"
     child.send_signal(sig)
-    stdout, stderr = child.communicate(timeout=60)
+    stdout, stderr = child.communicate(timeout=DEADLINE_S)
     assert child.returncode == 0, stderr
     assert "interrupted, file is valid" in stdout
     with open(out, "rb") as f:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import rerun.chunk as rc
 
-from phonepose.session.sample import sample_messages, write_sample
+from phonepose.testing.sample import sample_messages, write_sample
 from phonepose.schemas.topics import Topic
 
 

@@ -127,7 +127,7 @@ def test_vio_samples_are_mapped_only_when_a_tracker_reads_them(tmp_path):
     """The shared stages map the stamped VIO samples for T8 only: a T1-T7 playback skips that work."""
     from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.engine import run_playback
-    from phonepose.playback.testdata import write_test_session
+    from phonepose.testing.playback_session import write_test_session
 
     session = tmp_path / "s.mcap"
     write_test_session(session, duration_s=1.0)

@@ -122,9 +122,8 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
     """Estimate X from a session's controller VIO (/controller/vio/pose) and ground truth (/gt/controller/pose).
 
     ``options`` go to :func:`estimate_hand_eye`."""
-    from phonepose.playback.scheduler import raw_pose, to_pose
     from phonepose.schemas.topics import Topic
-    from phonepose.session.reader import SessionReader
+    from phonepose.session import SessionReader, codec
 
     series: dict[str, tuple[list, list]] = {Topic.CONTROLLER_VIO_POSE: ([], []), Topic.GT_CONTROLLER_POSE: ([], [])}
     with SessionReader(path) as reader:
@@ -133,9 +132,10 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
             raise SessionContentError(f"{path}: no {' and no '.join(missing)}: the hand-eye calibration needs the "
                                       "controller's VIO and the motion-capture ground truth")
         for m in reader.messages(list(series)):
-            pose = to_pose(raw_pose(m.msg.pose))     # None: NaN/inf or a non-unit quaternion, skipped as playback does
-            if pose is None:
-                continue
+            try:
+                pose = Pose.from_raw(codec.raw_pose(m.msg.pose))
+            except codec.BrokenPose:
+                continue     # skipped as playback skips it
             stamps, poses = series[m.topic]
             # the phone's pose at its capture time; the ground truth at the time playback associates it
             # by (its log time), so that the offset found is the one playback must shift by

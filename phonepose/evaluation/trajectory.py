@@ -17,10 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from phonepose.errors import ConfigError, InputFileError, OutputError
-from phonepose.geometry import Pose
+from phonepose.geometry import QUAT_NORM_TOL, Pose
 
 FORMATS = ("tum", "euroc", "kitti")
-QUAT_NORM_TOL = 1e-3   # as playback: a quaternion further than this from unit length is skipped, not normalised
 
 log = logging.getLogger("phonepose")
 

@@ -23,6 +23,7 @@ from rich.table import Table
 from phonepose.experiments import paper
 from phonepose.experiments.common import SequenceJob, fmt, mean_or_none, run_sequence, sequence_seed
 from phonepose.geometry import Pose
+from phonepose.session import codec
 
 
 @dataclass
@@ -41,7 +42,7 @@ def read_targets(session: str) -> tuple[list[dict], float]:
         msg = reader.first(Topic.EXPERIMENT_TARGETS)
     if msg is None:
         return [], 0.02
-    out = [{"index": t.index, "inside": bool(t.inside_view), "position": Pose.from_foxglove(t.pose).translation,
+    out = [{"index": t.index, "inside": bool(t.inside_view), "position": codec.pose_of(t.pose).translation,
             "start_ns": t.hold_start.ToNanoseconds(), "end_ns": t.hold_end.ToNanoseconds()} for t in msg.targets]
     return out, float(msg.select_radius_m or 0.02)
 

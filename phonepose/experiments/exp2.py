@@ -145,14 +145,14 @@ def _write_table6(rows: list[dict], out: Path, hand_eye: bool = False) -> tuple[
 
 def display_camera_pose(session: str) -> Pose:
     """The display camera in display_vio at the start of the session (the origin of Fig. 11)."""
-    from phonepose.playback.context import fg_pose, read_context
+    from phonepose.playback.context import read_context
     from phonepose.schemas.topics import Topic
-    from phonepose.session import SessionReader
+    from phonepose.session import SessionReader, codec
 
     with SessionReader(session) as reader:
         context = read_context(reader)
         first = reader.first(Topic.DISPLAY_VIO_POSE)
-    T_dvio_display = fg_pose(first.pose) if first is not None else Pose.identity()
+    T_dvio_display = codec.pose_of(first.pose) if first is not None else Pose.identity()
     return T_dvio_display @ context.camera.T_display_camera
 
 

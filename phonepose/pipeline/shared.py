@@ -20,6 +20,7 @@ from phonepose.pipeline.markers import MarkerRecognizer
 from phonepose.pipeline.types import MarkerObservation, Observation, SessionContext, Tick
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame
+from phonepose.session.codec import encode_pose
 
 
 def decode_gray(image) -> np.ndarray | None:
@@ -93,7 +94,7 @@ def detections_message(obs: Observation) -> pb.MarkerDetections:
                                  chosen_solution=m.chosen_solution,
                                  ambiguity_ratio=m.ambiguity_ratio if np.isfinite(m.ambiguity_ratio) else 0.0)
         det.corners_px.extend(float(v) for v in np.asarray(m.corners_px).reshape(-1))
-        m.T_camera_marker.to_foxglove(det.pose_in_camera)
+        encode_pose(m.T_camera_marker, det.pose_in_camera)
         if m.T_dvio_controller is not None:
-            m.T_dvio_controller.to_foxglove(det.controller_in_display_vio)
+            encode_pose(m.T_dvio_controller, det.controller_in_display_vio)
     return msg

@@ -31,7 +31,6 @@ phonepose/pipeline/fusion.py). ``"paper"`` selects T1-T7, ``"all"`` every row.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 from enum import Enum
 from typing import Callable, Iterable
@@ -43,6 +42,7 @@ from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMa
                                             marker_correction)
 from phonepose.pipeline.types import Observation, Tracker
 from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.session import codec
 
 
 class Method(str, Enum):
@@ -62,13 +62,11 @@ log = logging.getLogger("phonepose")
 
 
 def _event_pose(fg) -> Pose | None:
-    """A CalibrationEvent pose, or None if it is unset, non-finite or its quaternion is not unit length."""
-    p, q = fg.position, fg.orientation
-    values = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
-    n = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
-    if not all(math.isfinite(v) for v in values) or not math.isfinite(n) or abs(n - 1.0) > 1e-3:
+    """A CalibrationEvent pose by the codec's rules (docs/format.md), or None if it is broken."""
+    try:
+        return codec.pose_of(fg)
+    except codec.BrokenPose:
         return None
-    return Pose.from_foxglove(fg)
 
 
 class CorrectionSource:
@@ -98,7 +96,7 @@ class CM1Source(CorrectionSource):
             if event.kind == pb.CalibrationEvent.CM1:
                 fix, align = _event_pose(event.pose_fix_vio), _event_pose(event.pose_align_vio)
                 if fix is None or align is None:
-                    log.warning("phonepose: warning: CM1 event at %d ns ignored: a pose is unset, NaN/inf or "
+                    log.warning("phonepose: warning: CM1 event at %d ns ignored: a pose is missing, NaN/inf or "
                                 "its quaternion is not unit length", obs.tick.t_ns)
                     continue
                 self.current = cm1_correction(fix, align, self.math, self.cm1_reading)

@@ -13,46 +13,19 @@ from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext
 from phonepose.schemas.topics import Topic
-from phonepose.session import SessionReader
+from phonepose.session import SessionReader, codec
 
 # Used when a session has no camera at all (controller VIO only): nothing looks at it.
 _NO_CAMERA = CameraModel(K=np.eye(3), D=np.zeros(5), width=0, height=0, T_display_camera=Pose.identity())
 _NO_MARKER = MarkerModel(dictionary="", id=-1, size_m=0.0, T_body_marker=Pose.identity())
 
 
-def _pose_or_identity_rotation(t, q) -> Pose:
-    """Position ``t`` and quaternion ``q``; an unset quaternion (all zeros, the protobuf default) reads as identity."""
-    if q.x == 0.0 and q.y == 0.0 and q.z == 0.0 and q.w == 0.0:
-        return Pose.from_xyzw([t.x, t.y, t.z], [0.0, 0.0, 0.0, 1.0])
-    return Pose.from_xyzw([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
-
-
-def transform_to_pose(msg) -> Pose:
-    """A foxglove FrameTransform as the pose of its child in its parent."""
-    return _pose_or_identity_rotation(msg.translation, msg.rotation)
-
-
-def fg_pose(pose) -> Pose:
-    """A foxglove Pose (unset orientation = identity)."""
-    return _pose_or_identity_rotation(pose.position, pose.orientation)
-
-
-def _check_pose(path: str, what: str, position, quat) -> None:
-    """Static poses must be finite with a unit (or unset, all-zero) quaternion: else one clear error."""
-    values = [float(v) for v in (*position, *quat)]
-    if not all(np.isfinite(values)):
-        raise SessionContentError(f"{path}: {what} has NaN/inf values")
-    n = float(np.linalg.norm(values[3:]))
-    if n != 0.0 and abs(n - 1.0) > 1e-3:
-        raise SessionContentError(f"{path}: {what} quaternion is not unit length (|q| = {n:.6g})")
-
-
-def _xyz(v):
-    return (v.x, v.y, v.z)
-
-
-def _xyzw(q):
-    return (q.x, q.y, q.z, q.w)
+def _static_pose(path: str, what: str, decode, msg) -> Pose:
+    """A static pose (a FrameTransform or a foxglove Pose) by the codec's rules; broken is one clear error."""
+    try:
+        return decode(msg)
+    except codec.BrokenPose as exc:
+        raise SessionContentError(f"{path}: {what} {exc.detail}") from None
 
 
 def _check_camera(path: str, calib) -> None:
@@ -65,11 +38,13 @@ def _check_camera(path: str, calib) -> None:
         raise SessionContentError(f"{path}: camera calibration focal lengths fx={K[0]:g}, fy={K[4]:g}: expected > 0")
 
 
-def _check_marker(path: str, spec) -> None:
+def _marker_model(path: str, spec) -> MarkerModel:
     if not (np.isfinite(spec.size_m) and spec.size_m > 0):
         raise SessionContentError(f"{path}: marker size {spec.size_m:g} m: expected a positive size")
-    _check_pose(path, f"marker pose on the body ({Topic.CONTROLLER_MARKER})", _xyz(spec.pose_in_body.position),
-                _xyzw(spec.pose_in_body.orientation))
+    T_body_marker = _static_pose(path, f"marker pose on the body ({Topic.CONTROLLER_MARKER})",
+                                 lambda pose: codec.pose_of(pose, required=False), spec.pose_in_body)
+    return MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
+                       T_body_marker=T_body_marker)
 
 
 def _stamp_ns(ts) -> int | None:
@@ -119,28 +94,22 @@ def read_context(reader: SessionReader) -> SessionContext:
         d = np.asarray(calib.D, dtype=float)[:5]
         D[: len(d)] = d
         ext = first(Topic.CAMERA_EXTRINSICS)
-        if ext is not None:
-            _check_pose(path, f"camera extrinsics ({Topic.CAMERA_EXTRINSICS})", _xyz(ext.translation), _xyzw(ext.rotation))
-        T_display_camera = transform_to_pose(ext) if ext is not None else Pose.identity()
+        T_display_camera = Pose.identity() if ext is None else \
+            _static_pose(path, f"camera extrinsics ({Topic.CAMERA_EXTRINSICS})", codec.transform_of, ext)
         camera = CameraModel(K=np.asarray(calib.K, dtype=float).reshape(3, 3), D=D, width=int(calib.width),
                              height=int(calib.height), T_display_camera=T_display_camera)
         spec = first(Topic.CONTROLLER_MARKER)
         if spec is None:
             raise SessionContentError(f"{path}: camera images but no marker spec ({Topic.CONTROLLER_MARKER})")
-        _check_marker(path, spec)
-        marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
-                             T_body_marker=fg_pose(spec.pose_in_body))
+        marker = _marker_model(path, spec)
     else:
         spec = first(Topic.CONTROLLER_MARKER)
         if spec is not None:
-            _check_marker(path, spec)
-            marker = MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),
-                                 T_body_marker=fg_pose(spec.pose_in_body))
+            marker = _marker_model(path, spec)
 
     gt_calib = first(Topic.GT_CALIBRATION)
-    if gt_calib is not None:
-        _check_pose(path, f"ground-truth calibration ({Topic.GT_CALIBRATION})", _xyz(gt_calib.translation),
-                    _xyzw(gt_calib.rotation))
+    T_world_display_vio = None if gt_calib is None else \
+        _static_pose(path, f"ground-truth calibration ({Topic.GT_CALIBRATION})", codec.transform_of, gt_calib)
     info = first(Topic.SESSION_INFO)
     targets = first(Topic.EXPERIMENT_TARGETS)
     path_spec = first(Topic.EXPERIMENT_PATH)
@@ -150,7 +119,7 @@ def read_context(reader: SessionReader) -> SessionContext:
         task_end = _stamp_ns(info.task_end)
     return SessionContext(
         camera=camera, marker=marker,
-        T_world_display_vio=transform_to_pose(gt_calib) if gt_calib is not None else None,
+        T_world_display_vio=T_world_display_vio,
         task_start_ns=task_start, task_end_ns=task_end,
         session_info=info, targets=targets, path=path_spec,
     )

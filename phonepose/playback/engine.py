@@ -38,7 +38,7 @@ from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.sample import pose_in_frame
+from phonepose.session.codec import pose_in_frame
 
 
 @dataclass

@@ -35,19 +35,12 @@ from typing import Iterator
 
 import numpy as np
 
-from scipy.spatial.transform import Rotation
-
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, RawPose, raw_compose, raw_interpolate
 from phonepose.pipeline.types import SessionContext, Tick
 from phonepose.schemas.topics import Topic
-from phonepose.session import SessionReader
+from phonepose.session import SessionReader, codec
 
 log = logging.getLogger("phonepose")
-
-# A pose whose quaternion norm is further than this from 1 (or has NaN/inf anywhere) is skipped
-# and reported, never normalised into something plausible (docs/reliability.md). All zeros is the
-# protobuf default of an unset orientation and reads as identity.
-QUAT_NORM_TOL = 1e-3
 
 DEFAULT_RATE_HZ = 20.0
 GT_TOLERANCE_S = 0.02
@@ -59,82 +52,8 @@ SCHEDULED_TOPICS = (
 )
 
 
-# ----------------------------------------------------------------------------- raw pose math
-# Samples are kept as plain tuples (qx, qy, qz, qw, x, y, z): scipy Rotation objects cost tens of
-# microseconds each, and a session has thousands of samples. A Pose is built only for what a
-# tick carries.
-def _slerp(q0, q1, a: float):
-    dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3]
-    if dot < 0.0:
-        q1 = (-q1[0], -q1[1], -q1[2], -q1[3])
-        dot = -dot
-    if dot > 0.9999995:
-        w0, w1 = 1.0 - a, a
-    else:
-        theta = math.acos(min(1.0, dot))
-        s = math.sin(theta)
-        w0 = math.sin((1.0 - a) * theta) / s
-        w1 = math.sin(a * theta) / s
-    q = (w0 * q0[0] + w1 * q1[0], w0 * q0[1] + w1 * q1[1], w0 * q0[2] + w1 * q1[2], w0 * q0[3] + w1 * q1[3])
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-
-
-def _interp(s0, s1, a: float):
-    q = _slerp(s0[:4], s1[:4], a)
-    b = 1.0 - a
-    return q + (b * s0[4] + a * s1[4], b * s0[5] + a * s1[5], b * s0[6] + a * s1[6])
-
-
-def _qmul(a, b):
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz)
-
-
-def _qrot(q, v):
-    x, y, z, w = q
-    # v + 2w (q_v x v) + 2 q_v x (q_v x v)
-    cx, cy, cz = y * v[2] - z * v[1], z * v[0] - x * v[2], x * v[1] - y * v[0]
-    ccx, ccy, ccz = y * cz - z * cy, z * cx - x * cz, x * cy - y * cx
-    return (v[0] + 2 * (w * cx + ccx), v[1] + 2 * (w * cy + ccy), v[2] + 2 * (w * cz + ccz))
-
-
-def compose(a, b):
-    """Raw ``a · b`` of two (qx, qy, qz, qw, x, y, z) tuples."""
-    t = _qrot(a[:4], b[4:])
-    q = _qmul(a[:4], b[:4])
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n, t[0] + a[4], t[1] + a[5], t[2] + a[6])
-
-
-def raw_pose(msg_pose):
-    """(qx, qy, qz, qw, x, y, z), or None for NaN/inf values or a non-unit quaternion."""
-    q, p = msg_pose.orientation, msg_pose.position
-    qx, qy, qz, qw = q.x, q.y, q.z, q.w
-    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-    if not (math.isfinite(n) and math.isfinite(p.x) and math.isfinite(p.y) and math.isfinite(p.z)):
-        return None
-    if n == 0.0:
-        return (0.0, 0.0, 0.0, 1.0, p.x, p.y, p.z)   # unset orientation reads as identity
-    if abs(n - 1.0) > QUAT_NORM_TOL:
-        return None
-    return (qx / n, qy / n, qz / n, qw / n, p.x, p.y, p.z)
-
-
-def raw_of(pose: Pose):
-    q = pose.quat_xyzw
-    t = pose.translation
-    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]), float(t[0]), float(t[1]), float(t[2]))
-
-
-def to_pose(raw) -> Pose | None:
-    if raw is None:
-        return None
-    return Pose(Rotation.from_quat(raw[:4]), np.array(raw[4:], dtype=float))
+def _pose(raw: RawPose | None) -> Pose | None:
+    return None if raw is None else Pose.from_raw(raw)
 
 
 class PoseStream:
@@ -146,7 +65,7 @@ class PoseStream:
 
     def add(self, t_ns: int, pose) -> None:
         if isinstance(pose, Pose):
-            pose = raw_of(pose)
+            pose = pose.as_raw()
         if self.times and t_ns < self.times[-1]:
             return  # out of order on this stream: drop (the reader orders by log_time, so never here)
         self.times.append(t_ns)
@@ -177,7 +96,7 @@ class PoseStream:
         if i + 1 < len(times):
             t1 = times[i + 1]
             if t1 - t0 <= max_gap_ns:
-                return _interp(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
+                return raw_interpolate(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
         if t_ns - t0 <= max_gap_ns:
             return self.poses[i]
         return None
@@ -198,13 +117,13 @@ class PoseStream:
         t1 = times[i + 1]
         if t_ns - t0 > tol_ns or t1 - t_ns > tol_ns:
             return None
-        return _interp(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
+        return raw_interpolate(self.poses[i], self.poses[i + 1], (t_ns - t0) / (t1 - t0))
 
     def at(self, t_ns: int, max_gap_ns: int) -> Pose | None:
-        return to_pose(self.raw_at(t_ns, max_gap_ns))
+        return _pose(self.raw_at(t_ns, max_gap_ns))
 
     def associate(self, t_ns: int, tol_ns: int) -> Pose | None:
-        return to_pose(self.raw_associate(t_ns, tol_ns))
+        return _pose(self.raw_associate(t_ns, tol_ns))
 
 
 @dataclass
@@ -220,15 +139,6 @@ class ScheduleInfo:
         if self.last_tick_ns < self.first_tick_ns:
             return 0
         return (self.last_tick_ns - self.first_tick_ns) // self.period_ns + 1
-
-
-def _pose_msg(msg):
-    return raw_pose(msg.pose)
-
-
-def _stamp_s(msg, log_time_ns: int) -> float:
-    ns = msg.timestamp.ToNanoseconds()
-    return (ns if ns else log_time_ns) / 1e9
 
 
 _POSE_TOPICS = frozenset((Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Topic.GT_CONTROLLER_POSE,
@@ -255,8 +165,8 @@ class TickScheduler:
         summary = reader.summary()
         self.has_camera = summary.has(Topic.CAMERA_IMAGE)
         self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
-        self._T_dvio_world = raw_of(context.T_world_display_vio.inv()) if context.T_world_display_vio is not None else None
-        self._T_mocap_controller = raw_of(hand_eye.T_controller_mocap.inv()) if hand_eye is not None else None
+        self._T_dvio_world = context.T_world_display_vio.inv().as_raw() if context.T_world_display_vio is not None else None
+        self._T_mocap_controller = hand_eye.T_controller_mocap.inv().as_raw() if hand_eye is not None else None
         self._gt_shift_ns = int(round(hand_eye.time_offset_s * 1e9)) if hand_eye is not None else 0
         self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
@@ -344,7 +254,7 @@ class TickScheduler:
             k = 0
             while k < len(cvio_samples) and cvio_samples[k][0] <= t:
                 k += 1
-            vio_samples = [(c, to_pose(r)) for _, c, r in cvio_samples[:k]]
+            vio_samples = [(c, Pose.from_raw(r)) for _, c, r in cvio_samples[:k]]
             del cvio_samples[:k]
             image_t = state["image_t"]
             T_dvio_display = None
@@ -363,8 +273,8 @@ class TickScheduler:
                 T_world_ctrl = gt.raw_associate(t, self.gt_tol_ns)
                 if T_world_ctrl is not None:
                     if self._T_mocap_controller is not None:
-                        T_world_ctrl = compose(T_world_ctrl, self._T_mocap_controller)
-                    gt_pose = to_pose(compose(self._T_dvio_world, T_world_ctrl))
+                        T_world_ctrl = raw_compose(T_world_ctrl, self._T_mocap_controller)
+                    gt_pose = Pose.from_raw(raw_compose(self._T_dvio_world, T_world_ctrl))
             ctx = self.context
             in_task = True
             if ctx.task_start_ns is not None and t < ctx.task_start_ns:
@@ -405,9 +315,10 @@ class TickScheduler:
                 last_stamp[topic] = (now, stamp)
             raw = None
             if topic in _POSE_TOPICS:
-                raw = _pose_msg(msg)
-                if raw is None:
-                    self.skipped[(topic, "NaN/inf value or non-unit quaternion")] += 1
+                try:
+                    raw = codec.raw_pose(msg.pose)
+                except codec.BrokenPose as exc:
+                    self.skipped[(topic, exc.reason)] += 1
                     continue
             if topic == Topic.CAMERA_IMAGE:
                 images.append((now, msg))
@@ -416,18 +327,18 @@ class TickScheduler:
             elif topic == Topic.CONTROLLER_VIO_POSE:
                 controller.add(now, raw)
                 if now > info.first_tick_ns - self.period_ns:   # else before the first tick's interval
-                    cvio_samples.append((now, msg.timestamp.ToNanoseconds() or now, raw))
+                    cvio_samples.append((now, codec.stamp_ns(msg, now), raw))
             elif topic == Topic.GT_CONTROLLER_POSE:
                 if self.has_gt:
                     gt.add(now - self._gt_shift_ns, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
-                d_anchor.append((now, to_pose(raw)))
+                d_anchor.append((now, Pose.from_raw(raw)))
             elif topic == Topic.CONTROLLER_ANCHOR:
-                c_anchor.append((now, to_pose(raw)))
+                c_anchor.append((now, Pose.from_raw(raw)))
             elif topic == Topic.CONTROLLER_IMU:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it
-                row = (_stamp_s(msg, now), msg.gyro_x, msg.gyro_y, msg.gyro_z, msg.accel_x, msg.accel_y, msg.accel_z)
+                row = codec.imu_row(msg, now)
                 if not all(math.isfinite(v) for v in row):
                     self.skipped[(topic, "NaN/inf value")] += 1
                     continue

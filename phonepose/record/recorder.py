@@ -21,7 +21,7 @@ from phonepose.errors import OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.record.source import Record, Source
 from phonepose.schemas.topics import Topic
-from phonepose.session import SessionWriter
+from phonepose.session import SessionWriter, codec
 
 ProgressCallback = Callable[[int, int | None], None]   # (log time done since start, duration) in ns
 
@@ -113,12 +113,17 @@ class RerunLogger:
             rec.log("/world/display/camera/image", rr.Pinhole(image_from_camera=K, resolution=[m.width, m.height],
                                                                 image_plane_distance=0.1), static=True)
         elif topic in (Topic.CAMERA_EXTRINSICS, Topic.GT_CALIBRATION):
-            pose = Pose.from_xyzw([m.translation.x, m.translation.y, m.translation.z],
-                                  [m.rotation.x, m.rotation.y, m.rotation.z, m.rotation.w])
+            try:
+                pose = codec.transform_of(m)
+            except codec.BrokenPose:
+                return
             path = "/world/display/camera" if topic == Topic.CAMERA_EXTRINSICS else "/world/display_vio"
             self._transform(path, pose, axes=None, static=True)
         elif topic in _POSE_PATHS:
-            pose = Pose.from_foxglove(m.pose)
+            try:
+                pose = codec.pose_of(m.pose)
+            except codec.BrokenPose:
+                return   # shown as recorded or not at all: a broken pose is not logged
             if topic in (Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR):
                 self._anchors[topic] = pose
                 return

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 
 from aiohttp import WSMsgType, web
 
+from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
 
 if TYPE_CHECKING:   # pragma: no cover
@@ -47,7 +48,6 @@ MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from 
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
-QUAT_NORM_TOL = 1e-3                  # as playback (phonepose.playback.scheduler)
 
 
 class Malformed(ValueError):

@@ -73,7 +73,7 @@ from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
-from phonepose.session.sample import frame_transform, pose_in_frame
+from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
 
 HOLD_NS = 1_000_000_000              # reorder buffer (> the server's 0.5 s wait for a first pong)
 ANCHOR_MAX_DT_NS = 100_000_000       # the anchor's camera frame lies within this of the tap
@@ -228,7 +228,7 @@ class LiveRecording:
         t = self.clock.now_ns() if t_ns is None else t_ns
         spec = pb.MarkerSpec(dictionary=self.marker_dictionary, id=self.marker_id, size_m=self.marker_size_m)
         spec.timestamp.FromNanoseconds(t)
-        T_BODY_MARKER.to_foxglove(spec.pose_in_body)
+        encode_pose(T_BODY_MARKER, spec.pose_in_body)
         self.emit(Topic.CONTROLLER_MARKER, spec, t)
         self.marker_spec_written = True
 
@@ -424,7 +424,7 @@ class LiveSource:
         if rec.marker_size_from_cli:
             spec = pb.MarkerSpec(dictionary=rec.marker_dictionary, id=rec.marker_id, size_m=rec.marker_size_m)
             spec.timestamp.FromNanoseconds(t0)
-            T_BODY_MARKER.to_foxglove(spec.pose_in_body)
+            encode_pose(T_BODY_MARKER, spec.pose_in_body)
             out.append(Record(Topic.CONTROLLER_MARKER, spec, t0, t0))
         return out
 

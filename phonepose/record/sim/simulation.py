@@ -34,7 +34,7 @@ from phonepose.record.sim.world import (HEIGHT, T_DISPLAY_CAMERA, WIDTH, World, 
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
-from phonepose.session.sample import frame_transform, pose_in_frame
+from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
 
 T0_NS = 1_700_000_000_000_000_000   # session start on the display's clock (fixed: no wall clock)
 IMAGE_LOOKAHEAD = 2                 # frames rendered ahead while earlier ones are JPEG-encoded
@@ -246,7 +246,7 @@ class SimSource:
         calib.timestamp.FromNanoseconds(t0)
         spec = pb.MarkerSpec(dictionary=cfg.marker.dictionary, id=cfg.marker.id, size_m=cfg.marker.size_m)
         spec.timestamp.FromNanoseconds(t0)
-        w.T_controller_marker.to_foxglove(spec.pose_in_body)
+        encode_pose(w.T_controller_marker, spec.pose_in_body)
         out = [
             Record(Topic.SESSION_INFO, info, t0, t0),
             Record(Topic.CAMERA_CALIBRATION, calib, t0, t0),
@@ -261,7 +261,7 @@ class SimSource:
             msg.timestamp.FromNanoseconds(t0)
             for tg in plan.targets:
                 m = msg.targets.add(index=tg.index, inside_view=tg.inside_view)
-                (T_dvio_world @ tg.T_world).to_foxglove(m.pose)
+                encode_pose(T_dvio_world @ tg.T_world, m.pose)
                 m.hold_start.FromNanoseconds(ns(tg.hold_start))
                 m.hold_end.FromNanoseconds(ns(tg.hold_end))
             out.append(Record(Topic.EXPERIMENT_TARGETS, msg, t0, t0))
@@ -351,8 +351,8 @@ class SimSource:
         cm1 = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1, frame_id=Frame.DISPLAY_VIO)
         cm1.timestamp.FromNanoseconds(ns(s.t_cvio[s.j_align]))
         cm1.fix_timestamp.FromNanoseconds(ns(s.t_cvio[s.j_fix]))
-        mapped_fix.to_foxglove(cm1.pose_fix_vio)
-        mapped_align.to_foxglove(cm1.pose_align_vio)
+        encode_pose(mapped_fix, cm1.pose_fix_vio)
+        encode_pose(mapped_align, cm1.pose_align_vio)
         cm2 = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM2, frame_id=Frame.DISPLAY_VIO)
         cm2.timestamp.FromNanoseconds(ns(s.t_cm2))
         # the display makes the CM1 event when the aligned VIO pose has arrived

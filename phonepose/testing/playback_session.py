@@ -16,12 +16,12 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from scipy.spatial.transform import Rotation
 
 from phonepose.geometry import Pose
-from phonepose.pipeline.synthetic import encode_jpeg, looking_at, pinhole_camera, render_marker
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.types import MarkerModel
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionWriter
-from phonepose.session.sample import frame_transform, pose_in_frame
+from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
 
 T0_NS = 1_700_000_000_000_000_000
 MARKER = MarkerModel(dictionary="DICT_4X4_50", id=7, size_m=0.05, T_body_marker=Pose.identity())
@@ -72,7 +72,7 @@ def write_test_session(path: str | os.PathLike, *, duration_s: float = 3.0, came
         msgs.append((t0_ns, Topic.CAMERA_EXTRINSICS,
                      frame_transform(T_display_camera, Frame.DISPLAY, Frame.DISPLAY_CAMERA, t0_ns)))
     spec = pb.MarkerSpec(dictionary=MARKER.dictionary, id=MARKER.id, size_m=MARKER.size_m)
-    MARKER.T_body_marker.to_foxglove(spec.pose_in_body)
+    encode_pose(MARKER.T_body_marker, spec.pose_in_body)
     spec.timestamp.FromNanoseconds(t0_ns)
     msgs.append((t0_ns, Topic.CONTROLLER_MARKER, spec))
     if gt:
@@ -114,8 +114,8 @@ def write_test_session(path: str | os.PathLike, *, duration_s: float = 3.0, came
     ev = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1, frame_id=Frame.DISPLAY_VIO)
     ev.timestamp.FromNanoseconds(ns(t_cm1))
     ev.fix_timestamp.FromNanoseconds(ns(t_cm1 - 0.1))
-    ctrl_true(t_cm1).to_foxglove(ev.pose_fix_vio)
-    (T_DVIO_ANCHOR @ T_cvio_anchor.inv() @ map_c @ ctrl_true(t_cm1)).to_foxglove(ev.pose_align_vio)
+    encode_pose(ctrl_true(t_cm1), ev.pose_fix_vio)
+    encode_pose(T_DVIO_ANCHOR @ T_cvio_anchor.inv() @ map_c @ ctrl_true(t_cm1), ev.pose_align_vio)
     msgs.append((ns(t_cm1), Topic.CALIBRATION_EVENTS, ev))
     ev2 = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM2, frame_id=Frame.DISPLAY_VIO)
     ev2.timestamp.FromNanoseconds(ns(0.25))

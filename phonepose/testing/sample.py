@@ -1,6 +1,7 @@
 """A tiny hand-made session with one message of every type (tests, docs, ``data/sample.mcap``).
 
-Regenerate the checked-in sample with ``python -m phonepose.session.sample data/sample.mcap``.
+Regenerate the checked-in sample with ``python -m phonepose.testing.sample data/sample.mcap``.
+A fixture: production code never imports phonepose.testing (tests/test_imports.py).
 """
 
 from __future__ import annotations
@@ -11,35 +12,18 @@ import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.Log_pb2 import Log
-from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 from phonepose.geometry import Pose
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
+from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
 
 T0_NS = 1_700_000_000_000_000_000
 
 
 def _stamp(msg, t_ns: int) -> None:
     msg.timestamp.FromNanoseconds(t_ns)
-
-
-def pose_in_frame(pose: Pose, frame: str, t_ns: int) -> PoseInFrame:
-    msg = PoseInFrame(frame_id=frame)
-    _stamp(msg, t_ns)
-    pose.to_foxglove(msg.pose)
-    return msg
-
-
-def frame_transform(pose: Pose, parent: str, child: str, t_ns: int) -> FrameTransform:
-    msg = FrameTransform(parent_frame_id=parent, child_frame_id=child)
-    _stamp(msg, t_ns)
-    msg.translation.x, msg.translation.y, msg.translation.z = (float(v) for v in pose.translation)
-    q = pose.quat_xyzw
-    msg.rotation.x, msg.rotation.y, msg.rotation.z, msg.rotation.w = (float(v) for v in q)
-    return msg
 
 
 def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, object, int]]:
@@ -58,24 +42,24 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, object, int]]:
     _stamp(imu, t0_ns)
     spec = pb.MarkerSpec(dictionary="DICT_4X4_50", id=7, size_m=0.05)
     _stamp(spec, t0_ns)
-    p.to_foxglove(spec.pose_in_body)
+    encode_pose(p, spec.pose_in_body)
     det = pb.MarkerDetections(frame_id=Frame.DISPLAY_CAMERA)
     _stamp(det, t0_ns)
     d = det.detections.add(id=7, corners_px=[1, 2, 3, 4, 5, 6, 7, 8], reprojection_error_px=0.1, chosen_solution=1,
                            ambiguity_ratio=3.5)
-    p.to_foxglove(d.pose_in_camera)
-    p.inv().to_foxglove(d.controller_in_display_vio)
+    encode_pose(p, d.pose_in_camera)
+    encode_pose(p.inv(), d.controller_in_display_vio)
     ev = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1, frame_id=Frame.DISPLAY_VIO)
     _stamp(ev, t0_ns)
     ev.fix_timestamp.FromNanoseconds(t0_ns - 5)
-    p.to_foxglove(ev.pose_fix_vio)
-    p.inv().to_foxglove(ev.pose_align_vio)
+    encode_pose(p, ev.pose_fix_vio)
+    encode_pose(p.inv(), ev.pose_align_vio)
     targets = pb.Targets(frame_id=Frame.DISPLAY_VIO, cube_size_m=0.02, select_radius_m=0.02)
     _stamp(targets, t0_ns)
     tg = targets.targets.add(index=0, inside_view=True)
     tg.hold_start.FromNanoseconds(t0_ns + 1)
     tg.hold_end.FromNanoseconds(t0_ns + 5_000_000_000)
-    p.to_foxglove(tg.pose)
+    encode_pose(p, tg.pose)
     path = pb.PathSpec(frame_id=Frame.DISPLAY_VIO, name="TRI2", trial=1, closed=True)
     _stamp(path, t0_ns)
     for x, y in [(0, 0), (0.1, 0), (0.05, 0.1)]:
