@@ -7,11 +7,11 @@ import re
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 from hypothesis import given, strategies as st
 
+from conftest import wait_until
 from phonepose.cli import options
 from phonepose.errors import ConfigError
 from phonepose.numbers import check_number
@@ -90,7 +90,7 @@ def test_help_shows_defaults_choices_and_paper():
 
 # ----------------------------------------------------------------------------- piped output
 def test_info_does_not_cut_topic_names_when_piped(tmp_path):
-    from phonepose.playback.testdata import write_test_session
+    from phonepose.testing.playback_session import write_test_session
 
     write_test_session(tmp_path / "s.mcap", duration_s=1.0)
     r = _run("info", str(tmp_path / "s.mcap"), env={**os.environ, "COLUMNS": "40"})   # a pipe, 40 columns
@@ -109,10 +109,10 @@ def test_sigterm_stops_a_command_like_ctrl_c_and_removes_its_temporaries(tmp_pat
     out = tmp_path / "demo"
     p = subprocess.Popen([sys.executable, "-m", "phonepose", "demo", "--out", str(out)], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, cwd=tmp_path)
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and not list(tmp_path.glob(f".demo.*{TMP_SUFFIX}/TRI2_01.mcap")):
+    def recording() -> bool:
         assert p.poll() is None, p.communicate()
-        time.sleep(0.05)
+        return bool(list(tmp_path.glob(f".demo.*{TMP_SUFFIX}/TRI2_01.mcap")))
+    wait_until(recording, what="the demo to start recording into its temporary folder")
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 143, err

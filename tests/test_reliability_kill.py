@@ -156,7 +156,7 @@ def _session_members(sid: int) -> list[tuple[int, str]]:
 
 @pytest.fixture(scope="module")
 def batch_sessions(tmp_path_factory):
-    from phonepose.playback.testdata import write_test_session
+    from phonepose.testing.playback_session import write_test_session
 
     d = tmp_path_factory.mktemp("batch")
     for i in range(4):
@@ -173,18 +173,14 @@ def test_stopping_a_batch_stops_its_workers(batch_sessions, tmp_path, sig):
     p = subprocess.Popen([sys.executable, "-m", "phonepose", "batch", *sorted(map(str, batch_sessions.glob("*.mcap"))),
                           "-t", "all", "-p", "rate_hz=20,40", "--workers", "2", "-q", "--out", str(out)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:             # both workers up and a first unit written
-        workers = [c for _, c in _session_members(p.pid) if "spawn_main" in c]
-        if len(workers) >= 2 and out.exists():
-            break
+    def running() -> bool:                         # both workers up and a first unit written
         assert p.poll() is None, p.communicate()
-        time.sleep(0.1)
+        return len([c for _, c in _session_members(p.pid) if "spawn_main" in c]) >= 2 and out.exists()
+    wait_until(running, what="the batch's two workers and its first unit", timeout=300)
     rows_before = pq.read_table(out).num_rows
     t0 = time.monotonic()
     p.send_signal(sig)
-    while _session_members(p.pid) and time.monotonic() - t0 < 60:
-        time.sleep(0.05)
+    wait_until(lambda: not _session_members(p.pid), what="every process of the batch to end", timeout=60)
     gone_s = time.monotonic() - t0
     stdout, stderr = p.communicate(timeout=60)     # the pipes close: nothing holds them any more
     assert not _session_members(p.pid), _session_members(p.pid)

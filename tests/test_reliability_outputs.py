@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from phonepose.files import MANIFEST, TMP_SUFFIX
-from phonepose.playback.testdata import write_test_session
+from phonepose.testing.playback_session import write_test_session
 from test_reliability_data import mounted_tmpfs
 
 CONFIG = b"[camera]\nrate_hz = 30.0\n"        # a valid override (the default value)
