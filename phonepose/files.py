@@ -120,7 +120,12 @@ class _Output:
         if not parent.is_dir():
             raise OutputError(f"{self.option} {self.path}: directory {shown} does not exist")
         if not os.access(parent, os.W_OK | os.X_OK):
-            raise OutputError(f"{self.option} {self.path}: directory {shown} is not writable")
+            try:
+                read_only = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
+            except OSError:
+                read_only = False
+            raise OutputError(f"{self.option} {self.path}: directory {shown} is "
+                              f"{'on a read-only file system' if read_only else 'not writable'}")
 
     def _check_not_input(self, inputs: Sequence[Path]) -> None:
         for inp in inputs:

@@ -644,8 +644,11 @@ def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
         for argv, pattern in [
             (["playback", str(good), "-q", "-t", "T1", "--out", str(mnt / "out")],
              r"cannot create output directory .*ro/out: Read-only file system$"),
-            (["recover", str(good), "--out", str(mnt / "fixed.mcap")], r"cannot write .*Read-only file system$"),
-            (["record", "sim", "-q", "--out", str(mnt / "s.mcap")], r"cannot write .*s\.mcap: Read-only file system$"),
+            (["recover", str(good), "--out", str(mnt / "fixed.mcap")],
+             r"--out .*ro/fixed\.mcap: directory .*ro is on a read-only file system$"),
+            (["record", "sim", "-q", "--out", str(mnt / "s.mcap")],
+             r"--out .*ro/s\.mcap: directory .*ro is on a read-only file system$"),
+            (["board", "--out", str(mnt / "b.png")], r"--out .*ro/b\.png: directory .*ro is on a read-only file system$"),
         ]:
             code, _, err = run_inprocess(argv, capsys)
             assert code == 6, err

@@ -81,8 +81,10 @@ def error_rows(unit: Unit, exc: BaseException | str, runtime_s: float | None = N
     return rows
 
 
-class UnitTimeout(Exception):
-    """A unit ran past its time budget (``batch --unit-timeout``)."""
+class UnitTimeout(BaseException):
+    """A unit ran past its time budget (``batch --unit-timeout``). A BaseException, like
+    KeyboardInterrupt: the SIGALRM raising it may land in code that turns any Exception into its own
+    error (the session reader's "damaged MCAP data")."""
 
     def __init__(self, budget_s: float):
         super().__init__(f"stopped after its time budget of {budget_s:g} s (--unit-timeout)")
@@ -136,7 +138,7 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
                 end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
-    except Exception as exc:   # noqa: BLE001 - every failure of one session is that session's rows
+    except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
         return error_rows(unit, exc, time.perf_counter() - t0)
     rows = []
     for tracker in unit.trackers:
