@@ -103,7 +103,7 @@ WRITERS = [
            what="an OpenCV FileStorage file (YAML, XML or JSON)", wrong="cam.txt",
            fails=lambda m, d, argv: argv),    # the stand-in video is no video: exit 2 after the checks
     Writer("calibrate-hand-eye", ["calibrate-hand-eye", "{input}"], "--out", "he.yaml", input="session",
-           what="an OpenCV FileStorage file (YAML, XML or JSON)", wrong="he.mcap",
+           wrong="he.mcap",     # the format's name is w-gt's (a ground-truth calibration file)
            fails=lambda m, d, argv: argv),    # the test session turns about one axis only: exit 4
     Writer("batch", ["batch", "{input}", "-t", "T1", "-q", "--workers", "1"], "--out", "r.parquet", input="session",
            what="a Parquet table", wrong="r.csv", ok=True, fails=_fail_batch, earlier=_earlier_table),
@@ -227,7 +227,8 @@ def case_wrong_extension(w, d, inp, capsys, monkeypatch):
     out = d / w.wrong
     code, _, err = run(argv_for(w, d, out, inp), capsys)
     assert code == 5, err
-    assert one_line(err).startswith(f"{w.option} {out}: writes {w.what}; give a name ending in ")
+    line = one_line(err)
+    assert line.startswith(f"{w.option} {out}: writes {w.what}") and "; give a name ending in ." in line, line
     assert snapshot(d) == before
 
 
