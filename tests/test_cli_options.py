@@ -142,3 +142,22 @@ def test_library_warnings_stay_off_the_terminal():
         assert [str(w.message) for w in caught] == ["a phonepose warning stays"]
     finally:
         np.seterr(**old)
+
+
+def test_an_unexpected_exception_is_one_line_and_the_traceback_on_request(tmp_path, monkeypatch, capsys):
+    """The last net in main: a bug (here a library's RuntimeError) is one line and exit 1, never a traceback."""
+    import phonepose.cli.info as info
+    from phonepose.cli import main
+
+    def broken(path):
+        raise RuntimeError("Failed to encode LogMsg:\n  disk gone")
+    monkeypatch.setattr(info, "SessionReader", broken)
+    with pytest.raises(SystemExit) as e:
+        main(["info", str(tmp_path / "s.mcap")])
+    assert e.value.code == 1
+    assert capsys.readouterr().err == (
+        "phonepose: error: unexpected RuntimeError: Failed to encode LogMsg: disk gone (a bug in phonepose: please "
+        "report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)\n")
+    monkeypatch.setenv("PHONEPOSE_TRACEBACK", "1")
+    with pytest.raises(RuntimeError, match="disk gone"):
+        main(["info", str(tmp_path / "s.mcap")])

@@ -8,6 +8,7 @@ SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the w
 from __future__ import annotations
 
 import functools
+import os
 import signal
 import sys
 import threading
@@ -150,6 +151,11 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(0)
     except OSError as exc:   # an OS failure no module turned into a PhoneposeError: still one line
         error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
+    except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
+        if os.environ.get("PHONEPOSE_TRACEBACK"):
+            raise
+        error(f"unexpected {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug in phonepose: please "
+              f"report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)", 1)
     finally:
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
