@@ -68,7 +68,7 @@ def batch(
     console = Console(stderr=True)
     with ProgressBar(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
                      TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),
-                     TimeRemainingColumn(), console=console, quiet=quiet or not console.is_terminal) as bar:
+                     TimeRemainingColumn(), console=console, quiet=quiet) as bar:
         task = bar.add_task("units", total=None, rows=0, errors=0)
         counts = {"rows": 0, "errors": 0}
 

@@ -7,13 +7,14 @@ from rich.progress import Progress
 
 
 class ProgressBar(Progress):
-    """A transient rich progress bar (on stderr) that appears with its first update: a command that
-    fails before its work starts prints its one error line and nothing else (rich's Live prints a
-    newline when it stops, even when it showed nothing)."""
+    """A transient rich progress bar (on stderr) that appears with its first update, on a terminal
+    only: a command that fails before its work starts prints its one error line and nothing else
+    (rich's Live prints a newline when it stops, even when it showed nothing)."""
 
     def __init__(self, *columns, quiet: bool = False, **kwargs):
-        kwargs.setdefault("console", Console(stderr=True))
-        super().__init__(*columns, transient=True, disable=quiet, **kwargs)
+        console = kwargs.setdefault("console", Console(stderr=True))
+        # not on a terminal (a log file, a pipe): no bar, and no blank line where it was
+        super().__init__(*columns, transient=True, disable=quiet or not console.is_terminal, **kwargs)
 
     def update(self, *args, **kwargs) -> None:
         if not self.live.is_started:
