@@ -24,7 +24,10 @@ The rule, the same in every command:
    place only when complete. A failed, interrupted or killed command never leaves a partial
    output under the user's name, and an earlier output stays as it was until the new one
    replaces it whole. A killed command's temporary is removed by the next command that writes
-   the same output; while one command writes an output, a second one stops with one line.
+   the same output; while one command writes an output, a second one stops with one line. An
+   output rewritten while the command runs (a batch's table) puts each complete version in place
+   the same way (:meth:`OutputFile.checkpoint`). An error from inside names the user's paths, never
+   a temporary's.
 3. **Replacing.** A session (``record``, ``recover``) is never replaced without ``--force``: a
    recording cannot be made again. A new recording (``in_place``) is the one exception to rule 2:
    it is written under its final name, created exclusively, because what a killed recorder leaves
@@ -53,7 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from phonepose.errors import ConfigError, InputFileError, OutputError, PhoneposeError
+from phonepose.errors import RECOVER_HINT, ConfigError, InputFileError, OutputError, PhoneposeError
 
 TMP_SUFFIX = ".phonepose-tmp"
 MANIFEST = ".phonepose-output"
@@ -72,9 +75,9 @@ def check_input(path: str | os.PathLike, what: str = "file") -> Path:
     except OSError as exc:
         raise InputFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise InputFileError(f"{p}: is a directory, not a {what}")
+        raise InputFileError(f"{p}: is a directory, not {_a(what)}")
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(f"{p}: not a regular file (a FIFO, socket or device): give a {what}")
+        raise InputFileError(f"{p}: not a regular file (a FIFO, socket or device): give {_a(what)}")
     if not os.access(p, os.R_OK):
         raise InputFileError(f"{p}: cannot read (Permission denied)")
     return p
@@ -117,7 +120,12 @@ class _Output:
         if not parent.is_dir():
             raise OutputError(f"{self.option} {self.path}: directory {shown} does not exist")
         if not os.access(parent, os.W_OK | os.X_OK):
-            raise OutputError(f"{self.option} {self.path}: directory {shown} is not writable")
+            try:
+                read_only = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
+            except OSError:
+                read_only = False
+            raise OutputError(f"{self.option} {self.path}: directory {shown} is "
+                              f"{'on a read-only file system' if read_only else 'not writable'}")
 
     def _check_not_input(self, inputs: Sequence[Path]) -> None:
         for inp in inputs:
@@ -171,14 +179,12 @@ class OutputFile(_Output):
     session: bool = False     # a recording: never replaced without force
     force: bool = False
     in_place: bool = False    # a new recording: written under its final name (see the module docstring)
+    rewritten: bool = False   # committed by checkpoint() as the command goes (a batch's table)
     _direct: bool = field(default=False, init=False, repr=False)
 
     def check(self, inputs: Sequence[Path]) -> None:
-        if self.suffixes and self.path.suffix.lower() not in self.suffixes:
-            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
-                              f"{' or '.join(self.suffixes)}")
-        self._check_parent()
         self._check_not_input(inputs)
+        st = None
         if os.path.lexists(self.path) or os.path.lexists(self.target):
             try:
                 st = os.stat(self.target)
@@ -189,9 +195,13 @@ class OutputFile(_Output):
             if st is not None and not stat.S_ISREG(st.st_mode):
                 raise OutputError(f"{self.option} {self.path}: not a regular file (a device, FIFO or socket); "
                                   f"give a file name")
-            if self.session and not self.force and st is not None:
-                raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
-                                  f"replace it")
+        if self.suffixes and self.path.suffix.lower() not in self.suffixes:
+            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
+                              f"{_one_of(self.suffixes)}")
+        self._check_parent()
+        if self.session and not self.force and st is not None:
+            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
+                              f"replace it")
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._direct = self.in_place and not os.path.lexists(self.target)
@@ -209,9 +219,41 @@ class OutputFile(_Output):
         self.tmp = tmp
         return tmp
 
+    def checkpoint(self) -> Path:
+        """Rename what the temporary holds into place now and go on with a fresh, locked temporary
+        (returned, and in ``tmp``): for an output rewritten whole while the command runs (a batch's
+        table). The new temporary is locked before the old one is renamed, so a second command finds
+        the output locked for as long as this one runs."""
+        tmp, fd, target = self.tmp, self._fd, self.target
+        assert tmp is not None and fd is not None and not self._direct and not self.session
+        new = self._tmp_name()
+        try:
+            new_fd = os.open(new, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+        except OSError as exc:
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        fcntl.flock(new_fd, fcntl.LOCK_EX)
+        try:
+            os.fsync(fd)
+            if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
+                raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+            os.rename(tmp, target)
+            _fsync_dir(target.parent)
+        except BaseException as exc:
+            os.close(new_fd)
+            _remove(new)
+            if isinstance(exc, OSError):
+                raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+            raise
+        os.close(fd)
+        self.tmp, self._fd = new, new_fd
+        return new
+
     def commit(self) -> None:
         tmp, target = self.tmp, self.target
         assert tmp is not None and self._fd is not None
+        if self.rewritten:    # what it wrote is in place (checkpoint); the last temporary was not used
+            self.abort()
+            return
         if self._direct:
             try:
                 os.fsync(self._fd)
@@ -246,6 +288,7 @@ class OutputFile(_Output):
 @dataclass
 class OutputDir(_Output):
     command: str = ""
+    _written_in: Path | None = field(default=None, init=False, repr=False)   # the temporary, kept for final()
 
     def check(self, inputs: Sequence[Path]) -> None:
         target = self.target
@@ -259,6 +302,12 @@ class OutputDir(_Output):
                 raise InputFileError(f"{self.option} {self.path}: holds the input {inp} and would be replaced "
                                      f"whole; choose another {self.option}")
         self._check_replaceable()
+
+    def final(self, path: str | os.PathLike) -> Path:
+        """Where ``path``, written inside the temporary, is once the folder is committed (as the user
+        named it); also after the commit."""
+        assert self._written_in is not None, "final() names a path of the plan's block"
+        return self.path / Path(path).relative_to(self._written_in)
 
     def _check_replaceable(self) -> None:
         target = self.target
@@ -280,7 +329,7 @@ class OutputDir(_Output):
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         fcntl.flock(self._fd, fcntl.LOCK_EX)
-        self.tmp = tmp
+        self.tmp = self._written_in = tmp
         return tmp
 
     def commit(self) -> None:
@@ -322,10 +371,12 @@ class OutputPlan:
         self._open = False
 
     def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
-             session: bool = False, force: bool = False, in_place: bool = False) -> OutputFile:
-        """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording."""
+             session: bool = False, force: bool = False, in_place: bool = False,
+             rewritten: bool = False) -> OutputFile:
+        """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording;
+        ``rewritten``: the command puts each complete version in place with ``checkpoint()``."""
         out = OutputFile(Path(path), option, suffixes=tuple(s.lower() for s in suffixes), what=what,
-                         session=session or in_place, force=force, in_place=in_place)
+                         session=session or in_place, force=force, in_place=in_place, rewritten=rewritten)
         self.outputs.append(out)
         return out
 
@@ -361,7 +412,13 @@ class OutputPlan:
     def __exit__(self, exc_type, exc, tb) -> None:
         self._open = False
         if exc_type is not None:
+            temporaries = [(o.tmp, o.path) for o in self.outputs if o.tmp is not None]
+            kept = any(getattr(o, "_direct", False) and o.tmp is not None and not _empty(o.tmp) for o in self.outputs)
             self.abort()
+            if isinstance(exc, PhoneposeError):
+                message = _in_users_terms(str(exc), temporaries, kept)
+                if message != str(exc):
+                    raise type(exc)(message) from None
             return
         try:
             for out in self.outputs:
@@ -375,15 +432,28 @@ class OutputPlan:
             out.abort()
 
 
-def write_text_output(path: str | os.PathLike, text: str, option: str, *, inputs: Iterable[str | os.PathLike] = (),
-                      suffixes: Sequence[str] = (), what: str = "this file") -> Path:
-    """One small text output (a calibration YAML, a JSON report) by the rule above; disk full is an error."""
+
+def check_output(path: str | os.PathLike, option: str, *, inputs: Iterable[str | os.PathLike] = (),
+                 suffixes: Sequence[str] = (), what: str = "this file") -> None:
+    """Rule 1 for one file output, now: a command that works minutes before it writes (a camera
+    capture) fails before the work, not after. Writing it later checks again."""
+    plan = OutputPlan(inputs)
+    plan.file(path, option, suffixes=suffixes, what=what)
+    plan.check()
+
+
+def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *,
+                      inputs: Iterable[str | os.PathLike] = (), suffixes: Sequence[str] = (),
+                      what: str = "this file") -> Path:
+    """One small output held in memory (a calibration YAML, a PNG, a JSON report) by the rule above;
+    disk full is an error. ``text`` may be bytes."""
     plan = OutputPlan(inputs)
     out = plan.file(path, option, suffixes=suffixes, what=what)
+    data = text.encode() if isinstance(text, str) else bytes(text)
     with plan:
         try:
-            with open(out.tmp, "w") as f:   # type: ignore[arg-type]
-                f.write(text)
+            with open(out.tmp, "wb") as f:   # type: ignore[arg-type]
+                f.write(data)
                 f.flush()
                 os.fsync(f.fileno())
         except OSError as exc:
@@ -392,6 +462,24 @@ def write_text_output(path: str | os.PathLike, text: str, option: str, *, inputs
 
 
 # ----------------------------------------------------------------------------- helpers
+def _in_users_terms(message: str, temporaries: list[tuple[Path, Path]], kept: bool) -> str:
+    """An error from inside a plan's block, naming the user's outputs instead of their temporaries; a
+    recorder's "run `phonepose recover`" hint only where the file stays (a new recording, ``in_place``)."""
+    for tmp, path in temporaries:
+        message = message.replace(str(tmp), str(path))
+    return message if kept else message.replace(RECOVER_HINT, "")
+
+
+def _a(noun: str) -> str:
+    word = noun.split()[0] if noun.split() else noun
+    vowel = word[:1] in "AEFHILMNORSX" if word.isupper() else word[:1].lower() in "aeiou"   # an MCAP file
+    return f"{'an' if vowel else 'a'} {noun}"
+
+
+def _one_of(items: Sequence[str]) -> str:
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
+
+
 def _glob_escape(name: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
 

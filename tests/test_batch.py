@@ -218,7 +218,9 @@ def test_param_sweep_is_the_cross_product(sessions, in_process, tmp_path):
 @pytest.mark.parametrize("params,message", [
     (["speed=1"], "unknown key 'speed'"),
     (["rate_hz=fast"], "'fast' is not a number"),
-    (["rate_hz=0"], "must be > 0"),
+    (["rate_hz=0"], r"^--param rate_hz=0: expected a finite number in \(0, 1000\] Hz$"),
+    (["rate_hz=inf"], r"^--param rate_hz=inf: expected a finite number in \(0, 1000\] Hz$"),
+    (["start_s=nan"], r"^--param start_s=nan: expected a finite number in \[0, 1000000\] s$"),
     (["correction_math=quat"], "unknown correction math 'quat'"),
     (["rate_hz=10", "rate_hz=20"], "given twice"),
     (["start_s=5", "end_s=3"], "must be after start_s"),
@@ -251,7 +253,10 @@ def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     (["--out", "{tmp}/no/such/dir/r.parquet"], 6, "does not exist"),
     (["--out", "{tmp}"], 6, "is a directory"),
     (["--out", "{tmp}/not.parquet"], 6, "is not a readable Parquet table"),
-    (["--workers", "0"], 5, "--workers must be >= 1"),
+    (["--workers", "0"], 5, "--workers 0: expected an integer in [1, 256]"),
+    (["--unit-timeout", "nan"], 5, "--unit-timeout nan: expected a finite number in (0, 1000000] s"),
+    (["--scheduler", "not a url"], 5, "--scheduler 'not a url': expected a Dask scheduler address such as "
+                                      "tcp://host:8786"),
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], 5, "exclusive"),
     (["-t", "T99"], 5, "T99"),
 ])
@@ -323,3 +328,25 @@ def test_killed_batch_keeps_finished_units_and_the_rerun_completes(sessions, one
     rerun = run_batch(sessions, out, trackers="paper", workers=1)
     assert rerun.skipped == 7 and rerun.rows_run == 14 and rerun.errors == 0
     assert table_without_runtime(out).equals(table_without_runtime(one_worker[0]))   # the same as in one go
+
+
+@pytest.mark.parametrize("where", ["main thread (SIGALRM)", "worker thread (tick check)"])
+def test_a_unit_past_its_time_budget_becomes_error_rows(sessions, where):
+    """A session that would play forever (or a Dask worker's thread) cannot hold a batch: --unit-timeout."""
+    import threading
+
+    from phonepose.batch.plan import Unit
+    from phonepose.batch.run import run_unit
+
+    unit = Unit("s.mcap", sessions[0], (("rate_hz", 20.0),), ("T1", "T4"))
+    rows = []
+    if where.startswith("main"):
+        rows = run_unit(unit, budget_s=0.01)
+    else:
+        t = threading.Thread(target=lambda: rows.extend(run_unit(unit, budget_s=0.01)))
+        t.start()
+        t.join(timeout=300)
+    assert [r["tracker"] for r in rows] == ["T1", "T4"]
+    assert {r["status"] for r in rows} == {"error"}
+    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (--unit-timeout)"}
+    assert run_unit(unit, budget_s=600)[0]["status"] == "ok"

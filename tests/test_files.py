@@ -307,3 +307,80 @@ def test_a_new_recording_is_written_under_its_own_name_and_kept_when_interrupted
             raise RuntimeError("camera unplugged")
     assert s.read_bytes() == b"\x89MCAP0\r\n first second"
     assert [p.name for p in tmp_path.iterdir()] == ["live.mcap"]
+
+
+# ----------------------------------------------------------------------------- rewritten outputs (a batch's table)
+def test_a_rewritten_output_goes_in_whole_at_each_checkpoint_and_stays_locked(tmp_path):
+    table = tmp_path / "r.parquet"
+    plan = OutputPlan()
+    f = plan.file(table, "--out", suffixes=(".parquet",), rewritten=True)
+    with pytest.raises(KeyboardInterrupt):
+        with plan:
+            f.tmp.write_bytes(b"version 1")
+            first_tmp = f.tmp
+            f.checkpoint()
+            assert table.read_bytes() == b"version 1" and f.tmp != first_tmp and not first_tmp.exists()
+            other = OutputPlan()                    # a second command on the same output stops
+            other.file(table, "--out")
+            with pytest.raises(OutputError, match=r"another phonepose \(pid \d+\) is writing it"):
+                with other:
+                    pass
+            f.tmp.write_bytes(b"version 2, half")  # interrupted before its checkpoint
+            raise KeyboardInterrupt
+    assert table.read_bytes() == b"version 1"      # the unfinished version never goes in
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.parquet"]
+
+
+def test_check_output_fails_before_the_work(tmp_path):
+    from phonepose.files import check_output
+
+    with pytest.raises(OutputError) as e:
+        check_output(tmp_path / "no" / "cam.yaml", "--out")
+    assert str(e.value) == f"--out {tmp_path / 'no' / 'cam.yaml'}: directory {tmp_path / 'no'} does not exist"
+    check_output(tmp_path / "cam.yaml", "--out", suffixes=(".yaml",))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_error_from_inside_names_the_users_paths(tmp_path):
+    """A disk-full line from a writer inside a temporary folder names the user's folder, and drops
+    "run `phonepose recover`": the temporary is removed."""
+    from phonepose.errors import RECOVER_HINT
+
+    plan = OutputPlan()
+    d = plan.dir(tmp_path / "exp", "--out")
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise OutputError(f"cannot write {d.tmp / 'sessions' / 's.mcap'}: No space left on device{RECOVER_HINT}")
+    assert str(e.value) == f"cannot write {tmp_path / 'exp' / 'sessions' / 's.mcap'}: No space left on device"
+    # a new recording stays under its own name: there the hint is true
+    plan = OutputPlan()
+    f = plan.file(tmp_path / "s.mcap", "--out", in_place=True)
+    with pytest.raises(OutputError) as e:
+        with plan:
+            f.tmp.write_bytes(b"\x89MCAP0\r\n")
+            raise OutputError(f"cannot write {f.tmp}: No space left on device{RECOVER_HINT}")
+    assert str(e.value) == f"cannot write {(tmp_path / 's.mcap').absolute()}: No space left on device{RECOVER_HINT}"
+
+
+@pytest.mark.parametrize("what, expected", [("session", "a session"), ("image", "an image"),
+                                            ("MCAP file", "an MCAP file"), ("TOML file", "a TOML file")])
+def test_messages_read_as_english(tmp_path, what, expected):
+    fifo = tmp_path / "x"
+    os.mkfifo(fifo)
+    with pytest.raises(InputFileError, match=f"give {expected}$"):
+        check_input(fifo, what)
+
+
+def test_checks_come_in_the_order_that_helps(tmp_path):
+    """An output that is the input is said first (whatever its extension), then a directory or device
+    in the way, then the extension, then the folder."""
+    session = tmp_path / "s.mcap"
+    session.write_bytes(b"recording")
+    plan = OutputPlan(inputs=[session])
+    plan.file(session, "--out", suffixes=(".yaml",))
+    with pytest.raises(InputFileError, match="writing it would destroy the input"):
+        plan.check()
+    plan = OutputPlan()
+    plan.file(tmp_path, "--out", suffixes=(".parquet",))
+    with pytest.raises(OutputError, match="is a directory; --out takes a file name"):
+        plan.check()

@@ -243,8 +243,8 @@ def test_cli_recover_json_and_errors(session, tmp_path):
     rep = json.loads(r.stdout)
     assert rep["messages"] == 3300 and rep["chunks_skipped"] == 0 and rep["time_lost_s"] == 0
     r = run("recover", str(path), "--out", str(path))
-    assert r.returncode == 2 and "is the input file" in r.stderr and r.stderr.count("\n") == 1
+    assert r.returncode == 2 and "writing it would destroy the input" in r.stderr and r.stderr.count("\n") == 1
     r = run("recover", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
     r = run("recover", str(path), "--out", str(tmp_path / "nodir" / "o.mcap"))
-    assert r.returncode == 6 and "cannot write" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 6 and "does not exist" in r.stderr and "Traceback" not in r.stderr

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import re
 import subprocess
 import sys
@@ -170,6 +171,52 @@ def _corrupt_middle(src: Path, dst: Path) -> Path:
 
 
 # ----------------------------------------------------------------------------- cases
+def _gt(d: Path) -> str:
+    return str(_write(d / "gt.txt", TUM_ROWS))
+
+
+# Every numeric option with a hostile value: NaN, inf (or an overflowing 1e400), huge, negative, zero.
+# (id, command, valid arguments without the option, option, value, as the message shows it, expected range)
+HOSTILE_NUMBERS = [
+    ("rate-inf", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--rate", "inf", "inf",
+     r"a finite number in \(0, 1000\] Hz"),
+    ("rate-huge", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--rate", "1e9", "1000000000",
+     r"a finite number in \(0, 1000\] Hz"),
+    ("start-nan", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--start", "nan", "nan",
+     r"a finite number in \[0, 1000000\] s"),
+    ("end-overflow", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--end", "1e400", "inf",
+     r"a finite number in \[0, 1000000\] s"),
+    ("seed-negative", "record sim", lambda g, d: ["record", "sim", "--out", str(d / "s.mcap")], "--seed", "-1", "-1",
+     r"an integer in \[0, 4294967295\]"),
+    ("seed-huge", "demo", lambda g, d: ["demo", "--out", str(d / "demo")], "--seed", str(2**70), str(2**70),
+     r"an integer in \[0, 4294967295\]"),
+    ("jobs-zero", "experiment exp2", lambda g, d: ["experiment", "exp2", "--out", str(d / "e")], "--jobs", "0", "0",
+     r"an integer in \[1, 256\]"),
+    ("trial-huge", "record sim", lambda g, d: ["record", "sim", "--out", str(d / "s.mcap")], "--trial", "99999", "99999",
+     r"an integer in \[1, 3\]"),
+    ("device-negative", "calibrate-camera", lambda g, d: ["calibrate-camera", "--out", str(d / "c.yaml")], "--device",
+     "-1", "-1", r"an integer in \[0, 1023\]"),
+    ("device-huge", "calibrate-camera", lambda g, d: ["calibrate-camera", "--out", str(d / "c.yaml")], "--device",
+     "99999999999", "99999999999", r"an integer in \[0, 1023\]"),
+    ("seconds-inf", "calibrate-camera", lambda g, d: ["calibrate-camera", "--device", "0", "--out", str(d / "c.yaml")],
+     "--seconds", "inf", "inf", r"a finite number in \(0, 86400\] s"),
+    ("dpi-zero", "board", lambda g, d: ["board", "--out", str(d / "b.png")], "--dpi", "0", "0",
+     r"an integer in \[50, 1200\]"),
+    ("pixels-huge", "marker", lambda g, d: ["marker", "--out", str(d / "m.png")], "--pixels", "1000000000",
+     "1000000000", r"an integer in \[1, 20000\]"),
+    ("workers-huge", "batch", lambda g, d: ["batch", str(g), "--out", str(d / "r.parquet")], "--workers", "100000",
+     "100000", r"an integer in \[1, 256\]"),
+    ("unit-timeout-nan", "batch", lambda g, d: ["batch", str(g), "--out", str(d / "r.parquet")], "--unit-timeout",
+     "nan", "nan", r"a finite number in \(0, 1000000\] s"),
+    ("delta-inf", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")], "--delta", "inf",
+     "inf", r"a finite number in \(0, 1000000000\]"),
+    ("max-diff-nan", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")], "--max-diff",
+     "nan", "nan", r"a finite number in \(0, 1000000\] s"),
+    ("align-frames-zero", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")],
+     "--align-frames", "0", "0", r"an integer >= 1 or -1"),
+]
+
+
 @dataclass
 class Case:
     id: str
@@ -263,10 +310,11 @@ CASES = [
          r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
     Case("bad-rate", "bad option value (`--rate -1`)",
          lambda g, d: ["playback", str(g), "-q", "--rate", "-1", "--out", str(d / "o")], 5,
-         r"--rate must be > 0 \(got -1\.0\)$"),
+         r"^phonepose: error: --rate -1: expected a finite number in \(0, 1000\] Hz$"),
     Case("bad-correction-math", "bad option value (`--correction-math foo`)",
          lambda g, d: ["playback", str(g), "-q", "--correction-math", "foo", "--out", str(d / "o")], 5,
-         r"unknown correction math 'foo'; allowed: paper, se3$"),
+         r"playback: Invalid value for '--correction-math': 'foo' is not one of 'paper', 'se3'\. "
+         r"\(see `phonepose playback --help`\)$"),
     Case("bad-dictionary", "unknown marker dictionary in the session's marker spec",
          lambda g, d: ["playback", str(rewrite(g, d / "dict.mcap", _bad_dictionary)), "-q", "--out", str(d / "o")], 5,
          r"unknown marker dictionary 'DICT_NOPE_99'; allowed: DICT_4X4_100, .*DICT_ARUCO_ORIGINAL$"),
@@ -301,10 +349,11 @@ CASES = [
          r"config key 'marker\.dictionary' must be one of DICT_4X4_50, .*got 'DICT_FOO'$"),
     Case("record-bad-scenario", "`record sim --scenario exp9`",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--scenario", "exp9"], 5,
-         r"unknown scenario 'exp9': choose one of exp1, exp2$"),
+         r"record sim: Invalid value for '--scenario': 'exp9' is not one of 'exp1', 'exp2'\. "
+         r"\(see `phonepose record sim --help`\)$"),
     Case("record-out-not-writable", "`record sim --out` in a missing directory",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "nodir" / "s.mcap")], 6,
-         r"cannot write .*nodir/s\.mcap: No such file or directory$"),
+         r"--out .*nodir/s\.mcap: directory .*nodir does not exist$"),
     Case("record-out-exists", "`record sim --out` naming an existing session (kept untouched; `--force` replaces it)",
          lambda g, d: ["record", "sim", "-q", "--out", str(_write(d / "s.mcap", b"an earlier recording"))], 6,
          r"s\.mcap already exists: choose another --out, or add --force to replace it$"),
@@ -320,14 +369,15 @@ CASES = [
     Case("usage-unknown-command", "an unknown command",
          lambda g, d: ["bogus"], 2, r"No such command 'bogus'\. \(see `phonepose --help`\)$"),
     Case("recover-same-file", "`recover` asked to overwrite its input",
-         lambda g, d: ["recover", str(g), "--out", str(g)], 2, r"is the input file; recover writes a new file"),
+         lambda g, d: ["recover", str(g), "--out", str(g)], 2,
+         r"--out .*good\.mcap is the input .*good\.mcap: writing it would destroy the input; choose another name$"),
     Case("recover-nothing", "`recover` on bytes with no intact chunk",
          lambda g, d: ["recover", str(_write(d / "n.mcap", np.random.default_rng(0).bytes(50_000))),
                        "--out", str(d / "fixed.mcap")], 3,
          r"n\.mcap: nothing recoverable \(50000 of 50000 bytes unreadable, no intact chunk with known channels\)$"),
     Case("recover-out-dir", "`recover --out` in a missing directory",
          lambda g, d: ["recover", str(g), "--out", str(d / "nodir" / "fixed.mcap")], 6,
-         r"cannot write .*nodir/fixed\.mcap: No such file or directory$"),
+         r"--out .*nodir/fixed\.mcap: directory .*nodir does not exist$"),
     Case("recover-out-exists", "`recover --out` naming an existing file",
          lambda g, d: ["recover", str(g), "--out", str(_write(d / "fixed.mcap", b"x"))], 6,
          r"fixed\.mcap already exists: choose another --out, or add --force to replace it$"),
@@ -345,7 +395,7 @@ CASES = [
          r"gt\.txt:1: not a number in 'hello world'"),
     Case("evaluate-bad-metric", "`evaluate --metric xx`",
          lambda g, d: ["evaluate", "--gt", str(d / "gt.txt"), "--est", str(d / "gt.txt"), "--metric", "xx"], 5,
-         r"--metric 'xx': expected one of rpg, ape, rpe, paper$"),
+         r"evaluate: Invalid value for '--metric': 'xx' is not one of 'rpg', 'ape', 'rpe', 'paper'\."),
     Case("evaluate-paper-no-in-view", "`evaluate --metric paper` without `--in-view`",
          lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
                        "--metric", "paper"], 5,
@@ -354,7 +404,63 @@ CASES = [
          lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
                        "--metric", "paper", "--in-view", str(_write(d / "bad.txt", b"0.0 1\n1.0 yes\n"))], 2,
          r"bad\.txt:2: expected 'timestamp in_view\(0\|1\)', got '1\.0 yes'$"),
+    # ------------------------------------------------------------------ hostile input (issue 18)
+    *[Case(f"number-{cid}", f"`{command} {option} {value}`",
+           lambda g, d, base=base, option=option, value=value: base(g, d) + [option, value],
+           5, rf"^phonepose: error: {re.escape(option)} {re.escape(shown)}: expected {expected}$")
+      for cid, command, base, option, value, shown, expected in HOSTILE_NUMBERS],
+    Case("param-inf", "`batch --param rate_hz=inf`",
+         lambda g, d: ["batch", str(g), "-p", "rate_hz=inf", "--out", str(d / "r.parquet")], 5,
+         r"^phonepose: error: --param rate_hz=inf: expected a finite number in \(0, 1000\] Hz$"),
+    Case("lengths-inf", "`evaluate --lengths 1,inf`",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
+                       "--lengths", "1,inf"], 5, r"--lengths '1,inf': expected positive metres"),
+    Case("config-binary", "a binary `--config`",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
+                       "--config", str(_write(d / "c.toml", bytes(range(256)) * 4))], 5,
+         r"config file .*c\.toml: not a TOML file \(not UTF-8 text\)$"),
+    Case("config-nested", "a deeply nested `--config` (`a = [[[[...]]]]`, 20 KB)",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
+                       "--config", str(_write(d / "c.toml", b"a = " + b"[" * 10_000 + b"]" * 10_000 + b"\n"))], 5,
+         r"config file .*c\.toml: invalid TOML \(nested too deeply\)$"),
+    Case("config-huge", "a `--config` over 32 KiB (tomllib is quadratic in a dotted key's depth)",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
+                       "--config", str(_write(d / "c.toml", b"[" + b".".join([b"a"] * 100_000) + b"]\n"))], 5,
+         r"config file .*c\.toml: larger than 32 KiB \(every parameter with comments is \d\.\d KiB\)$"),
+    Case("config-fifo", "a FIFO as `--config`",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--config", str(_fifo(d / "c.toml"))], 5,
+         r"config file .*c\.toml: not a regular file \(a FIFO, socket or device\): give a TOML file$"),
+    Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
+         lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
+         r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),
+    Case("hand-eye-fifo", "a FIFO as `playback --hand-eye`",
+         lambda g, d: ["playback", str(g), "-q", "--hand-eye", str(_fifo(d / "he.yaml")), "--out", str(d / "o")], 2,
+         r"he\.yaml: not a regular file \(a FIFO, socket or device\): give a hand-eye file$"),
+    Case("image-fifo", "a FIFO among `calibrate-camera --images`",
+         lambda g, d: ["calibrate-camera", "--images", str(_fifo_in(d / "imgs", "a.png")), "--out", str(d / "c.yaml")],
+         2, r"imgs/a\.png: not a regular file \(a FIFO, socket or device\): give an image$"),
+    Case("rerun-device", "`record sim --rerun /dev/full`",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--rerun", "/dev/full"], 6,
+         r"^phonepose: error: --rerun /dev/full: not a regular file \(a device, FIFO or socket\); give a file name$"),
+    Case("camera-missing", "a camera index with no device (`calibrate-camera --device 63`)",
+         lambda g, d: ["calibrate-camera", "--device", "63", "--out", str(d / "c.yaml")], 2,
+         r"camera device 63 cannot be opened \(no such camera, or in use\)$"),
+    Case("scheduler-not-a-url", "`batch --scheduler 'not a url'`",
+         lambda g, d: ["batch", str(g), "--scheduler", "not a url", "--out", str(d / "r.parquet")], 5,
+         r"--scheduler 'not a url': expected a Dask scheduler address such as tcp://host:8786$"),
 ]
+
+
+def _fifo(path: Path) -> Path:
+    os.mkfifo(path)
+    return path
+
+
+def _fifo_in(folder: Path, name: str) -> Path:
+    folder.mkdir()
+    _write(folder / "b.png", b"\x89PNG")
+    _fifo(folder / name)
+    return folder
 
 
 TUM_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (k / 10, k / 100) for k in range(20))
@@ -488,7 +594,8 @@ def markdown_table(tmp: Path) -> str:
         line = err.getvalue().strip().replace(str(d) + "/", "").replace(str(tmp) + "/", "").replace(str(d), "DIR")
         if len(line) > 160:
             line = line[:157] + "..."
-        rows.append(f"| {_cell(case.what)} | `{argv[0]}` | {code} | {_code(line)} |")
+        command = " ".join(argv[:2]) if argv[0] in ("record", "experiment") else argv[0]
+        rows.append(f"| {_cell(case.what)} | `{command}` | {code} | {_code(line)} |")
     for cid, what, fn, message in WARNING_CASES:
         msg = message.replace("\\(", "(").replace("\\)", ")")
         rows.append(f"| {_cell(what)} | `playback` | 0 | {_code('phonepose: warning: ' + msg)} (samples skipped) |")
@@ -537,8 +644,11 @@ def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
         for argv, pattern in [
             (["playback", str(good), "-q", "-t", "T1", "--out", str(mnt / "out")],
              r"cannot create output directory .*ro/out: Read-only file system$"),
-            (["recover", str(good), "--out", str(mnt / "fixed.mcap")], r"cannot write .*Read-only file system$"),
-            (["record", "sim", "-q", "--out", str(mnt / "s.mcap")], r"cannot write .*s\.mcap: Read-only file system$"),
+            (["recover", str(good), "--out", str(mnt / "fixed.mcap")],
+             r"--out .*ro/fixed\.mcap: directory .*ro is on a read-only file system$"),
+            (["record", "sim", "-q", "--out", str(mnt / "s.mcap")],
+             r"--out .*ro/s\.mcap: directory .*ro is on a read-only file system$"),
+            (["board", "--out", str(mnt / "b.png")], r"--out .*ro/b\.png: directory .*ro is on a read-only file system$"),
         ]:
             code, _, err = run_inprocess(argv, capsys)
             assert code == 6, err

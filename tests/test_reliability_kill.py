@@ -8,12 +8,15 @@ when it died must be at most the writer's flush interval (1 s of log time).
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
+import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
 from phonepose.session import SessionReader
@@ -131,3 +134,65 @@ def test_disk_full_while_recording_is_one_line_and_the_file_recovers(tmp_path):
         assert report.chunks_recovered >= 1 and report.end_ns - report.start_ns >= 900_000_000 and report.messages > 300
         with SessionReader(tmp_path / "fixed.mcap") as reader:
             assert reader.summary().has("/display/camera/image")
+
+
+# ----------------------------------------------------------------------------- a stopped batch stops its workers
+def _session_members(sid: int) -> list[tuple[int, str]]:
+    """(pid, command) of the live processes of session ``sid`` (zombies excluded)."""
+    out = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                stat = f.read()
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if int(fields[3]) == sid and fields[0] != "Z":
+            out.append((int(entry), cmd))
+    return out
+
+
+@pytest.fixture(scope="module")
+def batch_sessions(tmp_path_factory):
+    from phonepose.testing.playback_session import write_test_session
+
+    d = tmp_path_factory.mktemp("batch")
+    for i in range(4):
+        write_test_session(d / f"s{i}.mcap", duration_s=30.0)
+    return d
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_stopping_a_batch_stops_its_workers(batch_sessions, tmp_path, sig):
+    """`kill -TERM` or `kill -9` of `phonepose batch`: its workers and multiprocessing's resource tracker are
+    gone within seconds (PR_SET_PDEATHSIG; before: over a minute, holding the caller's stdout open); SIGTERM
+    also writes the finished rows and says so in one line."""
+    out = tmp_path / "t.parquet"
+    p = subprocess.Popen([sys.executable, "-m", "phonepose", "batch", *sorted(map(str, batch_sessions.glob("*.mcap"))),
+                          "-t", "all", "-p", "rate_hz=20,40", "--workers", "2", "-q", "--out", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    def running() -> bool:                         # both workers up and a first unit written
+        assert p.poll() is None, p.communicate()
+        return len([c for _, c in _session_members(p.pid) if "spawn_main" in c]) >= 2 and out.exists()
+    wait_until(running, what="the batch's two workers and its first unit", timeout=300)
+    rows_before = pq.read_table(out).num_rows
+    t0 = time.monotonic()
+    p.send_signal(sig)
+    wait_until(lambda: not _session_members(p.pid), what="every process of the batch to end", timeout=60)
+    gone_s = time.monotonic() - t0
+    stdout, stderr = p.communicate(timeout=60)     # the pipes close: nothing holds them any more
+    assert not _session_members(p.pid), _session_members(p.pid)
+    print(f"{sig.name}: every process of the batch gone {gone_s:.2f} s after the signal")
+    assert gone_s < 20
+    assert "leaked semaphore" not in stderr.decode()
+    rows = pq.read_table(out).num_rows
+    assert rows >= rows_before > 0
+    if sig == signal.SIGTERM:
+        assert p.returncode == 143
+        assert stderr.decode().strip().splitlines()[-1] == (
+            f"phonepose: error: terminated (SIGTERM): {rows} finished rows are in {out}; the next run with the same "
+            "--out goes on from there")

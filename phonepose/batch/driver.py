@@ -17,6 +17,8 @@ from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinatio
 from phonepose.batch.run import error_rows, one_line, run_unit
 from phonepose.batch.table import ResultTable, sort_key
 from phonepose.errors import ConfigError
+from phonepose.files import OutputFile, OutputPlan, check_input
+from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX, check_number
 
 WRITE_INTERVAL_S = 1.0   # at most one rewrite of the table per second while units finish (and always at the end)
 SUMMARY_METRICS = (("p_ate_m_total", "p_ATE cm", 100.0), ("r_ate_deg_total", "r_ATE deg", 1.0),
@@ -60,64 +62,80 @@ class PreparedBatch:
     workers: int | None
     scheduler: str | None
     t0: float
+    outputs: OutputPlan                 # the table as phonepose.files checked it
+    table_output: OutputFile
+    unit_timeout_s: float | None = UNIT_TIMEOUT_S
 
 
 def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
                   trackers: Sequence[str] | str = ("all",), params: Sequence[str] | dict[str, list] = (),
-                  workers: int | None = None, scheduler: str | None = None) -> PreparedBatch:
+                  workers: int | None = None, scheduler: str | None = None,
+                  unit_timeout_s: float | None = UNIT_TIMEOUT_S) -> PreparedBatch:
     """Check every argument and make the plan against what ``out`` holds already; raises ConfigError /
-    OutputError (one line) before any playback."""
+    OutputError (one line) before any playback. ``out`` follows phonepose.files (a .parquet file, never
+    a session, in a folder that exists); each version of it is renamed into place whole."""
     t0 = time.perf_counter()
     if scheduler is not None and workers is not None:
         raise ConfigError("--workers and --scheduler are exclusive: the cluster's workers are set by `dask worker`")
-    if workers is not None and workers < 1:
-        raise ConfigError(f"--workers must be >= 1 (got {workers})")
+    if workers is not None:
+        check_number("--workers", workers, 1, WORKERS_MAX, integer=True)
+    if unit_timeout_s is not None:
+        check_number("--unit-timeout", unit_timeout_s, 0, SECONDS_MAX, lo_open=True, unit="s")
     if not sessions:
         raise ConfigError("no session given")
     names = resolve_trackers(trackers)
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
     combos = param_combinations(sweep)
+    for s in sessions:     # a missing one may exist on the cluster's workers: its rows will say; a FIFO never
+        if os.path.lexists(s):
+            check_input(s, "session")
+    outputs = OutputPlan(inputs=sessions)
+    table_output = outputs.file(out, "--out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
+    outputs.check()
     table = ResultTable(out)
     plan = make_plan(sessions, names, combos, table.rows)
-    return PreparedBatch(Path(out), plan, table, workers, scheduler, t0)
+    return PreparedBatch(Path(out), plan, table, workers, scheduler, t0, outputs, table_output, unit_timeout_s)
 
 
 def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]], None] | None = None,
                   on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
     """Run the plan's units on the executor; merge and write the table as they finish (at most once per
-    ``WRITE_INTERVAL_S``, and at the end, also when interrupted)."""
+    ``WRITE_INTERVAL_S``, and at the end, also when interrupted: Ctrl-C, SIGTERM). A unit running longer
+    than ``unit_timeout_s`` becomes error rows."""
     plan, table = batch.plan, batch.table
     units_run = rows_run = 0
     failures: list[tuple[str, str]] = []
     description = "nothing to run"
-    if plan.units:
-        with open_executor(batch.workers, batch.scheduler) as (executor, description):
-            if on_start is not None:
-                on_start(plan, description)
-            futures = {executor.submit(run_unit, unit): unit for unit in plan.units}
-            try:
-                for fut in as_completed(futures):
-                    unit: Unit = futures[fut]
-                    try:
-                        rows = fut.result()
-                    except Exception as exc:   # noqa: BLE001 - the worker died (crash, lost Dask worker)
-                        rows = error_rows(unit, f"worker failed: {one_line(exc)}")
-                    table.update(rows)
-                    table.write(WRITE_INTERVAL_S)
-                    units_run += 1
-                    rows_run += len(rows)
-                    if rows and rows[0]["status"] != "ok":
-                        failures.append((unit.session, rows[0]["error"]))
-                    if progress is not None:
-                        progress(units_run, len(plan.units), rows)
-            finally:
-                for fut in futures:
-                    fut.cancel()
-                table.write()   # what finished is kept, even when interrupted
-    elif on_start is not None:
-        on_start(plan, description)
-    table.write()
+    with batch.outputs:   # locked while the batch runs: a second batch on the same --out stops with one line
+        table.output = batch.table_output
+        if plan.units:
+            with open_executor(batch.workers, batch.scheduler) as (executor, description):
+                if on_start is not None:
+                    on_start(plan, description)
+                futures = {executor.submit(run_unit, unit, batch.unit_timeout_s): unit for unit in plan.units}
+                try:
+                    for fut in as_completed(futures):
+                        unit: Unit = futures[fut]
+                        try:
+                            rows = fut.result()
+                        except Exception as exc:   # noqa: BLE001 - the worker died (crash, lost Dask worker)
+                            rows = error_rows(unit, f"worker failed: {one_line(exc)}")
+                        table.update(rows)
+                        table.write(WRITE_INTERVAL_S)
+                        units_run += 1
+                        rows_run += len(rows)
+                        if rows and rows[0]["status"] != "ok":
+                            failures.append((unit.session, rows[0]["error"]))
+                        if progress is not None:
+                            progress(units_run, len(plan.units), rows)
+                finally:
+                    for fut in futures:
+                        fut.cancel()
+                    table.write()   # what finished is kept, even when interrupted
+        elif on_start is not None:
+            on_start(plan, description)
+        table.write()
     rows = sorted((table.rows[k] for k in plan.keys), key=sort_key)
     errors = sum(1 for r in rows if r.get("status") != "ok")
     return BatchResult(batch.out, plan, rows, units_run, rows_run, errors, time.perf_counter() - batch.t0,
@@ -127,16 +145,19 @@ def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]
 def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, trackers: Sequence[str] | str = ("all",),
               params: Sequence[str] | dict[str, list] = (), workers: int | None = None, scheduler: str | None = None,
               progress: Callable[[int, int, list[dict]], None] | None = None,
-              on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
+              on_start: Callable[[Plan, str], None] | None = None,
+              unit_timeout_s: float | None = UNIT_TIMEOUT_S) -> BatchResult:
     """Play every (session, parameter combination) back with every tracker; one row per tracker in ``out``.
 
     ``params``: ``["rate_hz=10,20", ...]`` (the CLI's --param) or ``{"rate_hz": [10.0, 20.0]}``.
     ``workers``: local processes (default one per core); ``scheduler``: a Dask scheduler address instead.
     ``progress(done_units, total_units, rows_of_the_unit)`` after each finished unit;
     ``on_start(plan, executor_description)`` once the executor is up.
+    ``unit_timeout_s``: a playback running longer becomes error rows (None: no limit).
     Errors in the arguments raise before any playback (ConfigError, OutputError).
     """
-    return execute_batch(prepare_batch(sessions, out, trackers, params, workers, scheduler), progress, on_start)
+    return execute_batch(prepare_batch(sessions, out, trackers, params, workers, scheduler, unit_timeout_s),
+                         progress, on_start)
 
 
 def _spread(values: list[float]) -> tuple[float | None, float | None]:

@@ -17,32 +17,24 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, Sequence
 
 from phonepose.errors import ConfigError
+from phonepose.numbers import RATE_MAX_HZ, SECONDS_MAX, check_number
 
 
 def _float(key: str, text: str) -> float:
     try:
-        v = float(text)
+        return float(text)
     except ValueError:
         raise ConfigError(f"--param {key}: {text!r} is not a number") from None
-    if v != v or v in (float("inf"), float("-inf")):
-        raise ConfigError(f"--param {key}: {text!r} is not a finite number")
-    return v
 
 
 def _rate(key: str, text: str) -> float:
-    v = _float(key, text)
-    if not v > 0:
-        raise ConfigError(f"--param {key}: must be > 0 (got {text})")
-    return v
+    return check_number(f"--param {key}=", _float(key, text), 0, RATE_MAX_HZ, lo_open=True, unit="Hz")
 
 
 def _seconds_or_none(key: str, text: str) -> float | None:
     if text.strip().lower() in ("none", "null", ""):
         return None
-    v = _float(key, text)
-    if v < 0:
-        raise ConfigError(f"--param {key}: must be >= 0 seconds (got {text})")
-    return v
+    return check_number(f"--param {key}=", _float(key, text), 0, SECONDS_MAX, unit="s")
 
 
 def _choice(enum_name: str) -> Callable[[str, str], str]:

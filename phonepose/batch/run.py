@@ -6,7 +6,11 @@ with ``status = "error"`` and a one-line ``error``, so one session cannot stop a
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 import time
+from typing import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
@@ -29,7 +33,7 @@ def one_line(exc: BaseException) -> str:
     """The error column: a PhoneposeError's own message; anything else prefixed with its type."""
     from phonepose.errors import PhoneposeError
 
-    text = str(exc) if isinstance(exc, PhoneposeError) else f"{type(exc).__name__}: {exc}"
+    text = str(exc) if isinstance(exc, (PhoneposeError, UnitTimeout)) else f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split()) or type(exc).__name__
     return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 3] + "..."
 
@@ -77,11 +81,47 @@ def error_rows(unit: Unit, exc: BaseException | str, runtime_s: float | None = N
     return rows
 
 
-def run_unit(unit: Unit) -> list[dict]:
+class UnitTimeout(BaseException):
+    """A unit ran past its time budget (``batch --unit-timeout``). A BaseException, like
+    KeyboardInterrupt: the SIGALRM raising it may land in code that turns any Exception into its own
+    error (the session reader's "damaged MCAP data")."""
+
+    def __init__(self, budget_s: float):
+        super().__init__(f"stopped after its time budget of {budget_s:g} s (--unit-timeout)")
+
+
+@contextlib.contextmanager
+def time_budget(budget_s: float | None) -> Iterator[Callable[[int, int], None]]:
+    """A progress callback that raises UnitTimeout once ``budget_s`` has passed (checked every tick),
+    and, in a process's main thread (a local worker), a SIGALRM that raises it between ticks too
+    (opening a session, planning). Dask runs units in threads: there the tick check alone applies."""
+    deadline = None if budget_s is None else time.monotonic() + budget_s
+
+    def check(done: int, total: int) -> None:
+        if deadline is not None and time.monotonic() > deadline:
+            raise UnitTimeout(budget_s)
+
+    alarm = budget_s is not None and threading.current_thread() is threading.main_thread() \
+        and hasattr(signal, "setitimer")
+    if alarm:
+        def on_alarm(signum, frame):
+            raise UnitTimeout(budget_s)
+        old = signal.signal(signal.SIGALRM, on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, budget_s)
+    try:
+        yield check
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old)
+
+
+def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
     """Play ``unit.path`` back once with every tracker of the unit (in memory, no files); one row per tracker.
 
     ``runtime_s`` is the playback's wall time in the worker (run_playback's ``wall_s``: open, ticks,
-    metrics), the same in every row of the unit: the trackers share the playback.
+    metrics), the same in every row of the unit: the trackers share the playback. A playback longer
+    than ``budget_s`` seconds is stopped and becomes error rows.
     """
     init_worker()
     from phonepose.pipeline.trackers import make_trackers
@@ -92,12 +132,13 @@ def run_unit(unit: Unit) -> list[dict]:
     t0 = time.perf_counter()
     sig = session_signature(unit.path)
     try:
-        result = run_playback(
-            unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
-            correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
-            end_s=params.get("end_s"), write_outputs=False,
-            tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
-    except Exception as exc:   # noqa: BLE001 - every failure of one session is that session's rows
+        with time_budget(budget_s) as check_budget:
+            result = run_playback(
+                unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
+                correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
+                end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
+                tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
+    except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
         return error_rows(unit, exc, time.perf_counter() - t0)
     rows = []
     for tracker in unit.trackers:

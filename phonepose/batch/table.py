@@ -19,6 +19,7 @@ import pyarrow.parquet as pq
 
 from phonepose.batch.plan import PARAMS, params_sort_key, row_key, tracker_sort_key
 from phonepose.errors import OutputError
+from phonepose.files import OutputFile
 
 # column → arrow type, in table order; metric columns go between "error" and "n_ticks"
 HEAD = {"session": pa.string(), "tracker": pa.string(), "params": pa.string()}
@@ -91,19 +92,6 @@ def to_arrow(rows: list[dict]) -> pa.Table:
     return pa.Table.from_pylist(_coerce(rows, schema), schema=schema)
 
 
-def check_writable(path: Path) -> None:
-    """Fail before any playback if ``--out`` cannot be written (OutputError, exit 6)."""
-    if path.is_dir():
-        raise OutputError(f"--out {path} is a directory; give a file name such as {path / 'results.parquet'}")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"--out {path}: directory {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(f"--out {path}: directory {parent} is not writable")
-    if path.exists() and not os.access(path, os.R_OK):
-        raise OutputError(f"--out {path} exists but cannot be read (needed to resume)")
-
-
 def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
     """The rows of an existing table by key ({} if the file does not exist)."""
     if not path.exists():
@@ -124,9 +112,9 @@ class ResultTable:
     """The rows of ``path`` plus the ones this batch adds, written back atomically."""
 
     def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        check_writable(self.path)
+        self.path = Path(path)          # checked by phonepose.files before (batch.driver.prepare_batch)
         self.rows = read_rows(self.path)
+        self.output: OutputFile | None = None   # where write() puts each version: set while the batch runs
         self.writes = 0
         self._last_write = 0.0
         self._last_cost = 0.0
@@ -145,19 +133,15 @@ class ResultTable:
             return False
         t0 = time.monotonic()
         table = to_arrow(list(self.rows.values()))
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        assert self.output is not None and self.output.tmp is not None, "write() runs inside the batch's OutputPlan"
         try:
-            with open(tmp, "wb") as f:
+            with open(self.output.tmp, "wb") as f:
                 pq.write_table(table, f)
                 f.flush()
                 os.fsync(f.fileno())
-            os.replace(tmp, self.path)
         except OSError as exc:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
+        self.output.checkpoint()   # renamed into place whole; the next version goes to a new temporary
         self._dirty = False
         self._last_write = time.monotonic()
         self._last_cost = self._last_write - t0

@@ -18,6 +18,8 @@ same poses add run time but no information).
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +30,7 @@ import numpy as np
 
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
+from phonepose.files import check_input
 from phonepose.errors import ConfigError, InputFileError, SessionContentError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -126,9 +129,11 @@ def views_from_images(directory: "str | Path", finder: BoardFinder, progress: Pr
         raise InputFileError(f"{directory}: no such directory")
     if not directory.is_dir():
         raise InputFileError(f"{directory}: not a directory (--images takes a directory of images)")
-    files = sorted(p for p in directory.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.is_dir())
     if not files:
         raise InputFileError(f"{directory}: no images ({', '.join(IMAGE_SUFFIXES)})")
+    for path in files:
+        check_input(path, "image")    # a FIFO or device among the images: refused before reading any
     views, skipped, size, examined = [], [], None, 0
     for path in files:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -164,9 +169,21 @@ def _quiet_opencv() -> Iterator[None]:
         cv2.utils.logging.setLogLevel(level)
 
 
+def camera_exists(index: int) -> bool:
+    """Whether camera ``index`` can be asked for: on Linux its /dev/videoN exists (OpenCV raises
+    cv2.error beyond its index range and crashes on -1); elsewhere any index >= 0."""
+    if index < 0:
+        return False
+    if sys.platform.startswith("linux"):
+        return os.path.exists(f"/dev/video{index}")
+    return True
+
+
 def _open_device(index: int, size: tuple[int, int] | None = None) -> cv2.VideoCapture:
     """Camera ``index`` in the mode ``record live --camera`` records with: MJPG, at ``size`` if given
     (a webcam may crop its sensor differently in another mode, which changes the intrinsics)."""
+    if not camera_exists(index):
+        raise InputFileError(f"camera device {index} cannot be opened (no such camera, or in use)")
     with _quiet_opencv():
         cap = cv2.VideoCapture(int(index))
         if cap.isOpened():
@@ -222,9 +239,7 @@ def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, ev
 
 def views_from_video(path: "str | Path", finder: BoardFinder, max_views: int = 40,
                      progress: Progress | None = None) -> _Collected:
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    path = check_input(path, "video file")
     with _quiet_opencv():
         cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():

@@ -8,8 +8,10 @@ written by OpenCV's ``calibrate_camera_charuco`` sample loads here.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -27,23 +29,53 @@ class CameraCalibrationFile:
     board: str = ""
 
 
-def save_calibration(path: "str | Path", calib: CameraCalibrationFile) -> None:
-    fs = open_yaml(Path(path), "calibration", write=True)
-    fs.write("image_width", int(calib.width))
-    fs.write("image_height", int(calib.height))
-    fs.write("camera_matrix", np.asarray(calib.K, dtype=np.float64).reshape(3, 3))
-    fs.write("distortion_coefficients", np.asarray(calib.D, dtype=np.float64).reshape(1, -1))
-    fs.write("reprojection_error", float(calib.reprojection_error_px))
-    if calib.board:
-        fs.write("board", calib.board)
-    fs.release()
+# What OpenCV's FileStorage writes, by the name's extension (it reads any of them by their content).
+OPENCV_FORMATS = {".yaml": cv2.FILE_STORAGE_FORMAT_YAML, ".yml": cv2.FILE_STORAGE_FORMAT_YAML,
+                  ".xml": cv2.FILE_STORAGE_FORMAT_XML, ".json": cv2.FILE_STORAGE_FORMAT_JSON}
+OPENCV_WHAT = "an OpenCV FileStorage file (YAML, XML or JSON)"
+
+
+def opencv_text(write: Callable[[cv2.FileStorage], None], suffix: str = ".yaml") -> str:
+    """What ``write(fs)`` puts into an OpenCV FileStorage, as text in the format of ``suffix``: made in
+    memory, so the file itself is written by phonepose.files (checked first, complete or not at all)."""
+    fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
+                         | OPENCV_FORMATS.get(suffix.lower(), cv2.FILE_STORAGE_FORMAT_YAML))
+    write(fs)
+    return fs.releaseAndGetString()
+
+
+def calibration_text(calib: CameraCalibrationFile, suffix: str = ".yaml") -> str:
+    def write(fs: cv2.FileStorage) -> None:
+        fs.write("image_width", int(calib.width))
+        fs.write("image_height", int(calib.height))
+        fs.write("camera_matrix", np.asarray(calib.K, dtype=np.float64).reshape(3, 3))
+        fs.write("distortion_coefficients", np.asarray(calib.D, dtype=np.float64).reshape(1, -1))
+        fs.write("reprojection_error", float(calib.reprojection_error_px))
+        if calib.board:
+            fs.write("board", calib.board)
+    return opencv_text(write, suffix)
+
+
+def save_calibration(path: "str | Path", calib: CameraCalibrationFile, option: str = "--out",
+                     inputs: Sequence["str | Path"] = ()) -> None:
+    """Write the file by the output rule (phonepose.files): the extension chooses YAML, XML or JSON."""
+    from phonepose.files import write_text_output
+
+    write_text_output(path, calibration_text(calib, Path(path).suffix), option, inputs=inputs,
+                      suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)
 
 
 def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
     """An OpenCV YAML/XML file opened for reading (one it cannot parse is an InputFileError) or for
     writing (OutputError)."""
-    if not write and not Path(path).is_file():
-        raise InputFileError(f"{path}: no such {what} file")
+    if not write:
+        from phonepose.files import check_input
+        try:
+            check_input(path, f"{what} file")     # a FIFO or device is refused, never opened
+        except InputFileError:
+            if not os.path.lexists(path):
+                raise InputFileError(f"{path}: no such {what} file") from None
+            raise
     error = ""
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE if write else cv2.FILE_STORAGE_READ)

@@ -1,17 +1,22 @@
 """The ``phonepose`` command line (typer + rich).
 
 Each command lives in its own module of this package; ``main`` turns every
-:class:`~phonepose.errors.PhoneposeError` into one line on stderr and its exit code.
+:class:`~phonepose.errors.PhoneposeError` into one line on stderr and its exit code, and makes
+SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the way out).
 """
 
 from __future__ import annotations
 
+import functools
+import os
+import signal
 import sys
+import threading
 
 import typer
 
 from phonepose import __version__
-from phonepose.errors import PhoneposeError
+from phonepose.errors import PhoneposeError, quiet_library_warnings
 
 app = typer.Typer(
     name="phonepose",
@@ -72,25 +77,94 @@ def _usage_error(exc) -> None:
     ctx = getattr(exc, "ctx", None)
     where = f"{ctx.command_path}: " if ctx is not None and ctx.command_path != "phonepose" else ""
     hint = f" (see `{ctx.command_path} --help`)" if ctx is not None else ""
-    message = " ".join(exc.format_message().split())
+    message = " ".join(exc.format_message().split()).replace("Value error, ", "")   # typer's coercion prefix
     code = 5 if isinstance(exc, typer.BadParameter) and not isinstance(exc, exceptions.MissingParameter) else exc.exit_code
     error(f"{where.removeprefix('phonepose ')}{message}{hint}", code)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: the same clean stop."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated
+
+
+class Interrupted(BaseException):
+    """An interrupt on its way to ``main``: typer turns a KeyboardInterrupt into a silent exit 130."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
+def _reporting_interrupts(callback):
+    @functools.wraps(callback)
+    def run(*args, **kwargs):
+        try:
+            return callback(*args, **kwargs)
+        except KeyboardInterrupt as exc:
+            detail = f": {exc}" if str(exc) else ""
+            if isinstance(exc, Terminated):
+                raise Interrupted(f"terminated (SIGTERM){detail}", 143) from None
+            raise Interrupted(f"interrupted{detail}", 130) from None
+    run._reports_interrupts = True
+    return run
+
+
+def _prepare(command) -> None:
+    """Every command of the tree: interrupts reported (one line, 130 or 143), and ``--quiet`` in --help
+    without a ``<bool>`` value placeholder (typer shows one for flags)."""
+    if getattr(command, "callback", None) is not None and not getattr(command.callback, "_reports_interrupts", False):
+        command.callback = _reporting_interrupts(command.callback)
+    for param in getattr(command, "params", []):
+        if getattr(param, "is_flag", False) and not getattr(param, "count", False):
+            param.metavar = ""
+    get_help = getattr(command, "get_help_option", None)
+    if get_help is not None and getattr(command, "context_class", None) is not None:
+        help_option = get_help(command.context_class(command, info_name=command.name))
+        if help_option is not None:
+            help_option.metavar = ""
+    for sub in getattr(command, "commands", {}).values():
+        _prepare(sub)
+
+
+def command():
+    """The click command of ``app``, as ``phonepose`` runs it."""
+    cmd = typer.main.get_command(app)
+    _prepare(cmd)
+    return cmd
 
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the console script: every error is one line on stderr and its exit code."""
     ClickException = _click_exceptions().ClickException
 
+    quiet_library_warnings()
+    in_main = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
-        rv = app(args=argv, prog_name="phonepose", standalone_mode=False)
+        rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
+    except Interrupted as exc:
+        error(str(exc), exc.code)
+    except Terminated:
+        error("terminated (SIGTERM)", 143)
     except (KeyboardInterrupt, typer.Abort):
         error("interrupted", 130)
     except BrokenPipeError:
         sys.exit(0)
     except OSError as exc:   # an OS failure no module turned into a PhoneposeError: still one line
         error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
+    except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
+        if os.environ.get("PHONEPOSE_TRACEBACK"):
+            raise
+        error(f"unexpected {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug in phonepose: please "
+              f"report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)", 1)
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
     sys.exit(rv if isinstance(rv, int) and not isinstance(rv, bool) else 0)

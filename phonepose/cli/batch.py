@@ -8,10 +8,13 @@ from typing import Optional
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from phonepose.cli import app
+from phonepose.cli.options import TRACKER_HELP, number
+from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX
 
 
 def summary_table(summary: list[dict]) -> Table:
@@ -37,32 +40,35 @@ def summary_table(summary: list[dict]) -> Table:
 @app.command()
 def batch(
     sessions: list[Path] = typer.Argument(..., help="Session files (.mcap); on a cluster every worker must see these paths."),
-    tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help="Tracker name (repeat), 'paper' (T1-T7) or 'all'."),
+    tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help=TRACKER_HELP),
     param: list[str] = typer.Option([], "--param", "-p",
                                     help="KEY=V1,V2,... (repeat): rate_hz, correction_math, cm1_reading, start_s, end_s; "
                                          "the batch runs the cross product."),
     out: Path = typer.Option(..., "--out", "-o", help="Parquet table; rows already in it with status ok are skipped."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Local worker processes (default: one per core)."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", callback=number(1, WORKERS_MAX, integer=True),
+                                          help="Local worker processes (default: one per core)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address (tcp://host:8786) instead of local processes."),
+    unit_timeout: float = typer.Option(UNIT_TIMEOUT_S, "--unit-timeout",
+                                       callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
+                                       help="Seconds one playback may take; a longer one becomes error rows."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Play back every session x parameter combination with every tracker; one row per run into a Parquet table.
 
     Exit 0 when every row is ok, 1 when some playbacks failed (their rows say why; they are
-    retried by the next run with the same --out).
+    retried by the next run with the same --out). Ctrl-C or SIGTERM stop the workers and keep
+    every finished row in --out.
     """
     from phonepose.batch import summarize
     from phonepose.batch.driver import execute_batch, prepare_batch
     from phonepose.batch.plan import params_label
 
     prepared = prepare_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
-                             scheduler=scheduler)
+                             scheduler=scheduler, unit_timeout_s=unit_timeout)
     console = Console(stderr=True)
-    out_console = Console()
-    with Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
-                  TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),
-                  TimeRemainingColumn(), console=console, disable=quiet or not console.is_terminal,
-                  transient=True) as bar:
+    with ProgressBar(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
+                     TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),
+                     TimeRemainingColumn(), console=console, quiet=quiet) as bar:
         task = bar.add_task("units", total=None, rows=0, errors=0)
         counts = {"rows": 0, "errors": 0}
 
@@ -88,8 +94,13 @@ def batch(
                                   f"{rows[0]['error']}", highlight=False, soft_wrap=True)
             bar.update(task, completed=done, total=total, **counts)
 
-        result = execute_batch(prepared, progress=progress, on_start=on_start)
-    out_console.print(summary_table(summarize(result.rows)))
+        try:
+            result = execute_batch(prepared, progress=progress, on_start=on_start)
+        except KeyboardInterrupt as exc:    # Ctrl-C or SIGTERM: the workers are gone, the finished rows kept
+            n = len(prepared.table.rows)
+            raise type(exc)(f"{n} finished row{'s' if n != 1 else ''} {'are' if n != 1 else 'is'} in {out}; the next "
+                            "run with the same --out goes on from there") from None
+    stdout_console().print(summary_table(summarize(result.rows)))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "
                f"{result.skipped} rows skipped (already in the table) -> {result.out}")

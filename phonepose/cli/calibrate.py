@@ -12,25 +12,18 @@ from rich.console import Console
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.errors import ConfigError, OutputError
+from phonepose.cli.options import Paper, number
+from phonepose.cli.output import stdout_console
+from phonepose.errors import ConfigError
+from phonepose.files import check_input, check_output, write_text_output
+
+MAX_IMAGE_SIDE_PX = 20_000   # a marker image larger than this is no screen's and would take gigabytes
+MAX_CAMERA_INDEX = 1023      # cv2.VideoCapture's index (V4L2 /dev/videoN); -1 ("any") crashes OpenCV here
 
 DEFAULT_SPEC = "charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100"
 
 
-def _write(out: Path, data: bytes) -> None:
-    try:
-        out.write_bytes(data)
-    except OSError as exc:
-        raise OutputError(f"cannot write {out}: {exc.strerror or exc}") from None
-
-
-def _check_out_dir(out: Path) -> None:
-    """Fail before minutes of capture, not after, if the result cannot be written."""
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"cannot write {out}: directory {parent} does not exist")
-    if out.is_dir():
-        raise OutputError(f"cannot write {out}: is a directory")
+PNG = dict(suffixes=(".png",), what="a PNG image")
 
 
 @app.command("board")
@@ -38,8 +31,10 @@ def board(
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
     spec: str = typer.Option(DEFAULT_SPEC, "--board", help="Board description: squares=CxR square_mm= marker_mm= "
                              "dictionary= (keys left out keep the default)."),
-    dpi: int = typer.Option(300, "--dpi", help="Print resolution; the PNG records it."),
-    paper: str = typer.Option("a4", "--paper", help="a4, a3, letter (landscape) or fit (board + margin)."),
+    dpi: int = typer.Option(300, "--dpi", callback=number(50, 1200, integer=True),
+                            help="Print resolution (50..1200); the PNG records it."),
+    paper: Paper = typer.Option(Paper.a4, "--paper", case_sensitive=False,
+                                help="a4, a3, letter (landscape) or fit (board + margin)."),
 ) -> None:
     """Write the ChArUco calibration board as a printable PNG, true sizes on the margin.
 
@@ -50,9 +45,9 @@ def board(
     from phonepose.calibration.board import board_png, board_spec, parse_board_spec, px_per_mm
 
     b = parse_board_spec(spec)
-    data = board_png(b, dpi, paper.lower())
-    _write(out, data)
-    typer.echo(f"{out}: {board_spec(b)}, {b.size_mm[0]:g} x {b.size_mm[1]:g} mm on {paper.lower()} at {dpi} dpi "
+    check_output(out, "--out", **PNG)
+    write_text_output(out, board_png(b, dpi, paper.value), "--out", **PNG)
+    typer.echo(f"{out}: {board_spec(b)}, {b.size_mm[0]:g} x {b.size_mm[1]:g} mm on {paper.value} at {dpi} dpi "
                f"(square = {b.square_mm * px_per_mm(dpi):.1f} px); print at 100 % and check a square measures "
                f"{b.square_mm:g} mm")
 
@@ -61,9 +56,11 @@ def board(
 def marker(
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
     dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ArUco dictionary (the simulator's: DICT_4X4_50)."),
-    marker_id: int = typer.Option(7, "--id", help="Marker id (the simulator's: 7)."),
-    pixels: int = typer.Option(400, "--pixels", help="Side of the marker (black border included) in pixels."),
-    quiet_zone: Optional[int] = typer.Option(None, "--quiet-zone", help="White margin in pixels (default: one bit cell)."),
+    marker_id: int = typer.Option(7, "--id", callback=number(0, integer=True), help="Marker id (the simulator's: 7)."),
+    pixels: int = typer.Option(400, "--pixels", callback=number(1, MAX_IMAGE_SIDE_PX, integer=True),
+                               help="Side of the marker (black border included) in pixels."),
+    quiet_zone: Optional[int] = typer.Option(None, "--quiet-zone", callback=number(0, MAX_IMAGE_SIDE_PX, integer=True),
+                                             help="White margin in pixels (default: one bit cell)."),
 ) -> None:
     """Write the controller's ArUco marker as a PNG (what the phone shows on its screen).
 
@@ -75,7 +72,7 @@ def marker(
 
     image = marker_image(dictionary.upper(), marker_id, pixels, 1, quiet_zone)
     ok, buf = cv2.imencode(".png", image)
-    _write(out, buf.tobytes())
+    write_text_output(out, buf.tobytes(), "--out", **PNG)
     margin = (image.shape[0] - pixels) // 2
     typer.echo(f"{out}: {dictionary.upper()} id {marker_id}, marker {pixels} px + {margin} px white margin "
                f"({image.shape[1]}x{image.shape[0]} px); its black square is what the session's marker size measures")
@@ -85,14 +82,17 @@ def marker(
 def calibrate_camera(
     out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (OpenCV YAML, read by "
                              "`record live --calibration`)."),
-    device: Optional[int] = typer.Option(None, "--device", help="Capture live from camera N (cv2.VideoCapture index)."),
+    device: Optional[int] = typer.Option(None, "--device", callback=number(0, MAX_CAMERA_INDEX, integer=True),
+                                         help="Capture live from camera N (cv2.VideoCapture index)."),
     video: Optional[Path] = typer.Option(None, "--video", help="A video of the board."),
     images: Optional[Path] = typer.Option(None, "--images", help="A directory of photos of the board."),
     spec: str = typer.Option(DEFAULT_SPEC, "--board", help="The board that was filmed (as `phonepose board --board`)."),
-    max_views: int = typer.Option(40, "--max-views", help="Use at most this many views (evenly spread)."),
-    min_corners: int = typer.Option(8, "--min-corners", help="A frame is a view if it shows at least this many "
-                                    "board corners."),
-    seconds: float = typer.Option(120.0, "--seconds", help="--device: stop capturing after this long."),
+    max_views: int = typer.Option(40, "--max-views", callback=number(1, 1000, integer=True),
+                                  help="Use at most this many views (evenly spread)."),
+    min_corners: int = typer.Option(8, "--min-corners", callback=number(4, 10_000, integer=True),
+                                    help="A frame is a view if it shows at least this many board corners."),
+    seconds: float = typer.Option(120.0, "--seconds", callback=number(0, 24 * 3600, lo_open=True, unit="s"),
+                                  help="--device: stop capturing after this long."),
     size: Optional[str] = typer.Option(None, "--size", help="--device: ask for WxH frames (e.g. 1280x720); "
                                        "calibrate at the resolution you record at."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
@@ -105,7 +105,7 @@ def calibrate_camera(
     """
     from phonepose.calibration.board import board_spec, parse_board_spec
     from phonepose.calibration.calibrate import RECOMMENDED_VIEWS, calibrate_camera as run
-    from phonepose.calibration.camera_file import save_calibration
+    from phonepose.calibration.camera_file import OPENCV_FORMATS, OPENCV_WHAT, save_calibration
 
     import numpy as np
 
@@ -122,12 +122,13 @@ def calibrate_camera(
         if device is None:
             raise ConfigError("--size applies to --device only (a video or photos have their own size)")
         device_size = (w, h)
-    _check_out_dir(out)
+    inputs = [video] if video is not None else []
+    check_output(out, "--out", inputs=inputs, suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)  # before the capture
     t0 = time.perf_counter()
     result = run(images=images, video=video, device=device, board=b, max_views=max_views,
                  min_corners=min_corners, device_seconds=seconds, device_size=device_size,
                  progress=None if quiet else (lambda line: err.print(line, style="dim", markup=False, highlight=False)))
-    save_calibration(out, result.to_file())
+    save_calibration(out, result.to_file(), inputs=inputs)
     wall = time.perf_counter() - t0
 
     for line in result.skipped:
@@ -151,7 +152,7 @@ def calibrate_camera(
     for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8])):
         table.add_row(name, f"{value:+.5f}", f"{sd:.5f}")
     table.caption = board_spec(b)
-    Console().print(table)
+    stdout_console().print(table)
     notes = []
     if len(result.views) < RECOMMENDED_VIEWS:
         notes.append(f"only {len(result.views)} views: {RECOMMENDED_VIEWS}-40 from different angles give a steadier result")
@@ -188,7 +189,9 @@ def calibrate_hand_eye(
             raise ValueError
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
-    _check_out_dir(out)
+    check_input(session, "session")
+    check_output(out, "--out", inputs=[session], suffixes=(".yaml", ".yml", ".xml", ".json"),
+                 what="an OpenCV FileStorage file (YAML, XML or JSON)")
     he = hand_eye_from_session(session, translation=lever)
     save_hand_eye(out, he)
     rv = he.T_controller_mocap.rotation.as_rotvec(degrees=True)

@@ -8,12 +8,12 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.console import Console
 
 from phonepose.cli import app
+from phonepose.cli.output import stdout_console
+from phonepose.cli.options import Align, DeltaUnit, Metric, PoseRelation, TrajectoryFormat, number
 from phonepose.errors import ConfigError, SessionContentError
-
-METRICS = ("rpg", "ape", "rpe", "paper")
+from phonepose.numbers import SECONDS_MAX
 
 
 def _parse_lengths(text: str | None) -> list[float] | None:
@@ -23,7 +23,7 @@ def _parse_lengths(text: str | None) -> list[float] | None:
         vals = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise ConfigError(f"--lengths {text!r}: expected comma-separated metres, e.g. 1,2.5,5") from None
-    if not vals or any(not (v > 0) for v in vals):
+    if not vals or any(not (0 < v < float("inf")) for v in vals):
         raise ConfigError(f"--lengths {text!r}: expected positive metres, e.g. 1,2.5,5")
     return vals
 
@@ -38,10 +38,9 @@ def _stats_row(table, name: str, length: str, unit: str, s: dict, end_section: b
 
 
 def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
-    from rich.console import Console
     from rich.table import Table
 
-    console = Console(width=max(Console().width, 112))
+    console = stdout_console(min_width=112)
     al = result["align"]
     console.print(f"estimate [bold]{est}[/bold]\nvs GT    [bold]{gt}[/bold]", soft_wrap=True)
     console.print(f"{result['n_matched']} matched poses, align {al['method']} "
@@ -95,24 +94,32 @@ def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
 def evaluate(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
     est: Path = typer.Option(..., "--est", help="Estimated trajectory file (TUM, or KITTI with --format kitti)."),
-    fmt: str = typer.Option("tum", "--format", help="GT format: tum | euroc (ASL csv; the estimate in TUM, or ASL csv if it ends in .csv) | kitti."),
-    align: str = typer.Option(None, "--align",
-                              help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for ape/rpe as evo)."),
-    align_frames: int = typer.Option(-1, "--align-frames", help="Align with the first N matched poses (-1: all)."),
-    metric: str = typer.Option("rpg", "--metric", help="rpg (ATE + RE) | ape | rpe (evo-compatible) | paper "
-                               "(p_ATE, r_ATE, p_RE inside / outside the view and the boundary jump; needs --in-view)."),
+    fmt: TrajectoryFormat = typer.Option(TrajectoryFormat.tum, "--format", case_sensitive=False,
+                                         help="GT format: tum | euroc (ASL csv; the estimate in TUM, or ASL csv if "
+                                              "it ends in .csv) | kitti."),
+    align: Optional[Align] = typer.Option(None, "--align", case_sensitive=False,
+                                          help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for "
+                                               "ape/rpe as evo)."),
+    align_frames: int = typer.Option(-1, "--align-frames", callback=number(1, integer=True, also=(-1,)),
+                                     help="Align with the first N matched poses (-1: all)."),
+    metric: Metric = typer.Option(Metric.rpg, "--metric", case_sensitive=False,
+                                  help="rpg (ATE + RE) | ape | rpe (evo-compatible) | paper (p_ATE, r_ATE, p_RE "
+                                       "inside / outside the view and the boundary jump; needs --in-view)."),
     in_view: Optional[Path] = typer.Option(None, "--in-view", help="--metric paper: the in_view.txt playback wrote "
                                            "beside groundtruth.tum (timestamp, 0|1 per tick)."),
-    delta: float = typer.Option(1.0, "--delta", help="RPE delta."),
-    delta_unit: str = typer.Option("f", "--delta-unit", help="RPE delta unit: f (frames) | m | d (deg) | r (rad)."),
-    pose_relation: str = typer.Option("trans", "--pose-relation",
-                                      help="APE/RPE relation: trans | angle (deg) | angle_rad | rot_part | full."),
+    delta: float = typer.Option(1.0, "--delta", callback=number(0, 1e9, lo_open=True), help="RPE delta."),
+    delta_unit: DeltaUnit = typer.Option(DeltaUnit.f, "--delta-unit",
+                                         help="RPE delta unit: f (frames) | m | d (deg) | r (rad)."),
+    pose_relation: PoseRelation = typer.Option(PoseRelation.trans, "--pose-relation",
+                                               help="APE/RPE relation: trans | angle (deg) | angle_rad | rot_part | "
+                                                    "full."),
     lengths: str = typer.Option(None, "--lengths", help="RE sub-trajectory lengths in m, e.g. 1,2,5 "
                                 "(default: 10,20,30,40,50 % of the GT path length)."),
     all_pairs: bool = typer.Option(False, "--all-pairs", help="RPE: all (overlapping) pairs instead of consecutive."),
     pairs_from_reference: bool = typer.Option(False, "--pairs-from-reference", help="RPE: pairs from the GT poses."),
-    max_diff: float = typer.Option(None, "--max-diff",
-                                   help="Association window in s (default: 0.02 strict for rpg, 0.01 for ape/rpe)."),
+    max_diff: Optional[float] = typer.Option(None, "--max-diff", callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
+                                             help="Association window in s (default: 0.02 strict for rpg, 0.01 for "
+                                                  "ape/rpe)."),
     rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
                                     "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
@@ -120,17 +127,15 @@ def evaluate(
     """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
     from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
     from phonepose.evaluation.rpg import evaluate_rpg
-    from phonepose.evaluation.trajectory import FORMATS, load_trajectory
+    from phonepose.evaluation.trajectory import load_trajectory
 
-    if metric not in METRICS:
-        raise ConfigError(f"--metric {metric!r}: expected one of {', '.join(METRICS)}")
-    if fmt not in FORMATS:
-        raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    if align is not None and align not in ("posyaw", "se3", "sim3", "none"):
-        raise ConfigError(f"--align {align!r}: expected one of posyaw, se3, sim3, none")
-    if max_diff is not None and not (max_diff > 0):
-        raise ConfigError(f"--max-diff {max_diff}: must be > 0 s")
+    from phonepose.files import check_input
+
+    metric, fmt, delta_unit, pose_relation = metric.value, fmt.value, delta_unit.value, pose_relation.value
+    align = align.value if align is not None else None
     lens = _parse_lengths(lengths)
+    for path in (gt, est) + ((in_view,) if in_view is not None else ()):
+        check_input(path, "trajectory file")    # a FIFO or device: refused, never opened
     gt_traj = load_trajectory(gt, fmt)
     est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
     est_traj = load_trajectory(est, est_fmt)
@@ -140,7 +145,7 @@ def evaluate(
             typer.echo(json.dumps(result, indent=2, allow_nan=False))
         else:
             from phonepose.cli.playback import metrics_table
-            Console().print(metrics_table({"session": f"{est.name} vs {gt.name}", "rate_hz": None,
+            stdout_console().print(metrics_table({"session": f"{est.name} vs {gt.name}", "rate_hz": None,
                                            "trackers": {est.stem: result}}))
         return
     if metric == "rpg":

@@ -6,11 +6,13 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.errors import ConfigError
+from phonepose.cli.options import SEED, CorrectionMath, number
+from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.numbers import WORKERS_MAX
 
 experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.", no_args_is_help=True,
                              add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
@@ -54,14 +56,25 @@ def exp2_summary_tables(result) -> list[Table]:
     return [t5, t6]
 
 
+def _check_config(config: Optional[Path]) -> None:
+    """A bad --config fails before the output folder is touched or a sequence starts."""
+    if config is not None:
+        from phonepose.record.sim import load_config
+        load_config(config)
+
+
 @experiment_app.command("exp2")
 def exp2(
-    out: Path = typer.Option(Path("exp2-out"), "--out", "-o", help="Output directory."),
-    trials: int = typer.Option(3, "--trials", help="Trials per path (the paper has 3)."),
-    seed: int = typer.Option(0, "--seed", help="Base seed; each sequence derives its own from it."),
+    out: Path = typer.Option(Path("exp2-out"), "--out", "-o", help="Output directory (replaced whole when it is an "
+                             "earlier phonepose output)."),
+    trials: int = typer.Option(3, "--trials", callback=number(1, 3, integer=True),
+                               help="Trials per path, 1..3 (the paper has 3)."),
+    seed: int = typer.Option(0, "--seed", **SEED, help="Base seed; each sequence derives its own from it."),
     config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
-    correction_math: str = typer.Option("paper", "--correction-math", help="paper (eq. 1-6) or se3."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Sequences in parallel (default: up to 2)."),
+    correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
+                                                   help="paper (eq. 1-6) or se3."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", callback=number(1, WORKERS_MAX, integer=True),
+                                       help="Sequences in parallel (default: up to 2)."),
     hand_eye: bool = typer.Option(False, "--hand-eye", help="Calibrate each session's mocap hand-eye and clock "
                                   "offset from itself and score in the phone's frame (r_ATE without the 11 deg "
                                   "offset; docs/evaluation.md)."),
@@ -69,17 +82,12 @@ def exp2(
     """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
 
     Writes sessions/, playback/ (TUM trajectories and metrics per sequence), table5.md/.csv,
-    table6.md/.csv, fig11_TRI2_01.png and exp2.json into --out.
+    table6.md/.csv, fig11_TRI2_01.png and exp2.json into --out, all at once when complete.
     """
     from phonepose.experiments.exp2 import run_exp2
-    from phonepose.pipeline.corrections import CorrectionMath
 
-    if not 1 <= trials <= 3:
-        raise ConfigError(f"--trials must be 1..3 (the paper's Table 4 has 3 trials per path), got {trials}")
-    if jobs is not None and jobs < 1:
-        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
-    CorrectionMath.parse(correction_math)
-    console = Console()
+    _check_config(config)
+    console = stdout_console()
     done = []
 
     def progress(name: str) -> None:
@@ -88,7 +96,7 @@ def exp2(
 
     console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
     result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
-                      correction_math=correction_math, jobs=jobs, progress=progress, hand_eye=hand_eye)
+                      correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye)
     if hand_eye:
         console.print("ground truth in the phone's frame and clock: each session's hand-eye calibrated from itself")
     for table in exp2_summary_tables(result):
@@ -99,19 +107,36 @@ def exp2(
 
 @experiment_app.command("exp1")
 def exp1(
-    out: Path = typer.Option(Path("exp1-out"), "--out", "-o", help="Output directory."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    out: Path = typer.Option(Path("exp1-out"), "--out", "-o", help="Output directory (replaced whole when it is an "
+                             "earlier phonepose output)."),
+    seed: int = typer.Option(0, "--seed", **SEED, help="Random seed."),
     config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
-    correction_math: str = typer.Option("paper", "--correction-math", help="paper (eq. 1-6) or se3."),
+    correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
+                                                   help="paper (eq. 1-6) or se3."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Experiment 1 (discrete data): 16 targets at 25 and 35 cm, Tables 2 and 3 and target selection."""
     from phonepose.experiments.exp1 import exp1_tables, run_exp1
-    from phonepose.pipeline.corrections import CorrectionMath
 
-    CorrectionMath.parse(correction_math)
-    console = Console()
+    _check_config(config)
+    console = stdout_console()
     console.print(f"[bold]experiment 1[/bold]: 16 targets, seed {seed} -> {out}")
-    result = run_exp1(out, seed=seed, config=str(config) if config else None, correction_math=correction_math)
+    with ProgressBar(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[done]}"),
+                     TimeElapsedColumn(), quiet=quiet) as bar:
+        record = bar.add_task("recording the session", total=None, done="")
+        play = bar.add_task("playing it back", total=None, done="", visible=False)
+
+        def recorded(done_ns: int, total_ns: int | None) -> None:
+            total = None if total_ns is None else total_ns / 1e9
+            bar.update(record, completed=done_ns / 1e9, total=total,
+                       done=f"{done_ns / 1e9:.0f}" + ("" if total is None else f"/{total:.0f}") + " s")
+
+        def played(done: int, total: int) -> None:
+            if done == 1 or done % 20 == 0 or done == total:
+                bar.update(play, completed=done, total=total, done=f"{done}/{total} ticks", visible=True)
+
+        result = run_exp1(out, seed=seed, config=str(config) if config else None,
+                          correction_math=correction_math.value, record_progress=recorded, playback_progress=played)
     for table in exp1_tables(result):
         console.print(table)
     for name, path in result.files.items():

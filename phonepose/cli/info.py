@@ -7,10 +7,10 @@ import json
 from pathlib import Path
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from phonepose.cli import app
+from phonepose.cli.output import stdout_console
 from phonepose.session import SessionReader
 
 
@@ -33,7 +33,7 @@ def info(
                          for c in s.channels],
         }, indent=2))
         return
-    console = Console()
+    console = stdout_console()     # piped: topic names are never cut to the terminal's 80 columns
     console.print(f"[bold]{file}[/bold]: {s.message_count} messages, {s.duration_s:.2f} s, start {start}")
     table = Table("topic", "schema", "encoding", "messages")
     for c in s.channels:

@@ -11,6 +11,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from phonepose.cli import app
+from phonepose.cli.output import stdout_console
+from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
+from phonepose.numbers import RATE_MAX_HZ
 from phonepose.errors import ConfigError
 from phonepose.schemas.topics import Topic
 
@@ -42,12 +45,15 @@ def metrics_table(metrics: dict) -> Table:
 @app.command()
 def playback(
     session: Path = typer.Argument(..., help="The session (.mcap) to play back."),
-    tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help="Tracker name (repeat), or 'all'."),
-    correction_math: str = typer.Option("paper", "--correction-math", help="paper (equations 1-6) or se3."),
-    rate: float = typer.Option(20.0, "--rate", help="Ticks per second."),
-    start: Optional[float] = typer.Option(None, "--start", help="Start, seconds after the session start."),
-    end: Optional[float] = typer.Option(None, "--end", help="End, seconds after the session start."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output directory [default: ./playback-<session>]."),
+    tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help=TRACKER_HELP),
+    correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
+                                                   help="paper (equations 1-6) or se3."),
+    rate: float = typer.Option(20.0, "--rate", callback=number(0, RATE_MAX_HZ, lo_open=True, unit="Hz"),
+                               help="Ticks per second."),
+    start: Optional[float] = typer.Option(None, "--start", **SECONDS, help="Start, seconds after the session start."),
+    end: Optional[float] = typer.Option(None, "--end", **SECONDS, help="End, seconds after the session start."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", show_default="./playback-<session>",
+                                       help="Output directory."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Save a Rerun recording (.rrd) with a default layout."),
     spawn: bool = typer.Option(False, "--spawn", help="Stream to a new Rerun viewer."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace ticks to real time (demos)."),
@@ -61,10 +67,9 @@ def playback(
 
     if rerun is not None and spawn:
         raise ConfigError("--rerun and --spawn are exclusive: give one")
-    if not rate > 0:
-        raise ConfigError(f"--rate must be > 0 (got {rate})")
     if start is not None and end is not None and end <= start:
         raise ConfigError(f"--end ({end}) must be after --start ({start})")
+    correction_math = correction_math.value
     make_trackers(tracker, correction_math)  # unknown names fail here, before any work
     console = Console(stderr=True)
     with Progress(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
@@ -78,7 +83,7 @@ def playback(
         result = run_playback(session, trackers=tracker, out_dir=out, rate_hz=rate, correction_math=correction_math,
                               rerun_path=rerun, spawn=spawn, start_s=start, end_s=end, realtime=realtime,
                               progress=progress, hand_eye=hand_eye)
-    Console().print(metrics_table(result.metrics))
+    stdout_console().print(metrics_table(result.metrics))
     if not result.has_gt:
         typer.echo(f"no usable ground truth (needs {Topic.GT_CONTROLLER_POSE} and {Topic.GT_CALIBRATION} within the "
                    "task window): accuracy metrics are unavailable (null in metrics.json)")

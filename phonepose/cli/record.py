@@ -7,10 +7,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
 from phonepose.cli import app
+from phonepose.cli.options import SEED, Scenario, SimPath, number
+from phonepose.cli.output import ProgressBar
 from phonepose.errors import ConfigError
 
 record_app = typer.Typer(
@@ -26,10 +27,13 @@ app.add_typer(record_app, name="record")
 @record_app.command("sim")
 def sim(
     out: Path = typer.Option(..., "--out", "-o", help="Session file to write (.mcap)."),
-    scenario: str = typer.Option("exp2", "--scenario", help="exp1 (16 targets, 5 s each) or exp2 (follow a path)."),
-    path: str = typer.Option("TRI1", "--path", help="exp2 path: TRI1, REC1 (entirely in view), TRI2, REC2 (partly outside)."),
-    trial: int = typer.Option(1, "--trial", help="Trial 1..3 (the paper's Table 4 frame counts differ per trial)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed: same seed and config give a byte-identical file."),
+    scenario: Scenario = typer.Option(Scenario.exp2, "--scenario", case_sensitive=False,
+                                      help="exp1 (16 targets, 5 s each) or exp2 (follow a path)."),
+    path: SimPath = typer.Option(SimPath.TRI1, "--path", case_sensitive=False,
+                                 help="exp2 path: TRI1, REC1 (entirely in view), TRI2, REC2 (partly outside)."),
+    trial: int = typer.Option(1, "--trial", callback=number(1, 3, integer=True),
+                              help="Trial 1..3 (the paper's Table 4 frame counts differ per trial)."),
+    seed: int = typer.Option(0, "--seed", **SEED, help="Random seed: same seed and config give a byte-identical file."),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file overriding any subset of the simulator's "
                                           "parameters (see docs/simulation.md)."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
@@ -45,20 +49,14 @@ def sim(
 
     Ctrl-C or SIGTERM stop the recording and still leave a valid file.
     """
-    from phonepose.record.sim import check_choice, load_config, record_sim  # here: keeps `phonepose --help` fast
-    from phonepose.session.writer import refuse_to_replace
+    from phonepose.record.sim import load_config, record_sim  # here: keeps `phonepose --help` fast
 
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
-    if scenario == "exp2" and path.upper() in ("TRI1", "TRI2", "REC1", "REC2"):
-        path = path.upper()
-    check_choice(scenario, path, trial)      # bad choices and config fail before anything is written
-    cfg = load_config(config)
-    refuse_to_replace(out, force)
+    cfg = load_config(config)       # a bad config fails before anything is written
     t0 = time.perf_counter()
-    with Progress(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),
-                  TextColumn("{task.fields[seconds]}"), TimeElapsedColumn(),
-                  transient=True, disable=quiet, console=Console(stderr=True)) as bar:
+    with ProgressBar(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),
+                     TextColumn("{task.fields[seconds]}"), TimeElapsedColumn(), quiet=quiet) as bar:
         task = bar.add_task(str(out), total=None, seconds="")
 
         def progress(done_ns: int, total_ns: int | None) -> None:
@@ -66,10 +64,11 @@ def sim(
             bar.update(task, completed=done_ns / 1e9, total=total,
                        seconds=f"{done_ns / 1e9:.1f}" + ("" if total is None else f"/{total:.1f}") + " s")
 
-        result = record_sim(out, scenario=scenario, path=path, trial=trial, seed=seed, config=cfg,
-                            progress=progress, rerun_path=rerun, spawn=spawn)
+        result = record_sim(out, scenario=scenario.value, path=path.value, trial=trial, seed=seed, config=cfg,
+                            config_file=config, progress=progress, rerun_path=rerun, spawn=spawn, force=force,
+                            stop_on_signals=True)
     wall = time.perf_counter() - t0
-    what = f"exp2 {path} trial {trial}" if scenario == "exp2" else f"exp1 trial {trial}"
+    what = f"exp2 {path.value} trial {trial}" if scenario == Scenario.exp2 else f"exp1 trial {trial}"
     status = "interrupted, file is valid" if result.interrupted else "done"
     typer.echo(f"{out}: {what}, seed {seed}: {result.duration_ns / 1e9:.1f} s, {result.frames} frames, "
                f"{result.messages} messages in {wall:.1f} s ({result.duration_ns / 1e9 / max(wall, 1e-9):.1f}x real time), "

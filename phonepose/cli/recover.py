@@ -7,10 +7,11 @@ import json
 from pathlib import Path
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from phonepose.cli import app
+from phonepose.cli.output import stdout_console
+from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
 
 
@@ -59,7 +60,12 @@ def recover(
 
     Exit code 0 when something was recovered; 3 when nothing could be (see docs/reliability.md).
     """
-    r = salvage(file, out, replace=force)
+    check_input(file, "MCAP file")
+    plan = OutputPlan(inputs=[file])
+    fixed = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", session=True, force=force)
+    with plan:   # checked before reading; written to a temporary; renamed only when complete
+        r = salvage(file, fixed.tmp, replace=True)
+    r.out = str(out)
     if as_json:
         typer.echo(json.dumps({
             "path": r.path, "out": r.out, "messages": r.messages, "messages_per_topic": r.messages_per_topic,
@@ -70,7 +76,7 @@ def recover(
             "lost": [{"start_ns": s.start_ns, "end_ns": s.end_ns, "bytes": s.bytes} for s in r.lost],
         }, indent=2))
         return
-    console = Console()
+    console = stdout_console()
     typer.echo(f"{file} -> {out}")
     table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():

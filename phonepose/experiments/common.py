@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
+
+from phonepose.workers import worker_pool
 
 
 @dataclass(frozen=True)
@@ -23,6 +24,7 @@ class SequenceJob:
     correction_math: str = "paper"
     rerun: bool = False
     hand_eye: bool = False   # calibrate the session's hand-eye from itself and score in the phone's frame
+    final_dir: str | None = None   # where out_dir (a temporary) lands when the experiment is complete
 
 
 def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
@@ -31,26 +33,31 @@ def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
     return int(base_seed) * 100_003 + code * 31 + int(trial)
 
 
-def run_sequence(job: SequenceJob) -> dict:
-    """Record one simulated session and play it back with T1-T7 and ours (T7L, T8); returns what the tables need."""
+def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], None] | None = None,
+                 playback_progress: Callable[[int, int], None] | None = None) -> dict:
+    """Record one simulated session and play it back with T1-T7 and ours (T7L, T8); returns what the tables need.
+
+    Everything goes into ``job.out_dir`` (the experiment's temporary folder, phonepose.files);
+    ``job.final_dir`` is where that folder will be, for the paths written into the outputs."""
     from phonepose.playback.engine import run_playback
     from phonepose.record.sim import record_sim
 
     out = Path(job.out_dir)
+    for sub in ("sessions", "playback") + (("rerun",) if job.rerun else ()) + (("hand_eye",) if job.hand_eye else ()):
+        (out / sub).mkdir(exist_ok=True)
     session = out / "sessions" / f"{job.name}.mcap"
-    session.parent.mkdir(parents=True, exist_ok=True)
-    record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=job.config)
+    record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=job.config,
+               progress=record_progress)
     rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
-    if rrd is not None:
-        rrd.parent.mkdir(parents=True, exist_ok=True)
-    hand_eye = None
+    hand_eye = hand_eye_name = None
     if job.hand_eye:
         from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
         hand_eye = out / "hand_eye" / f"{job.name}.yaml"
-        hand_eye.parent.mkdir(parents=True, exist_ok=True)
+        hand_eye_name = str(Path(job.final_dir or job.out_dir) / "hand_eye" / hand_eye.name)
         save_hand_eye(hand_eye, hand_eye_from_session(session))
     result = run_playback(session, trackers="all", out_dir=out / "playback" / job.name,
-                          correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye)
+                          correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye,
+                          hand_eye_name=hand_eye_name, progress=playback_progress)
     return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,
             **sequence_arrays(result, session), "rerun": None if rrd is None else str(rrd)}
 
@@ -78,7 +85,7 @@ def run_jobs(jobs: list[SequenceJob], jobs_in_parallel: int = 1,
             if progress:
                 progress(job.name)
         return out
-    with ProcessPoolExecutor(max_workers=jobs_in_parallel) as pool:
+    with worker_pool(jobs_in_parallel) as pool:    # workers die with the experiment (phonepose.workers)
         futures = [pool.submit(run_sequence, job) for job in jobs]
         out = []
         for job, fut in zip(jobs, futures):

@@ -15,6 +15,7 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from rich.table import Table
@@ -126,14 +127,25 @@ def _write(result: Exp1Result) -> None:
                          "exp1.json": str(out / "exp1.json")})
 
 
-def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, correction_math: str = "paper") -> Exp1Result:
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    job = SequenceJob(name="exp1", scenario="exp1", path=None, trial=1, seed=sequence_seed(seed, None, 1),
-                      out_dir=str(out), config=config, correction_math=correction_math)
-    seq = run_sequence(job)
-    targets, radius = read_targets(seq["session"])
-    rows = target_errors(seq, targets, radius) if seq["gt"] is not None else []
-    result = Exp1Result(out, rows, summarise(rows), {"session": seq["session"]})
-    _write(result)
+def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, correction_math: str = "paper",
+             record_progress: Callable[[int, int | None], None] | None = None,
+             playback_progress: Callable[[int, int], None] | None = None) -> Exp1Result:
+    """The exp1 session recorded, played back and scored into ``out_dir`` (phonepose.files: checked first,
+    a temporary folder put in place whole at the end); the progress callbacks are record_sim's and
+    run_playback's."""
+    from phonepose.files import OutputPlan
+
+    plan = OutputPlan(inputs=[config] if config else [])
+    folder = plan.dir(out_dir, "--out", command="experiment exp1")
+    with plan:
+        out = folder.tmp
+        job = SequenceJob(name="exp1", scenario="exp1", path=None, trial=1, seed=sequence_seed(seed, None, 1),
+                          out_dir=str(out), config=config, correction_math=correction_math, final_dir=str(folder.path))
+        seq = run_sequence(job, record_progress, playback_progress)
+        targets, radius = read_targets(seq["session"])
+        rows = target_errors(seq, targets, radius) if seq["gt"] is not None else []
+        result = Exp1Result(out, rows, summarise(rows), {"session": seq["session"]})
+        _write(result)
+    result.out_dir = folder.path
+    result.files = {k: str(folder.final(v)) for k, v in result.files.items()}
     return result

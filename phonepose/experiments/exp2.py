@@ -50,9 +50,11 @@ def sequence_name(path: str, trial: int) -> str:
 
 
 def make_jobs(out_dir: Path, trials: int, seed: int, config: str | None, correction_math: str,
-              paths: tuple[str, ...] = PATHS_INSIDE + PATHS_PARTLY_OUTSIDE, hand_eye: bool = False) -> list[SequenceJob]:
+              paths: tuple[str, ...] = PATHS_INSIDE + PATHS_PARTLY_OUTSIDE, hand_eye: bool = False,
+              final_dir: Path | None = None) -> list[SequenceJob]:
     return [SequenceJob(name=sequence_name(p, t), scenario="exp2", path=p, trial=t, seed=sequence_seed(seed, p, t),
-                        out_dir=str(out_dir), config=config, correction_math=correction_math, hand_eye=hand_eye)
+                        out_dir=str(out_dir), config=config, correction_math=correction_math, hand_eye=hand_eye,
+                        final_dir=str(final_dir) if final_dir is not None else None)
             for p in paths for t in range(1, trials + 1)]
 
 
@@ -180,24 +182,34 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
              correction_math: str = "paper", jobs: int | None = None,
              progress: Callable[[str], None] | None = None, hand_eye: bool = False) -> Exp2Result:
     """``hand_eye``: calibrate each session's hand-eye from itself (phonepose calibrate-hand-eye) and
-    score against the ground truth in the phone's frame and clock."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye)
-    sequences = run_jobs(job_list, jobs or default_jobs(), progress)
-    t5 = table5_rows(sequences)
-    t6 = table6_rows(sequences)
-    files = {}
-    names5 = [s["name"] for s in sequences if s["path"] in PATHS_INSIDE]
-    files["table5.md"], files["table5.csv"] = map(str, _write_table5(t5, out, names5, hand_eye))
-    files["table6.md"], files["table6.csv"] = map(str, _write_table6(t6, out, hand_eye))
-    fig_seq = next((s for s in sequences if s["path"] == "TRI2"), None)
-    if fig_seq is not None:
-        png = plot_sequence(fig_seq, out / f"fig11_{fig_seq['name']}.png")
-        if png is not None:
-            files["fig11"] = str(png)
-    summary = {"seed": seed, "trials": trials, "correction_math": correction_math, "hand_eye": hand_eye,
-               "sequences": {s["name"]: s["metrics"] for s in sequences}}
-    (out / "exp2.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
-    files["exp2.json"] = str(out / "exp2.json")
-    return Exp2Result(out, sequences, t5, t6, files)
+    score against the ground truth in the phone's frame and clock.
+
+    ``out_dir`` follows phonepose.files: checked before the first sequence, written as a temporary
+    folder beside it and put in place whole when every table is written."""
+    from phonepose.files import OutputPlan
+
+    plan = OutputPlan(inputs=[config] if config else [])
+    folder = plan.dir(out_dir, "--out", command="experiment exp2")
+    with plan:
+        out = folder.tmp
+        job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path)
+        sequences = run_jobs(job_list, jobs or default_jobs(), progress)
+        t5 = table5_rows(sequences)
+        t6 = table6_rows(sequences)
+        files = {}
+        names5 = [s["name"] for s in sequences if s["path"] in PATHS_INSIDE]
+        files["table5.md"], files["table5.csv"] = _write_table5(t5, out, names5, hand_eye)
+        files["table6.md"], files["table6.csv"] = _write_table6(t6, out, hand_eye)
+        fig_seq = next((s for s in sequences if s["path"] == "TRI2"), None)
+        if fig_seq is not None:
+            png = plot_sequence(fig_seq, out / f"fig11_{fig_seq['name']}.png")
+            if png is not None:
+                files["fig11"] = png
+        summary = {"seed": seed, "trials": trials, "correction_math": correction_math, "hand_eye": hand_eye,
+                   "sequences": {s["name"]: s["metrics"] for s in sequences}}
+        (out / "exp2.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
+        files["exp2.json"] = out / "exp2.json"
+        files = {k: str(folder.final(v)) for k, v in files.items()}
+        for s in sequences:
+            s["session"] = str(folder.final(s["session"]))
+    return Exp2Result(folder.path, sequences, t5, t6, files)

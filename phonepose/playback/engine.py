@@ -234,7 +234,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
                  progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
                  stages_factory: Callable[[SessionContext], object] | None = None,
                  tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None,
-                 hand_eye: str | os.PathLike | None = None) -> PlaybackResult:
+                 hand_eye: str | os.PathLike | None = None, hand_eye_name: str | None = None) -> PlaybackResult:
     """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
 
     ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
@@ -242,7 +242,8 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
     replace the pipeline's SharedStages / make_trackers (tests, experiments). ``hand_eye`` is a file
     from ``phonepose calibrate-hand-eye``: the ground truth is moved into the phone's frame and clock
-    before any metric (docs/evaluation.md, "The hand-eye offset").
+    before any metric (docs/evaluation.md, "The hand-eye offset"); metrics.json names it
+    ``hand_eye_name`` if given (an experiment's file, read from the folder before it is renamed into place).
     """
     wall0 = time.perf_counter()
     from phonepose.pipeline.trackers import split_names
@@ -254,7 +255,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     if hand_eye is not None:
         from phonepose.calibration.hand_eye import load_hand_eye
         hand_eye_cal = load_hand_eye(hand_eye)
-        gt_note = {"hand_eye_file": os.fspath(hand_eye), "hand_eye_rotation_deg": round(hand_eye_cal.rotation_deg, 6),
+        gt_note = {"hand_eye_file": hand_eye_name or os.fspath(hand_eye), "hand_eye_rotation_deg": round(hand_eye_cal.rotation_deg, 6),
                    "hand_eye_translation_m": [round(float(v), 6) for v in hand_eye_cal.T_controller_mocap.translation],
                    "time_offset_s": round(hand_eye_cal.time_offset_s, 6)}
     session = os.fspath(session)

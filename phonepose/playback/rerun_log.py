@@ -520,3 +520,4 @@ class PlaybackRerunLogger:
             self.send_blueprint(None)
         self.flush()
         self.rec.flush()
+        self.rec.disconnect()   # the .rrd footer is written when the sink is dropped: before it is renamed into place

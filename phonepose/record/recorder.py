@@ -39,7 +39,7 @@ class RecordResult:
 class Recorder:
     def __init__(self, source: Source, out: str | os.PathLike, *, progress: ProgressCallback | None = None,
                  rerun_path: str | os.PathLike | None = None, spawn: bool = False,
-                 progress_every_ns: int = 100_000_000):
+                 progress_every_ns: int = 100_000_000, stop_on_signals: bool = True):
         self.source = source
         self.out = os.fspath(out)
         self.progress = progress
@@ -49,6 +49,7 @@ class Recorder:
         self.rerun = None          # opened in run(): its recording id is made from the static part
         self.frames = FrameTree()
         self._stop = False
+        self.stop_on_signals = stop_on_signals   # False: Ctrl-C / SIGTERM stop the caller (an experiment), not just this
 
     def stop(self) -> None:
         """Ask the recorder to finish after the current message (signal handlers call this)."""
@@ -71,7 +72,7 @@ class Recorder:
             self.source.close()
 
     def _install_signal_handlers(self) -> dict:
-        if threading.current_thread() is not threading.main_thread():
+        if not self.stop_on_signals or threading.current_thread() is not threading.main_thread():
             return {}
         old = {}
         for sig in (signal.SIGINT, signal.SIGTERM):

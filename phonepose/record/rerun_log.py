@@ -130,9 +130,12 @@ class RecordRerunLogger:
             c.flush()
 
     def close(self) -> None:
+        """Send what is buffered and close the sink: a .rrd gets its footer only when the sink is
+        dropped, so before the caller renames it into place."""
         try:
             self.flush()
             self.rec.flush()
+            self.rec.disconnect()
         except Exception:  # pragma: no cover - best effort at shutdown
             pass
 

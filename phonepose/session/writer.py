@@ -15,7 +15,7 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from phonepose import __version__
-from phonepose.errors import OutputError
+from phonepose.errors import RECOVER_HINT, OutputError
 from phonepose.schemas.topics import message_type_for
 
 CHUNK_SIZE = 1 << 20
@@ -100,8 +100,7 @@ class SessionWriter:
                 self.flush()
                 self._last_flush_ns = int(log_time_ns)
         except OSError as exc:
-            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc} (the file written so far stays readable; "
-                              f"run `phonepose recover`)") from None
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}{RECOVER_HINT}") from None
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS: a crash after this loses nothing before it."""
@@ -123,8 +122,7 @@ class SessionWriter:
                 if self._owns_file:
                     self._file.close()
         except OSError as exc:
-            raise OutputError(f"cannot finish {self.path}: {exc.strerror or exc} (the file written so far stays "
-                              f"readable; run `phonepose recover`)") from None
+            raise OutputError(f"cannot finish {self.path}: {exc.strerror or exc}{RECOVER_HINT}") from None
 
     def __enter__(self) -> "SessionWriter":
         return self

@@ -10,7 +10,7 @@ import os
 
 from phonepose.record.recorder import ProgressCallback, Recorder, RecordResult
 from phonepose.record.sim.config import SimConfig, default_config, load_config
-from phonepose.record.sim.scenarios import PATHS, SCENARIOS, TABLE4, TRIALS, check_choice
+from phonepose.record.sim.scenarios import PATHS, SCENARIOS, TABLE4, TRIALS, check_choice, check_seed
 from phonepose.record.sim.simulation import T0_NS, SimSession, SimSource
 
 __all__ = ["PATHS", "SCENARIOS", "TABLE4", "TRIALS", "T0_NS", "SimConfig", "SimSession", "SimSource",
@@ -20,18 +20,38 @@ __all__ = ["PATHS", "SCENARIOS", "TABLE4", "TRIALS", "T0_NS", "SimConfig", "SimS
 def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | None = "TRI1", trial: int = 1,
                seed: int = 0, config: SimConfig | str | os.PathLike | None = None,
                progress: ProgressCallback | None = None, rerun_path: str | os.PathLike | None = None,
-               spawn: bool = False) -> RecordResult:
-    """Simulate one session and record it to ``out``.
+               spawn: bool = False, force: bool = False, config_file: str | os.PathLike | None = None,
+               stop_on_signals: bool = False) -> RecordResult:
+    """Simulate one session and record it to ``out`` (a new file; an existing one only with ``force``).
 
-    ``config``: a :class:`SimConfig`, a TOML file overriding the defaults, or None (defaults).
-    ``progress(done_ns, total_ns)`` is called about every 0.1 s of session time.
+    ``config``: a :class:`SimConfig`, a TOML file overriding the defaults, or None (defaults);
+    ``config_file``: the TOML file a given SimConfig was read from (an input no output may replace).
+    ``stop_on_signals``: Ctrl-C and SIGTERM end the recording early and leave a finished file
+    (``record sim``); otherwise they stop the caller (an experiment) like anywhere else.
+    ``progress(done_ns, total_ns)`` is called about every 0.1 s of session time. ``out`` and
+    ``rerun_path`` follow phonepose.files: checked before the simulation starts; the session is
+    written under its own name (a killed recording is there for ``phonepose recover``), the .rrd
+    under a temporary renamed when complete.
     """
+    from phonepose.files import OutputPlan
+
     check_choice(scenario, path, trial)
+    check_seed(seed)
     if config is None:
         cfg = default_config()
     elif isinstance(config, SimConfig):
         cfg = config
     else:
         cfg = load_config(config)
+    config_file = config if isinstance(config, (str, os.PathLike)) else config_file
+    plan = OutputPlan(inputs=[config_file] if config_file is not None else [])
+    session_out = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", in_place=True, force=force)
+    rrd = plan.file(rerun_path, "--rerun", suffixes=(".rrd",), what="a Rerun recording") \
+        if rerun_path is not None else None
     session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg)
-    return Recorder(SimSource(session), out, progress=progress, rerun_path=rerun_path, spawn=spawn).run()
+    with plan:
+        result = Recorder(SimSource(session), session_out.tmp, progress=progress,
+                          rerun_path=rrd.tmp if rrd is not None else None, spawn=spawn,
+                          stop_on_signals=stop_on_signals).run()
+    result.path = os.fspath(out)
+    return result

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from typing import Any
 
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, InputFileError
 
 
 def _r(lo: float, hi: float, help: str = "") -> Any:
@@ -177,19 +177,35 @@ def default_config() -> SimConfig:
     return _build(tomllib.loads(default_toml_text()))
 
 
+# tomllib takes quadratic time in the depth of a dotted key ([a.a.a...]: 40 KB take 3 s); the whole
+# default config with its comments is 4.5 KB, so a user's overrides fit well under this bound.
+MAX_CONFIG_BYTES = 32 * 1024
+
+
 def load_config(path: str | os.PathLike | None = None, overrides: dict | None = None) -> SimConfig:
     """Defaults, then the TOML file at ``path`` (any subset), then ``overrides`` (same nesting)."""
     data = tomllib.loads(default_toml_text())
     if path is not None:
+        from phonepose.files import check_input
+
         try:
+            check_input(path, "TOML file")    # a FIFO or device: refused, never opened (it could block)
             with open(path, "rb") as f:
-                user = tomllib.load(f)
-        except FileNotFoundError:
-            raise ConfigError(f"config file {os.fspath(path)}: no such file") from None
+                text = f.read(MAX_CONFIG_BYTES + 1)
+            if len(text) > MAX_CONFIG_BYTES:
+                raise ConfigError(f"config file {os.fspath(path)}: larger than {MAX_CONFIG_BYTES // 1024} KiB "
+                                  f"(every parameter with comments is {len(default_toml_text()) / 1024:.1f} KiB)")
+            user = tomllib.loads(text.decode("utf-8"))
+        except InputFileError as exc:
+            raise ConfigError(f"config file {exc}") from None
         except OSError as exc:
             raise ConfigError(f"config file {os.fspath(path)}: cannot read ({exc.strerror or exc})") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {os.fspath(path)}: invalid TOML ({exc})") from None
+        except UnicodeDecodeError:
+            raise ConfigError(f"config file {os.fspath(path)}: not a TOML file (not UTF-8 text)") from None
+        except RecursionError:
+            raise ConfigError(f"config file {os.fspath(path)}: invalid TOML (nested too deeply)") from None
         _merge(data, user, "")
     if overrides:
         _merge(data, overrides, "")

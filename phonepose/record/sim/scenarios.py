@@ -94,6 +94,12 @@ def check_choice(scenario: str, path: str | None, trial: int) -> None:
         raise ConfigError(f"--trial must be 1, 2 or 3, got {trial!r}")
 
 
+def check_seed(seed: int) -> None:
+    """A seed the session can record and numpy accepts (a negative one is numpy's ValueError)."""
+    from phonepose.numbers import SEED_MAX, check_number
+    check_number("--seed", seed, 0, SEED_MAX, integer=True)
+
+
 class _Posing:
     """Turns camera-frame positions into world key poses with a human's orientation variation."""
 

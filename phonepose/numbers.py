@@ -1,0 +1,59 @@
+"""Numbers a user gives (options, ``--param`` values, config): finite and within a range, or one line.
+
+:func:`check_number` is the one check; ``phonepose.cli.options.number`` makes it a typer
+callback. NaN, inf, a value that overflows a float, or one outside the range is a ConfigError
+(exit 5) naming the option, the value and the range, before any work.
+"""
+
+from __future__ import annotations
+
+import math
+
+from phonepose.errors import ConfigError
+
+SEED_MAX = 2**32 - 1      # the seeds a session records (int64 field) and numpy takes, with room for derived ones
+SECONDS_MAX = 1e6         # a time offset into a session: 11.6 days is far past any recording
+RATE_MAX_HZ = 1000.0      # ticks per second: 8x the fastest camera the simulator has (120 Hz)
+WORKERS_MAX = 256         # local worker processes (batch --workers, experiment --jobs)
+UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
+
+
+def _show(value) -> str:
+    if isinstance(value, float):
+        return str(int(value)) if value.is_integer() and abs(value) < 1e16 else f"{value:g}"
+    return str(value)
+
+
+def _range_text(lo, hi, lo_open: bool, hi_open: bool, integer: bool) -> str:
+    kind = "an integer" if integer else "a finite number"
+    if lo is not None and hi is not None:
+        return f"{kind} in {'(' if lo_open else '['}{_show(lo)}, {_show(hi)}{')' if hi_open else ']'}"
+    if lo is not None:
+        return f"{kind} {'>' if lo_open else '>='} {_show(lo)}"
+    if hi is not None:
+        return f"{kind} {'<' if hi_open else '<='} {_show(hi)}"
+    return kind
+
+
+def check_number(name: str, value, lo=None, hi=None, *, lo_open: bool = False, hi_open: bool = False,
+                 integer: bool = False, unit: str = "", also: tuple = ()):
+    """``value`` if it is finite (an int when ``integer``) and within the range, or one of ``also``;
+    else ConfigError naming ``name``, the value and the range (``unit`` is added after the range)."""
+    if value in also and not (isinstance(value, float) and math.isnan(value)):
+        return value
+    ok = isinstance(value, int) and not isinstance(value, bool) if integer else \
+        isinstance(value, (int, float)) and not isinstance(value, bool)
+    if ok and not integer:
+        try:
+            ok = math.isfinite(float(value))
+        except OverflowError:
+            ok = False
+    if ok:
+        ok = not (lo is not None and (value < lo or (lo_open and value == lo))) and \
+            not (hi is not None and (value > hi or (hi_open and value == hi)))
+    if not ok:
+        extra = " or " + " or ".join(_show(a) for a in also) if also else ""
+        sep = "" if name.endswith("=") else " "     # "--rate inf", "--param rate_hz=inf"
+        raise ConfigError(f"{name}{sep}{_show(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
+                          f"{extra}{' ' + unit if unit else ''}")
+    return value
