@@ -115,7 +115,7 @@ class MarkerRecognizer:
 
     def reset(self) -> None:
         self._last_corners: np.ndarray | None = None      # set only if seen in the previous frame
-        self._last_rotation = None
+        self._last_rotation: Pose | None = None
         self._last_seen_ns: int | None = None
 
     # ------------------------------------------------------------------ corners
@@ -171,8 +171,8 @@ class MarkerRecognizer:
         chosen = 0
         if n > 1 and ratio <= AMBIGUITY_RATIO and self._last_rotation is not None:
             # Near-frontal views: reprojection cannot tell the two apart; continuity can.
-            angles = [Pose.from_cv(rvecs[k], tvecs[k]).rotation.inv() * self._last_rotation for k in range(n)]
-            chosen = int(np.argmin([a.magnitude() for a in angles]))
+            angles = [Pose.from_cv(rvecs[k], tvecs[k]).angle_to(self._last_rotation) for k in range(n)]
+            chosen = int(np.argmin(angles))
         rvec, tvec = cv2.solvePnPRefineLM(self._object_points, image_points, self._K, self._D,
                                           rvecs[chosen].copy(), tvecs[chosen].copy())
         projected, _ = cv2.projectPoints(self._object_points, rvec, tvec, self._K, self._D)
@@ -189,7 +189,7 @@ class MarkerRecognizer:
         recent = (self._last_seen_ns is not None and t_ns is not None
                   and 0 <= t_ns - self._last_seen_ns <= CONTINUITY_MAX_GAP_NS)
         if not recent and t_ns is not None:
-            self._last_rotation = None
+            self._last_rotation: Pose | None = None
         detection = self.detect_corners(gray)
         if detection is None:
             self._last_corners = None
@@ -201,7 +201,7 @@ class MarkerRecognizer:
             return None
         T_camera_marker, rms, chosen, ratio = estimate
         self._last_corners = detection.corners
-        self._last_rotation = T_camera_marker.rotation
+        self._last_rotation = T_camera_marker   # (only its rotation is used)
         self._last_seen_ns = t_ns
         T_dvio_controller = None
         if T_dvio_display is not None:
