@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from collections import Counter
 
+import math
+
 import cv2
 import numpy as np
 
@@ -129,11 +131,13 @@ class MarkerRecognizer:
         return None
 
     def _roi(self, corners: np.ndarray, margin: float, shape) -> tuple[int, int, int, int]:
-        lo, hi = corners.min(axis=0), corners.max(axis=0)
-        pad = max(margin * float(np.max(hi - lo)), MIN_MARGIN_PX)
+        # on Python floats: the same numbers as numpy's min/max/floor here, at a tenth of the cost
+        xs, ys = corners[:, 0].tolist(), corners[:, 1].tolist()
+        lo_x, lo_y, hi_x, hi_y = min(xs), min(ys), max(xs), max(ys)
+        pad = max(margin * max(hi_x - lo_x, hi_y - lo_y), MIN_MARGIN_PX)
         h, w = shape[:2]
-        x0, y0 = max(int(np.floor(lo[0] - pad)), 0), max(int(np.floor(lo[1] - pad)), 0)
-        x1, y1 = min(int(np.ceil(hi[0] + pad)) + 1, w), min(int(np.ceil(hi[1] + pad)) + 1, h)
+        x0, y0 = max(math.floor(lo_x - pad), 0), max(math.floor(lo_y - pad), 0)
+        x1, y1 = min(math.ceil(hi_x + pad) + 1, w), min(math.ceil(hi_y + pad) + 1, h)
         return x0, y0, x1, y1
 
     def _accurate_in_roi(self, gray: np.ndarray, around: np.ndarray, margin: float) -> np.ndarray | None:
