@@ -61,6 +61,7 @@ class SessionIndex:
     chunks: list[ChunkIndex] = field(default_factory=list)         # in file order
     statistics: Statistics | None = None
     loose: list[Message] = field(default_factory=list)              # messages outside chunks (unchunked writers)
+    times: dict[int, list[int]] | None = None   # log times per channel, when the data section was read
     from_summary: bool = True
     problem: str | None = None      # why the summary was not used (None: it was, or the file has none)
 
@@ -281,7 +282,7 @@ def scan_data_section(f: BinaryIO, path: str, size: int) -> SessionIndex:
     The records must chain from the header to a Data End record: a byte that is no data-section
     record (an overwritten header, a summary record) is damage, never the end of the data, so a
     damaged file is never read as a shorter one."""
-    index = SessionIndex(from_summary=False)
+    index = SessionIndex(from_summary=False, times={})
     counts: dict[int, int] = {}
     limit = size - len(MCAP_MAGIC) - _FOOTER_SIZE       # where the footer is (checked before)
     f.seek(len(MCAP_MAGIC))
@@ -313,6 +314,43 @@ def scan_data_section(f: BinaryIO, path: str, size: int) -> SessionIndex:
     return index
 
 
+def message_index_times(f: BinaryIO, ci: ChunkIndex) -> dict[int, list[int]] | None:
+    """Log times per channel of one chunk from the Message Index records after it (16 bytes a
+    message, nothing decompressed); None when the chunk has none or they do not parse. They are
+    outside the summary's CRC, so they only ever serve as a hint (see :func:`main_span`)."""
+    offsets = [o for o in ci.message_index_offsets.values()]
+    if not offsets or min(offsets) == 0 or ci.message_index_length == 0 or ci.message_index_length > 1 << 30:
+        return None
+    f.seek(min(offsets))
+    block = f.read(ci.message_index_length)
+    try:
+        records = list(_until_end(StreamReader(io.BytesIO(block), skip_magic=True, record_size_limit=len(block))))
+    except Exception:  # noqa: BLE001 - damaged index records: read the chunk instead
+        return None
+    out = {r.channel_id: [t for t, _ in r.records] for r in records if type(r).__name__ == "MessageIndex"}
+    return out if set(out) == set(ci.message_index_offsets) else None
+
+
+# Messages whose log time lies more than this from every other message are outliers (a clock jump,
+# a flipped bit): playback skips them with a warning instead of planning ticks across the gap.
+OUTLIER_GAP_NS = 3600 * 10**9
+
+
+def main_span(times: list[int]) -> tuple[int, int] | None:
+    """The first and last log time of the largest group of messages not separated by more than
+    OUTLIER_GAP_NS (None for no messages)."""
+    if not times:
+        return None
+    ts = sorted(times)
+    best, start = (0, 0), 0
+    for i in range(1, len(ts) + 1):
+        if i == len(ts) or ts[i] - ts[i - 1] > OUTLIER_GAP_NS:
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = i
+    return ts[best[0]], ts[best[1] - 1]
+
+
 def _read_record(op: int, body: bytes, length: int, path: str, pos: int):
     stream = ReadDataStream(io.BytesIO(body))
     try:
@@ -332,6 +370,7 @@ def _add(index: SessionIndex, counts: dict[int, int], r) -> None:
         index.channels.setdefault(r.id, r)
     elif isinstance(r, Message):
         index.loose.append(r)
+        index.times.setdefault(r.channel_id, []).append(r.log_time)
         counts[r.channel_id] = counts.get(r.channel_id, 0) + 1
 
 
@@ -347,6 +386,7 @@ def _scan_chunk(index: SessionIndex, counts: dict[int, int], body: bytes, path: 
     for r in chunk_records(chunk, path, pos, t0):
         if isinstance(r, Message):
             in_chunk[r.channel_id] = in_chunk.get(r.channel_id, 0) + 1
+            index.times.setdefault(r.channel_id, []).append(r.log_time)
             lo = r.log_time if lo is None else min(lo, r.log_time)
             hi = r.log_time if hi is None else max(hi, r.log_time)
         else:

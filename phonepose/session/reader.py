@@ -18,7 +18,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
-from phonepose.session.index import MCAP_MAGIC, SessionIndex, damaged, read_chunk, read_index
+from phonepose.session.index import MCAP_MAGIC, SessionIndex, damaged, message_index_times, read_chunk, read_index
 
 # protobuf schema name -> generated class, for every type a phonepose session uses
 _KNOWN_TYPES = {cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}
@@ -131,6 +131,31 @@ class SessionReader:
             for ci in self.index.chunks:
                 self._chunk_messages(ci, None, None, None)
         return len(self.index.chunks)
+
+    def log_times(self) -> dict[str, list[int]]:
+        """The log time of every message, per topic: from the message index records when every chunk
+        has them (a few bytes a message), else from the chunks themselves."""
+        ix = self.index
+        by_channel: dict[int, list[int]] = {}
+        if ix.times is not None:
+            by_channel = ix.times
+        else:
+            for ci in ix.chunks:
+                got = message_index_times(self._file, ci)
+                if got is None:
+                    got = {}
+                    for m in self._chunk_messages(ci, None, None, None):
+                        got.setdefault(m.channel_id, []).append(m.log_time)
+                for cid, ts in got.items():
+                    by_channel.setdefault(cid, []).extend(ts)
+            for m in ix.loose:
+                by_channel.setdefault(m.channel_id, []).append(m.log_time)
+        out: dict[str, list[int]] = {}
+        for cid, ts in by_channel.items():
+            ch = ix.channels.get(cid)
+            if ch is not None:
+                out.setdefault(ch.topic, []).extend(ts)
+        return out
 
     def topics(self) -> set[str]:
         return {ch.topic for ch in self.index.channels.values()}
