@@ -210,3 +210,58 @@ def raw_compose(a: RawPose, b: RawPose) -> RawPose:
     q = quat_mul(a[:4], b[:4])
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n, t[0] + a[4], t[1] + a[5], t[2] + a[6])
+
+
+# ----------------------------------------------------------------------------- single rotations, closed form
+# For a per-tick path that composes a handful of single rotations (T8: phonepose/pipeline/fusion.py): a
+# scipy Rotation costs tens of microseconds per operation through its array-API layer, these cost about
+# one. They follow scipy's own formulas (the Taylor branches below 1e-3 rad included), so results agree
+# to rounding; tests/test_geometry.py checks each against scipy.
+Quat = tuple[float, float, float, float]      # x, y, z, w; unit
+_SMALL_ANGLE = 1e-3                            # scipy's switch to the Taylor series (from_rotvec, as_rotvec)
+
+
+def quat_conj(q: Quat) -> Quat:
+    """The inverse of a unit quaternion (as ``Rotation.inv``: the vector part negated)."""
+    return (-q[0], -q[1], -q[2], q[3])
+
+
+def quat_from_rotvec(v) -> Quat:
+    """``Rotation.from_rotvec(v).as_quat()`` for one rotation vector (rad)."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= _SMALL_ANGLE:
+        a2 = angle * angle
+        s = 0.5 - a2 / 48 + a2 * a2 / 3840
+    else:
+        s = math.sin(angle / 2) / angle
+    return (x * s, y * s, z * s, math.cos(angle / 2))
+
+
+def quat_as_rotvec(q: Quat) -> tuple[float, float, float]:
+    """``Rotation.from_quat(q).as_rotvec()``: the short way round (the quaternion with w >= 0)."""
+    x, y, z, w = q
+    if w < 0:
+        x, y, z, w = -x, -y, -z, -w
+    angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+    if angle <= _SMALL_ANGLE:
+        a2 = angle * angle
+        s = 2 + a2 / 12 + 7 * a2 * a2 / 2880
+    else:
+        s = angle / math.sin(angle / 2)
+    return (x * s, y * s, z * s)
+
+
+def quat_as_matrix(q: Quat) -> np.ndarray:
+    """``Rotation.from_quat(q).as_matrix()`` for a unit quaternion."""
+    x, y, z, w = q
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array([[x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+                     [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+                     [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]])
+
+
+def quat_normalised(q: Quat) -> Quat:
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
