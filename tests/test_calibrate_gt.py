@@ -1,0 +1,142 @@
+"""calibrate-gt (phonepose/calibration/calibrate_gt.py): clock offset, world->display and grip->body from
+marker sightings and a ground truth; its file (gt_calibration.py) and its refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from phonepose.calibration.calibrate_gt import closed_form, calibrate_gt
+from phonepose.calibration.ground_truth import GroundTruthSeries, unique_ascending
+from phonepose.calibration.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
+from phonepose.calibration.sightings import Sightings
+from phonepose.errors import InputFileError, SessionContentError
+from phonepose.geometry import Pose
+
+X_TRUE = Pose(Rotation.from_rotvec(np.radians([-9.0, 3.0, 5.5])), np.array([0.004, -0.002, 0.003]))   # body <- grip
+Z_TRUE = Pose(Rotation.from_euler("zyx", [70.0, 4.0, -2.0], degrees=True), np.array([1.5, -0.3, 0.9]))  # dvio <- world
+T_DVIO_CAMERA = Pose(Rotation.from_euler("x", -100, degrees=True), np.array([0.0, 0.0, 1.3]))
+
+
+def phone_in_view(t: np.ndarray, axes: str = "xyz") -> Pose:
+    """T_dvio_body of a phone waved in front of the camera, its screen turned by up to ~25 deg."""
+    rv = np.zeros((len(t), 3))
+    for k, (amp, f) in enumerate(((20.0, 0.23), (15.0, 0.41), (25.0, 0.17))):
+        if "xyz"[k] in axes:
+            rv[:, k] = np.radians(amp) * np.sin(2 * np.pi * f * t + k)
+    pos = np.column_stack([0.2 * np.sin(0.7 * t), 0.6 + 0.1 * np.cos(0.5 * t), 0.1 * np.sin(0.9 * t)])
+    return T_DVIO_CAMERA @ Pose(Rotation.from_euler("x", 180, degrees=True) * Rotation.from_rotvec(rv), pos)
+
+
+def make_case(offset_s: float, axes: str = "xyz", duration_s: float = 20.0, noise=(0.0, 0.0), seed: int = 0,
+              gt_shift_s: float = 0.0):
+    """Sightings at 30 Hz and a 120 Hz ground truth whose clock runs ``offset_s`` ahead, in world Z⁻¹."""
+    rng = np.random.default_rng(seed)
+    t = 1000.0 + np.arange(0.5, duration_s - 0.5, 1 / 30)
+    A = phone_in_view(t - 1000.0, axes)
+    if noise[0] or noise[1]:
+        A = A @ Pose(Rotation.from_rotvec(rng.normal(size=(len(t), 3)) * np.radians(noise[0])),
+                     rng.normal(size=(len(t), 3)) * noise[1])
+    stamps = 1000.0 + gt_shift_s + np.arange(0.0, duration_s, 1 / 120)
+    B = Z_TRUE.inv() @ phone_in_view(stamps - 1000.0 - offset_s, axes) @ X_TRUE
+    cam = Pose(Rotation.concatenate([T_DVIO_CAMERA.rotation] * len(t)), np.tile(T_DVIO_CAMERA.translation, (len(t), 1)))
+    sightings = Sightings(t, A, cam.inv() @ A, cam, len(t), np.zeros(len(t)))
+    return sightings, GroundTruthSeries(stamps, B, "/gt/controller/pose")
+
+
+def test_closed_form_is_exact_on_exact_poses():
+    sightings, _ = make_case(0.0, duration_s=5.0)
+    A = sightings.T_dvio_body
+    B = Z_TRUE.inv() @ A @ X_TRUE
+    X, Z = closed_form((A.rotation.as_matrix(), A.translation), (B.rotation.as_matrix(), B.translation))
+    assert X.allclose(X_TRUE, atol=1e-9) and Z.allclose(Z_TRUE, atol=1e-9)
+
+
+@pytest.mark.parametrize("offset_s", [0.3, -0.137, 0.0])
+def test_recovers_the_clock_the_world_and_the_grip_exactly(offset_s):
+    sightings, gt = make_case(offset_s)
+    cal = calibrate_gt(sightings, gt, bootstrap=20)
+    assert cal.time_offset_s == pytest.approx(offset_s, abs=1e-5)
+    assert np.degrees(cal.T_controller_gt.angle_to(X_TRUE)) < 1e-3
+    assert 1e3 * cal.T_controller_gt.distance_to(X_TRUE) < 1e-3
+    assert cal.T_world_display_vio.allclose(Z_TRUE.inv(), atol=1e-5)
+    assert cal.T_world_camera.allclose(Z_TRUE.inv() @ T_DVIO_CAMERA, atol=1e-5)
+    assert cal.residual_mm < 0.01 and cal.residual_deg < 0.01 and cal.warnings == ()
+    assert cal.samples == len(sightings)
+
+
+def test_noisy_sightings_stay_within_the_tolerances_and_their_sigmas():
+    """Marker-like noise (1.2 deg, 1.5 mm per sighting, as measured on simulated sessions)."""
+    sightings, gt = make_case(0.03, noise=(1.2, 0.0015), seed=3)
+    cal = calibrate_gt(sightings, gt)
+    errors = {"sigma_time_offset_ms": abs(cal.time_offset_s - 0.03) * 1e3,
+              "sigma_body_rotation_deg": np.degrees(cal.T_controller_gt.angle_to(X_TRUE)),
+              "sigma_body_translation_mm": 1e3 * cal.T_controller_gt.distance_to(X_TRUE),
+              "sigma_world_rotation_deg": np.degrees(cal.T_world_camera.angle_to(Z_TRUE.inv() @ T_DVIO_CAMERA)),
+              "sigma_world_translation_mm": 1e3 * cal.T_world_camera.distance_to(Z_TRUE.inv() @ T_DVIO_CAMERA)}
+    tolerance = {"sigma_time_offset_ms": 5.0, "sigma_body_rotation_deg": 0.5, "sigma_body_translation_mm": 5.0,
+                 "sigma_world_rotation_deg": 0.5, "sigma_world_translation_mm": 5.0}
+    for key, err in errors.items():
+        assert err < tolerance[key], (key, err)
+        assert err < 4 * cal.sigma[key], (key, err, cal.sigma[key])     # the 1σ is an honest size of the error
+        assert cal.sigma[key] < tolerance[key]
+    assert cal.residual_deg == pytest.approx(1.2 * np.sqrt(3), rel=0.15)
+    assert cal.residual_mm == pytest.approx(1.5 * np.sqrt(3), rel=0.15)
+    assert cal.warnings == ()
+
+
+def test_little_motion_is_warned_about_with_numbers():
+    sightings, gt = make_case(0.03, noise=(1.2, 0.0015), duration_s=3.0, seed=1)
+    cal = calibrate_gt(sightings, gt)
+    assert cal.warnings, cal.sigma
+    assert any("is uncertain: ±" in w and "(1σ, more than" in w and "the phone turned" in w for w in cal.warnings)
+
+
+def test_refusals_are_one_line_with_numbers():
+    sightings, gt = make_case(0.0, axes="z")
+    with pytest.raises(SessionContentError, match=r"turned about one axis only while in view \(\d+\.\d/0\.0/0\.0 deg"):
+        calibrate_gt(sightings, gt)
+    sightings, gt = make_case(0.0)
+    with pytest.raises(SessionContentError, match=r"only 20 camera frames show the phone's marker \(need 30\)"):
+        calibrate_gt(sightings[:20], gt)
+    sightings, gt = make_case(0.0, gt_shift_s=100.0)
+    with pytest.raises(SessionContentError, match=r"does not overlap the marker sightings \(1000\.50-1019\.47 s "
+                                                  r"on the recorder's clock\), even 0\.5 s apart"):
+        calibrate_gt(sightings, gt)
+
+
+def test_duplicated_ground_truth_samples_are_dropped():
+    stamps = np.array([1.0, 2.0, 2.0, 1.5, 3.0])
+    poses = Pose.from_xyzw(np.arange(15.0).reshape(5, 3), np.tile([0, 0, 0, 1.0], (5, 1)))
+    series = unique_ascending(stamps, poses, "x.tum")
+    assert series.stamps_s.tolist() == [1.0, 1.5, 2.0, 3.0] and series.duplicates == 1
+    assert series.poses.translation[:, 0].tolist() == [0.0, 9.0, 3.0, 12.0]    # the first of the two 2.0 s samples
+
+
+def test_file_round_trip_and_an_old_hand_eye_file(tmp_path):
+    sightings, gt = make_case(0.3)
+    cal = calibrate_gt(sightings, gt, bootstrap=10).with_(session="s.mcap", ground_truth="mocap.tum")
+    save_gt_calibration(tmp_path / "cal.yaml", cal)
+    back = load_gt_calibration(tmp_path / "cal.yaml")
+    assert back.T_controller_gt.allclose(cal.T_controller_gt, atol=1e-12)
+    assert back.T_world_display_vio.allclose(cal.T_world_display_vio, atol=1e-12)
+    assert back.T_world_camera.allclose(cal.T_world_camera, atol=1e-12)
+    assert (back.time_offset_s, back.samples, back.session, back.ground_truth, back.method, back.version) == \
+        (cal.time_offset_s, cal.samples, "s.mcap", "mocap.tum", "calibrate-gt", 1)
+    assert back.sigma == pytest.approx(cal.sigma, rel=1e-12)
+    # a hand-eye file as phonepose wrote it before the common format: version 0, the session's world kept
+    (tmp_path / "he.yaml").write_text("%YAML:1.0\n---\nT_controller_mocap: !!opencv-matrix\n   rows: 4\n   cols: 4\n"
+                                      "   dt: d\n   data: [ 1., 0., 0., 0.01, 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1. ]\n"
+                                      "time_offset_s: 0.03\npairs: 40\n")
+    old = load_gt_calibration(tmp_path / "he.yaml")
+    assert (old.version, old.method, old.time_offset_s, old.samples, old.T_world_display_vio) == \
+        (0, "calibrate-hand-eye", 0.03, 40, None)
+    assert old.T_controller_gt.translation.tolist() == [0.01, 0.0, 0.0]
+    (tmp_path / "new.yaml").write_text("%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 7\n")
+    with pytest.raises(InputFileError, match="version 7 is newer than this phonepose reads"):
+        load_gt_calibration(tmp_path / "new.yaml")
+    (tmp_path / "bad.yaml").write_text("%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 1\n")
+    with pytest.raises(InputFileError, match="expected a 4x4 matrix T_controller_gt"):
+        load_gt_calibration(tmp_path / "bad.yaml")
+    assert isinstance(back, GtCalibration)
