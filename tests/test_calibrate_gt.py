@@ -90,7 +90,10 @@ def test_little_motion_is_warned_about_with_numbers():
     sightings, gt = make_case(0.03, noise=(1.2, 0.0015), duration_s=3.0, seed=1)
     cal = calibrate_gt(sightings, gt)
     assert cal.warnings, cal.sigma
-    assert any("is uncertain: ±" in w and "(1σ, more than" in w and "the phone turned" in w for w in cal.warnings)
+    assert len(cal.warnings) == 1
+    assert cal.warnings[0].startswith("the motion does not determine the calibration well: ")
+    assert f"grip->body rotation ±{cal.sigma['sigma_body_rotation_deg']:.2f} deg" in cal.warnings[0]
+    assert "(1σ; meant for 5 ms, 0.5 deg, 5 mm); the phone turned " in cal.warnings[0]
 
 
 def test_refusals_are_one_line_with_numbers():
@@ -140,3 +143,85 @@ def test_file_round_trip_and_an_old_hand_eye_file(tmp_path):
     with pytest.raises(InputFileError, match="expected a 4x4 matrix T_controller_gt"):
         load_gt_calibration(tmp_path / "bad.yaml")
     assert isinstance(back, GtCalibration)
+
+
+# ----------------------------------------------------------------------------- the command, on sessions
+def _run(*args):
+    import subprocess
+    import sys
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
+
+
+def mocap_file(session, out, offset_s: float) -> Pose:
+    """A motion-capture export made from the session's own ground truth: its clock ``offset_s`` late,
+    in another world W (returned)."""
+    from phonepose.calibration.ground_truth import session_ground_truth
+    from phonepose.evaluation.trajectory import write_tum
+
+    gt = session_ground_truth(session)
+    W = Pose(Rotation.from_euler("zyx", [123.0, 2.0, -3.0], degrees=True), np.array([3.0, -1.0, 0.4]))
+    write_tum(out, gt.stamps_s + offset_s, W @ gt.poses)
+    return W
+
+
+def test_bad_input_is_one_line(tmp_path):
+    from phonepose.testing.playback_session import write_test_session
+
+    session = tmp_path / "s.mcap"
+    write_test_session(session)     # 1.5 s of a marker that tilts by 15 deg: written, with one warning line
+    r = _run("calibrate-gt", str(session), "--out", str(tmp_path / "cal.yaml"))
+    assert r.returncode == 0 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("phonepose: warning: the motion does not determine the calibration well: ")
+    assert "grip->body translation ±" in r.stderr
+    (tmp_path / "cal.yaml").unlink()
+    far = tmp_path / "far.tum"
+    mocap_file(session, far, 100.0)
+    r = _run("calibrate-gt", str(session), "--gt", str(far), "--out", str(tmp_path / "cal.yaml"))
+    assert r.returncode == 4 and r.stderr.count("\n") == 1, r.stderr
+    assert f"the ground truth ({far}: 1700000100.00-1700000103.00 s) does not overlap the marker sightings" in r.stderr
+    assert not (tmp_path / "cal.yaml").exists()
+    r = _run("calibrate-gt", str(session), "--out", str(session))
+    assert r.returncode != 0 and r.stderr.count("\n") == 1, r.stderr
+    r = _run("calibrate-gt", str(session), "--gt-format", "kitti", "--gt", str(far), "--out", str(tmp_path / "c.yaml"))
+    assert r.returncode == 5 and "--gt-format 'kitti': expected one of tum, euroc" in r.stderr
+
+
+@pytest.mark.slow
+def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_path):
+    """record sim -> calibrate-gt recovers the simulator's truth within issue 20's tolerances; a mocap-style
+    file (0.3 s late, another world) scores the session after calibrate-gt as its own ground truth does."""
+    import json
+
+    from phonepose.record.sim import SimSession, default_config, record_sim
+
+    session = tmp_path / "s.mcap"
+    record_sim(session, scenario="exp2", path="REC1", trial=2, seed=0)
+    world = SimSession("exp2", "REC1", 2, seed=0).world
+    r = _run("calibrate-gt", str(session), "--out", str(tmp_path / "own.yaml"))
+    assert r.returncode == 0, r.stderr
+    assert "clock offset (gt - recorder)" in r.stdout and "grip -> body rotation" in r.stdout
+    own = load_gt_calibration(tmp_path / "own.yaml")
+    assert abs(own.time_offset_s - default_config().mocap.clock_offset_s) < 0.005
+    assert np.degrees(own.T_controller_gt.angle_to(world.hand_eye)) < 0.5
+    assert 1e3 * own.T_controller_gt.distance_to(world.hand_eye) < 5
+    assert np.degrees(own.T_world_camera.angle_to(world.T_world_camera)) < 0.5
+    assert 1e3 * own.T_world_camera.distance_to(world.T_world_camera) < 5
+
+    W = mocap_file(session, tmp_path / "mocap.tum", 0.3)
+    r = _run("calibrate-gt", str(session), "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "file.yaml"))
+    assert r.returncode == 0, r.stderr
+    cal = load_gt_calibration(tmp_path / "file.yaml")
+    assert cal.time_offset_s == pytest.approx(own.time_offset_s + 0.3, abs=1e-4)
+    assert cal.T_world_camera.allclose(W @ own.T_world_camera, atol=1e-4)
+    for args, name in (((), "plain"), (("--gt-calibration", str(tmp_path / "own.yaml")), "own"),
+                       (("--gt", str(tmp_path / "mocap.tum"), "--gt-calibration", str(tmp_path / "file.yaml")), "file")):
+        r = _run("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
+        assert r.returncode == 0, r.stderr
+    doc = {n: json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("plain", "own", "file")}
+    assert doc["file"]["ground_truth"]["ground_truth_file"] == str(tmp_path / "mocap.tum")
+    assert doc["own"]["ground_truth"]["world_display_vio"] == "calibrated"
+    for tracker in ("T4", "T8"):
+        a, b = doc["own"]["trackers"][tracker]["inside"], doc["file"]["trackers"][tracker]["inside"]
+        assert abs(a["p_ate_m"] - b["p_ate_m"]) < 0.001 and abs(a["r_ate_deg"] - b["r_ate_deg"]) < 0.1
+        # the 11 deg hand-eye rotation is in every r_ATE without the calibration, gone with it
+        assert doc["plain"]["trackers"][tracker]["inside"]["r_ate_deg"] > 9 and a["r_ate_deg"] < 3

@@ -97,9 +97,10 @@ def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
     assert len(pairs) >= len(moved.gt_stamps_ns) - 2
     i, j = np.array(pairs).T
     assert moved.gt[i].allclose(plain.gt[j] @ X_TRUE.inv(), atol=1e-9)
-    assert moved.metrics["ground_truth"] == {"hand_eye_file": str(tmp_path / "he.yaml"), "hand_eye_rotation_deg":
-                                             round(float(np.degrees(X_TRUE.rotation.magnitude())), 6),
-                                             "hand_eye_translation_m": [0.004, -0.002, 0.003], "time_offset_s": 0.05}
+    assert moved.metrics["ground_truth"] == {"calibration_file": str(tmp_path / "he.yaml"), "method": "calibrate-hand-eye",
+                                             "body_rotation_deg": round(float(np.degrees(X_TRUE.rotation.magnitude())), 6),
+                                             "body_translation_m": [0.004, -0.002, 0.003], "time_offset_s": 0.05,
+                                             "world_display_vio": "session"}
     assert "ground_truth" not in plain.metrics
 
 

@@ -294,14 +294,13 @@ def _check_overlap(t: np.ndarray, gt: GroundTruthSeries, max_offset_s: float) ->
 
 
 def _warnings(sigma: dict[str, float], spread: np.ndarray) -> tuple[str, ...]:
-    out = []
-    for key, limit in TOLERANCE.items():
-        if sigma.get(key, 0.0) > limit:
-            what, unit = WHAT[key]
-            out.append(f"the {what} is uncertain: ±{sigma[key]:.2f} {unit} (1σ, more than {limit:g} {unit}); "
-                       f"the phone turned {spread[0]:.1f}/{spread[1]:.1f}/{spread[2]:.1f} deg (1σ about its axes) in "
-                       "view: record longer, turning the phone about every axis while the camera sees its marker")
-    return tuple(out)
+    """One line naming every quantity whose 1σ is above its tolerance, and how the phone moved."""
+    over = [f"{WHAT[k][0]} ±{sigma[k]:.2f} {WHAT[k][1]}" for k, limit in TOLERANCE.items() if sigma.get(k, 0.0) > limit]
+    if not over:
+        return ()
+    return (f"the motion does not determine the calibration well: {', '.join(over)} (1σ; meant for 5 ms, 0.5 deg, "
+            f"5 mm); the phone turned {spread[0]:.1f}/{spread[1]:.1f}/{spread[2]:.1f} deg (1σ about its axes) in view: "
+            "record longer, turning the phone about every axis while the camera sees its marker",)
 
 
 def _inliers(A: Stack, B: Stack, X: Pose, Z: Pose) -> np.ndarray:

@@ -166,3 +166,33 @@ def load_gt_calibration(path: "str | os.PathLike") -> GtCalibration:
     if not (math.isfinite(cal.time_offset_s) and abs(cal.time_offset_s) <= 10):
         raise InputFileError(f"{path}: time_offset_s {cal.time_offset_s!r} is not a clock offset in seconds")
     return cal
+
+
+@dataclass(frozen=True)
+class GroundTruthSetup:
+    """What a playback applies to its ground truth (``--gt-calibration FILE``, ``--gt FILE``), read and
+    checked before any work."""
+
+    calibration: GtCalibration | None = None
+    calibration_path: str | None = None
+    series: object | None = None          # a calibration.ground_truth.GroundTruthSeries (--gt FILE)
+    note: dict | None = None              # metrics.json's "ground_truth"
+    rerun_params: dict = field(default_factory=dict)   # what makes the Rerun recording id differ
+
+
+def ground_truth_setup(calibration: "str | os.PathLike | None", calibration_name: str | None = None,
+                       gt_file: "str | os.PathLike | None" = None, gt_format: str | None = None) -> GroundTruthSetup:
+    """The calibration file and the sidecar ground truth, loaded (one line and exit 2 for a bad file)."""
+    import hashlib
+
+    cal = load_gt_calibration(calibration) if calibration is not None else None
+    series = None
+    note = cal.metrics_note(calibration_name or os.fspath(calibration)) if cal is not None else None
+    params: dict = {}
+    if gt_file is not None:
+        from phonepose.calibration.ground_truth import file_ground_truth
+
+        series = file_ground_truth(gt_file, gt_format)
+        note = {**(note or {}), "ground_truth_file": os.fspath(gt_file)}
+        params["gt_file"] = hashlib.sha256(Path(gt_file).read_bytes()).hexdigest()
+    return GroundTruthSetup(cal, os.fspath(calibration) if calibration is not None else None, series, note, params)
