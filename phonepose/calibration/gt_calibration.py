@@ -137,12 +137,12 @@ def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | N
     return Pose.from_matrix(T)
 
 
-def load_gt_calibration(path: "str | os.PathLike") -> GtCalibration:
+def load_gt_calibration(path: "str | os.PathLike", what: str = "calibration") -> GtCalibration:
     """A file of ``save_gt_calibration`` or an older hand-eye file; a bad one is an InputFileError (exit 2)."""
     from phonepose.calibration.camera_file import open_yaml
 
     path = Path(path)
-    fs = open_yaml(path, "calibration")
+    fs = open_yaml(path, what)
     try:
         fmt = _text(fs, "format")
         version = int(_real(fs, "version", 0)) if fmt else 0

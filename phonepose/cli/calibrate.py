@@ -168,8 +168,8 @@ def calibrate_camera(
 @app.command("calibrate-hand-eye")
 def calibrate_hand_eye(
     session: Path = typer.Argument(..., help="A session with the controller's VIO and motion-capture ground truth."),
-    out: Path = typer.Option(..., "--out", "-o", help="Hand-eye file to write (OpenCV YAML, read by "
-                             "`playback --hand-eye`)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (YAML, read by "
+                             "`playback --gt-calibration`, alias --hand-eye)."),
     translation: str = typer.Option("0,0,0", "--translation", help="The rigid body's origin in the phone's frame, "
                                     "metres x,y,z, measured (it is not estimated: see docs/evaluation.md)."),
 ) -> None:
@@ -189,15 +189,18 @@ def calibrate_hand_eye(
             raise ValueError
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
+    from phonepose.calibration.gt_calibration import SUFFIXES, WHAT
+
     check_input(session, "session")
-    check_output(out, "--out", inputs=[session], suffixes=(".yaml", ".yml", ".xml", ".json"),
-                 what="an OpenCV FileStorage file (YAML, XML or JSON)")
+    check_output(out, "--out", inputs=[session], suffixes=SUFFIXES, what=WHAT)
     he = hand_eye_from_session(session, translation=lever)
-    save_hand_eye(out, he)
+    save_hand_eye(out, he, inputs=[session], session=session.name)
     rv = he.T_controller_mocap.rotation.as_rotvec(degrees=True)
-    typer.echo(f"{out}: rigid body turned {he.rotation_deg:.2f} deg from the phone's frame "
-               f"(rotation vector {rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f} deg), mocap clock {he.time_offset_s * 1e3:+.0f} ms; "
-               f"{he.pairs} motions, residual {he.residual_deg:.2f} deg RMS")
+    typer.echo(f"{out}: rigid body turned {he.rotation_deg:.2f} ± {he.sigma_rotation_deg:.2f} deg from the phone's frame "
+               f"(rotation vector {rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f} deg), mocap clock {he.time_offset_s * 1e3:+.0f} "
+               f"± {he.sigma_time_offset_ms:.1f} ms (1σ); {he.pairs} motions, residual {he.residual_deg:.2f} deg RMS")
+    for line in he.warnings:
+        typer.echo(f"phonepose: warning: {line}", err=True)
 
 
 def _gt_table(out: Path, cal) -> Table:
