@@ -225,3 +225,24 @@ def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_
         assert abs(a["p_ate_m"] - b["p_ate_m"]) < 0.001 and abs(a["r_ate_deg"] - b["r_ate_deg"]) < 0.1
         # the 11 deg hand-eye rotation is in every r_ATE without the calibration, gone with it
         assert doc["plain"]["trackers"][tracker]["inside"]["r_ate_deg"] > 9 and a["r_ate_deg"] < 3
+
+
+def test_evaluate_applies_the_calibration_to_its_ground_truth_file(tmp_path):
+    """The estimate is the phone's true pose in display_vio; the mocap file is 0.3 s late, in its own world, of
+    the grip: after --gt-calibration they agree to the calibration's accuracy (here exact)."""
+    import json
+
+    from phonepose.evaluation.trajectory import write_tum
+
+    sightings, gt = make_case(0.3)
+    save_gt_calibration(tmp_path / "cal.yaml", calibrate_gt(sightings, gt, bootstrap=0))
+    write_tum(tmp_path / "gt.tum", gt.stamps_s, gt.poses)
+    write_tum(tmp_path / "est.tum", sightings.stamps_s, sightings.T_dvio_body)
+    args = ("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "est.tum"), "--metric", "ape",
+            "--json")
+    plain = json.loads(_run(*args).stdout)
+    moved = _run(*args, "--gt-calibration", str(tmp_path / "cal.yaml"))
+    assert moved.returncode == 0, moved.stderr
+    moved = json.loads(moved.stdout)
+    assert plain["ape"]["rmse"] > 0.5 and moved["ape"]["rmse"] < 1e-5
+    assert moved["n_matched"] == len(sightings)

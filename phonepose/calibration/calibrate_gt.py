@@ -52,7 +52,7 @@ MIN_SIGHTINGS = 30
 MIN_TURN_DEG = 1.0          # the phone's second-largest turn (1σ spread) below this: one axis only, refused
 OUTLIER_FACTOR = 5.0
 BOOTSTRAP = 200
-BLOCK_S = 1.0
+BLOCK_S = 3.0
 # 1σ above these is warned about: the accuracy the calibration is meant for (issue 20's tolerances)
 TOLERANCE = {"sigma_time_offset_ms": 5.0, "sigma_world_rotation_deg": 0.5, "sigma_world_translation_mm": 5.0,
              "sigma_body_rotation_deg": 0.5, "sigma_body_translation_mm": 5.0}

@@ -64,6 +64,14 @@ class GtCalibration:
     def with_(self, **changes) -> "GtCalibration":
         return replace(self, **changes)
 
+    def apply(self, stamps_s: np.ndarray | None, T_world_grip: Pose) -> tuple[np.ndarray | None, Pose]:
+        """A ground truth re-expressed as playback does it: on the recorder's clock, of the phone's body
+        (T_world_grip · X⁻¹) and, when this calibration has its world, in display_vio."""
+        poses = T_world_grip @ self.T_controller_gt.inv()
+        if self.T_world_display_vio is not None:
+            poses = self.T_world_display_vio.inv() @ poses
+        return (None if stamps_s is None else np.asarray(stamps_s, dtype=float) - self.time_offset_s), poses
+
     def metrics_note(self, name: str) -> dict:
         """What metrics.json records under ``ground_truth`` about the calibration applied."""
         note: dict = {"calibration_file": name, "method": self.method,
