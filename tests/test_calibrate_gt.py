@@ -246,3 +246,25 @@ def test_evaluate_applies_the_calibration_to_its_ground_truth_file(tmp_path):
     moved = json.loads(moved.stdout)
     assert plain["ape"]["rmse"] > 0.5 and moved["ape"]["rmse"] < 1e-5
     assert moved["n_matched"] == len(sightings)
+
+
+def test_batch_calibrate_gt_rows(tmp_path):
+    """batch --calibrate-gt: each session calibrated from itself; its rows are told apart by param_gt_calibration."""
+    import pyarrow.parquet as pq
+
+    from phonepose.batch.driver import execute_batch, prepare_batch
+    from phonepose.calibration.calibrate_gt import calibrate_gt_session
+    from phonepose.playback.engine import run_playback
+    from phonepose.testing.playback_session import write_test_session
+
+    session = tmp_path / "s.mcap"
+    write_test_session(session)
+    for calibrate in (False, True):
+        execute_batch(prepare_batch([str(session)], tmp_path / "b.parquet", trackers=["T4"], workers=1,
+                                    calibrate_gt=calibrate))
+    rows = pq.read_table(tmp_path / "b.parquet").to_pylist()
+    assert [r["param_gt_calibration"] for r in rows] == [None, "calibrate-gt"] and all(r["status"] == "ok" for r in rows)
+    expected = run_playback(session, trackers="T4", write_outputs=False, gt_calibration=calibrate_gt_session(session))
+    assert rows[1]["p_ate_m_total"] == pytest.approx(expected.metrics["trackers"]["T4"]["total"]["p_ate_m"], abs=1e-12)
+    assert rows[0]["p_ate_m_total"] != rows[1]["p_ate_m_total"]
+    assert expected.metrics["ground_truth"]["calibration_file"] == "calibrate-gt"

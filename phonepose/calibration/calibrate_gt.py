@@ -20,7 +20,7 @@ Method:
 3. Gross outliers (residual above 5x the median: a flipped marker pose) are dropped, then
    ``scipy.optimize.least_squares`` refines X, Z and δ together on the residuals
    (rotation / σ_rot, translation / σ_trans, each σ the closed form's RMS).
-4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 1 s, since consecutive frames'
+4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 3 s, since consecutive frames'
    errors are correlated) re-solves step 3 on each resample; each 1σ is the RMS deviation of a
    quantity (the magnitude of a rotation or translation error) over the resamples.
 

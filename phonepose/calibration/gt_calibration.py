@@ -188,14 +188,20 @@ class GroundTruthSetup:
     rerun_params: dict = field(default_factory=dict)   # what makes the Rerun recording id differ
 
 
-def ground_truth_setup(calibration: "str | os.PathLike | None", calibration_name: str | None = None,
+def ground_truth_setup(calibration: "str | os.PathLike | GtCalibration | None", calibration_name: str | None = None,
                        gt_file: "str | os.PathLike | None" = None, gt_format: str | None = None) -> GroundTruthSetup:
     """The calibration file and the sidecar ground truth, loaded (one line and exit 2 for a bad file)."""
     import hashlib
 
-    cal = load_gt_calibration(calibration) if calibration is not None else None
+    cal: GtCalibration | None
+    if isinstance(calibration, GtCalibration):      # calibrated in memory (batch --calibrate-gt)
+        cal, name, path = calibration, calibration_name or "calibrate-gt", None
+    elif calibration is not None:
+        cal, name, path = load_gt_calibration(calibration), calibration_name or os.fspath(calibration), os.fspath(calibration)
+    else:
+        cal, name, path = None, "", None
     series = None
-    note = cal.metrics_note(calibration_name or os.fspath(calibration)) if cal is not None else None
+    note = cal.metrics_note(name) if cal is not None else None
     params: dict = {}
     if gt_file is not None:
         from phonepose.calibration.ground_truth import file_ground_truth
@@ -203,4 +209,4 @@ def ground_truth_setup(calibration: "str | os.PathLike | None", calibration_name
         series = file_ground_truth(gt_file, gt_format)
         note = {**(note or {}), "ground_truth_file": os.fspath(gt_file)}
         params["gt_file"] = hashlib.sha256(Path(gt_file).read_bytes()).hexdigest()
-    return GroundTruthSetup(cal, os.fspath(calibration) if calibration is not None else None, series, note, params)
+    return GroundTruthSetup(cal, path, series, note, params)
