@@ -268,3 +268,34 @@ def test_batch_calibrate_gt_rows(tmp_path):
     assert rows[1]["p_ate_m_total"] == pytest.approx(expected.metrics["trackers"]["T4"]["total"]["p_ate_m"], abs=1e-12)
     assert rows[0]["p_ate_m_total"] != rows[1]["p_ate_m_total"]
     assert expected.metrics["ground_truth"]["calibration_file"] == "calibrate-gt"
+
+
+def test_playback_reads_a_sidecar_ground_truth_through_its_calibration(tmp_path):
+    """--gt FILE in another world and 50 ms late, with the calibration that undoes both, scores exactly as the
+    session's own ground truth; without a calibration that places its world, there is no ground truth."""
+    from phonepose.playback.engine import run_playback
+    from phonepose.testing.playback_session import T_WORLD_DVIO, write_test_session
+
+    session = tmp_path / "s.mcap"
+    write_test_session(session)
+    W = mocap_file(session, tmp_path / "mocap.tum", 0.05)
+    exact = GtCalibration(T_controller_gt=Pose.identity(), time_offset_s=0.05, T_world_display_vio=W @ T_WORLD_DVIO)
+    save_gt_calibration(tmp_path / "cal.yaml", exact)
+    plain = run_playback(session, trackers="T1,T4", write_outputs=False)
+    moved = run_playback(session, trackers="T1,T4", write_outputs=False, gt_file=tmp_path / "mocap.tum",
+                         gt_calibration=tmp_path / "cal.yaml")
+    assert moved.gt_stamps_ns.tolist() == plain.gt_stamps_ns.tolist()
+    assert moved.gt.allclose(plain.gt, atol=1e-6)    # the file's stamps: 9 decimals of seconds, read as float64
+    for tracker in ("T1", "T4"):
+        a, b = plain.metrics["trackers"][tracker]["total"], moved.metrics["trackers"][tracker]["total"]
+        assert b["p_ate_m"] == pytest.approx(a["p_ate_m"], abs=1e-6)
+    assert moved.metrics["ground_truth"] == {
+        "calibration_file": str(tmp_path / "cal.yaml"), "method": "calibrate-gt", "time_offset_s": 0.05,
+        "body_rotation_deg": 0.0, "body_translation_m": [0.0, 0.0, 0.0], "world_display_vio": "calibrated",
+        "ground_truth_file": str(tmp_path / "mocap.tum")}
+    bare = tmp_path / "bare.mcap"      # a live session: no /gt topics, no /gt/calibration
+    write_test_session(bare, gt=False)
+    r = _run("playback", str(bare), "-q", "-t", "T1", "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "p"))
+    assert r.returncode == 0, r.stderr
+    assert ("no usable ground truth (needs /gt/controller/pose and /gt/calibration within the task window, or with "
+            "--gt FILE a --gt-calibration from `phonepose calibrate-gt SESSION --gt FILE`)") in " ".join(r.stdout.split())

@@ -121,7 +121,8 @@ def test_simulated_session_cli_end_to_end(tmp_path):
 
     r = run("calibrate-hand-eye", str(session), "--out", str(tmp_path / "he.yaml"), "--translation", "0,0,0")
     assert r.returncode == 0, r.stderr
-    assert re.search(r"rigid body turned 1[01]\.\d\d deg .* mocap clock \+(29|30|31) ms; \d+ motions", r.stdout), r.stdout
+    assert re.search(r"rigid body turned 1[01]\.\d\d ± 0\.\d\d deg .* mocap clock \+(29|30|31) ± \d\.\d ms \(1σ\); "
+                     r"\d+ motions", r.stdout), r.stdout
     he = load_hand_eye(tmp_path / "he.yaml")
     assert he.time_offset_s == pytest.approx(cfg.mocap.clock_offset_s, abs=0.002)   # 1 ms grid, noisy VIO
     assert np.degrees(he.T_controller_mocap.angle_to(truth)) < 0.3       # of the simulator's 11 deg

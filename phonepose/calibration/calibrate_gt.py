@@ -20,7 +20,7 @@ Method:
 3. Gross outliers (residual above 5x the median: a flipped marker pose) are dropped, then
    ``scipy.optimize.least_squares`` refines X, Z and δ together on the residuals
    (rotation / σ_rot, translation / σ_trans, each σ the closed form's RMS).
-4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 3 s, since consecutive frames'
+4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 3 s, or a fifth of the sightings' span if shorter, since consecutive frames'
    errors are correlated) re-solves step 3 on each resample; each 1σ is the RMS deviation of a
    quantity (the magnitude of a rotation or translation error) over the resamples.
 
@@ -53,6 +53,7 @@ MIN_TURN_DEG = 1.0          # the phone's second-largest turn (1σ spread) below
 OUTLIER_FACTOR = 5.0
 BOOTSTRAP = 200
 BLOCK_S = 3.0
+MIN_BLOCKS = 5
 # 1σ above these is warned about: the accuracy the calibration is meant for (issue 20's tolerances)
 TOLERANCE = {"sigma_time_offset_ms": 5.0, "sigma_world_rotation_deg": 0.5, "sigma_world_translation_mm": 5.0,
              "sigma_body_rotation_deg": 0.5, "sigma_body_translation_mm": 5.0}
@@ -278,7 +279,8 @@ def _bootstrap(t: np.ndarray, start: _Fit, sol, T_dvio_camera: Pose, n: int, see
     (its residuals are small and nearly linear in the parameters: re-running least_squares on every
     resample gave the same spreads at ~100x the cost)."""
     rng = np.random.default_rng(seed)
-    blocks = np.floor((t - t[0]) / BLOCK_S).astype(int)
+    block_s = min(BLOCK_S, max(t[-1] - t[0], 1e-3) / MIN_BLOCKS)     # a short session still has MIN_BLOCKS blocks
+    blocks = np.floor((t - t[0]) / block_s).astype(int)
     ids = np.unique(blocks)
     members = [np.flatnonzero(blocks == b) for b in ids]
     J = sol.jac.reshape(len(t), 6, 13)

@@ -96,7 +96,8 @@ def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, st
     sets = []
     for d in grid:
         _, _, a, b, tm = _motions(t_phone, phone, t_mocap, mocap, float(d), step_s, min_angle_deg, with_times=True)
-        sets.append((a, b, np.floor((tm - t_phone[0]) / BLOCK_S).astype(int)))
+        block_s = min(BLOCK_S, max(t_phone[-1] - t_phone[0], 1e-3) / 5)   # at least 5 blocks
+        sets.append((a, b, np.floor((tm - t_phone[0]) / block_s).astype(int)))
     n_blocks = int(max(s[2].max(initial=0) for s in sets)) + 1
     rng = np.random.default_rng(seed)
     angles, shifts = [], []

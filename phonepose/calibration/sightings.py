@@ -13,11 +13,14 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose, interpolate_many
 
 MAX_DISPLAY_GAP_S = 0.5   # as playback (scheduler.MAX_GAP_S): a frame farther from display VIO is not placed
+STILL_M = 0.003           # a display whose VIO moves less than this (1σ per axis) and turns less than
+STILL_DEG = 0.2           # this stood still (a tripod): its mean pose is used for every sighting
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,12 @@ class Sightings:
     def __getitem__(self, index) -> "Sightings":
         return Sightings(self.stamps_s[index], self.T_dvio_body[index], self.T_camera_body[index],
                          self.T_dvio_camera[index], self.frames, self.reprojection_px[index])
+
+
+def _still(display: Pose) -> bool:
+    """The display did not move: its VIO positions within STILL_M (1σ per axis), orientations within STILL_DEG."""
+    rv = (display.rotation.mean().inv() * display.rotation).as_rotvec()
+    return bool(np.std(display.translation, axis=0).max() < STILL_M and np.degrees(np.std(rv, axis=0)).max() < STILL_DEG)
 
 
 def _none(frames: int) -> Sightings:
@@ -108,5 +117,11 @@ def read_sightings(path: "str | os.PathLike") -> Sightings:
     if idx.size == 0:
         return _none(frames)
     T_cb = Pose.concatenate([cam_body[k] for k in idx])
-    T_dvio_camera = interpolate_many(t_d, display, t[idx]) @ context.camera.T_display_camera
+    T_dvio_display = interpolate_many(t_d, display, t[idx])
+    if _still(display):
+        # a display on a tripod: its VIO's per-pose jitter (0.5 mm in the simulator, as large as the marker's own
+        # noise across the view) is noise, not motion; its mean pose is the better estimate of where it stood
+        mean = Pose(display.rotation.mean(), np.mean(display.translation, axis=0))
+        T_dvio_display = Pose(Rotation.concatenate([mean.rotation] * len(idx)), np.tile(mean.translation, (len(idx), 1)))
+    T_dvio_camera = T_dvio_display @ context.camera.T_display_camera
     return Sightings(t[idx], T_dvio_camera @ T_cb, T_cb, T_dvio_camera, frames, np.asarray(rms)[idx])
