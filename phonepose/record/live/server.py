@@ -29,10 +29,11 @@ import secrets
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSMessage, WSMsgType, web
 
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
+from phonepose.record.live.websocket import PageSocket
 
 if TYPE_CHECKING:   # pragma: no cover
     from phonepose.record.live.session import LiveRecording
@@ -48,6 +49,7 @@ MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from 
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
+CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
 
 
 class Malformed(ValueError):
@@ -133,10 +135,11 @@ def parse_message(text: str) -> dict:
 class Connection:
     """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
 
-    def __init__(self, server: "LiveServer", ws: web.WebSocketResponse, peer: str, number: int):
+    def __init__(self, server: "LiveServer", sock: PageSocket, peer: str, number: int):
         self.server = server
         self.rec = server.recording
-        self.ws = ws
+        self.sock = sock
+        self.ws = sock.ws
         self.peer = peer
         self.name = f"phone #{number} ({peer})"
         self.clock = OffsetEstimator()
@@ -355,36 +358,19 @@ class LiveServer:
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._authorised(request):
             raise web.HTTPForbidden(text="wrong token\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES, heartbeat=None)
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S)
         await ws.prepare(request)
         self.connections += 1
-        conn = Connection(self, ws, request.remote or "?", self.connections)
+        conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
         previous, self.current = self.current, conn
-        if previous is not None and not previous.ws.closed:
+        if previous is not None and not previous.sock.closed:
             self.recording.log(f"{previous.name}: replaced by {conn.name}", level="warning")
             await previous.send({"type": "error", "message": "another page connected; this one is no longer recorded"})
-            await previous.ws.close()
+            previous.sock.ask_close()   # its own handler closes it; this page is served meanwhile
         self.recording.log(f"{conn.name}: connected")
         pinger = asyncio.ensure_future(conn.pinger())
         try:
-            async for msg in ws:
-                receipt = self.recording.clock.now_ns()
-                if conn is not self.current:
-                    break
-                if msg.type == WSMsgType.TEXT:
-                    try:
-                        conn.handle_text(msg.data, receipt)
-                    except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
-                        self.recording.stats["malformed"] += 1
-                        self.recording.malformed_kinds["could not be handled"] += 1
-                        self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
-                                           f"{str(exc)[:80]}); ignored", level="error")
-                elif msg.type == WSMsgType.BINARY:
-                    conn.received += 1
-                    self.recording.stats["messages"] += 1
-                    conn.malformed(Malformed("binary message (the protocol is JSON text)"))
-                elif msg.type == WSMsgType.ERROR:
-                    break
+            await conn.sock.serve(lambda msg: self._on_message(conn, msg))
         finally:
             pinger.cancel()
             await asyncio.gather(pinger, return_exceptions=True)
@@ -394,6 +380,27 @@ class LiveServer:
             if self.current is conn:
                 self.current = None
         return ws
+
+    def _on_message(self, conn: Connection, msg: WSMessage) -> bool:
+        """One message of ``conn``; False ends its connection (replaced, or a broken frame)."""
+        receipt = self.recording.clock.now_ns()
+        if conn is not self.current:
+            return False
+        if msg.type == WSMsgType.TEXT:
+            try:
+                conn.handle_text(msg.data, receipt)
+            except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
+                self.recording.stats["malformed"] += 1
+                self.recording.malformed_kinds["could not be handled"] += 1
+                self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
+                                   f"{str(exc)[:80]}); ignored", level="error")
+        elif msg.type == WSMsgType.BINARY:
+            conn.received += 1
+            self.recording.stats["messages"] += 1
+            conn.malformed(Malformed("binary message (the protocol is JSON text)"))
+        elif msg.type == WSMsgType.ERROR:
+            return False
+        return True
 
     # ------------------------------------------------------------------ lifetime
     async def start(self) -> int:
@@ -422,7 +429,7 @@ class LiveServer:
                 await asyncio.sleep(0.02)
             if conn.pending or not conn.settled:
                 conn.settle()
-            await conn.ws.close(message=b"recording finished")
+            await conn.sock.close(message=b"recording finished")
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
