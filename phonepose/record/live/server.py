@@ -14,10 +14,11 @@ type, missing or non-finite fields, a non-unit quaternion) is counted, logged on
 connection (terminal, ``/log``, an ``error`` message to the page) and ignored; the connection stays.
 
 Stamping: each connection has its own :class:`~phonepose.record.live.clock.OffsetEstimator`
-(5 pings at connect, then one a second). Samples that arrive before the 5 connect pings are answered wait
-for them (at most :data:`PENDING_TIMEOUT_S`; with no pong at all the offset is then taken from the
-first sample assuming zero network delay, and that is logged). ``capture = t - offset`` goes into the message ``timestamp``;
-the receipt time is the MCAP log time.
+(5 pings at connect, then one a second). Samples wait until the 5 connect pings are answered, or
+:data:`PENDING_TIMEOUT_S` has passed and at least one pong came: nothing is stamped without an
+offset, and nothing well-formed is dropped while waiting (see :meth:`Connection.settle` for a link
+that never answers). Each later pong refines the offset (the fastest exchange of the window wins).
+``capture = t - offset`` goes into the message ``timestamp``; the receipt time is the MCAP log time.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import asyncio
 import json
 import math
 import secrets
+import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -43,7 +45,7 @@ PING_AT_CONNECT = 5
 PING_AT_CONNECT_SPACING_S = 0.05
 PING_PERIOD_S = 1.0
 PENDING_TIMEOUT_S = 0.5
-MAX_PENDING = 2000
+MAX_PENDING = 30_000                  # samples waiting for a first pong (~60 s of poses and IMU); then a fallback
 MAX_MESSAGE_BYTES = 1 << 16
 MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from its receipt is rejected
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
@@ -145,6 +147,7 @@ class Connection:
         self.clock = OffsetEstimator()
         self.fallback_offset_ns: int | None = None
         self.settled = False                           # stamping has started (see settle())
+        self.connect_wait_over = False                 # PENDING_TIMEOUT_S has passed since the connect pings
         self.pending: list[tuple[dict, int]] = []      # (message, receipt ns) waiting for the offset
         self.malformed_kinds: set[str] = set()
         self.logged_offset_ns: int | None = None
@@ -174,25 +177,38 @@ class Connection:
         return off if off is not None else self.fallback_offset_ns
 
     def capture_ns(self, t_ms: float) -> int:
-        return int(round(t_ms * 1e6)) - self.offset_ns
+        offset = self.offset_ns
+        assert offset is not None, "stamping starts only once an offset exists (settle())"
+        return int(round(t_ms * 1e6)) - offset
 
     def settle(self) -> None:
-        """Start stamping: after the connect pings were answered, or at the timeout with what there is.
+        """Start stamping, once an offset exists: at the first pong after the connect pings were all
+        answered or :data:`PENDING_TIMEOUT_S` passed; before that every sample waits in ``pending``.
 
-        With no pong at all, the offset is taken from the first waiting sample assuming zero network
-        delay (logged), until a pong arrives.
+        With no pong at all (a Wi-Fi link that answers pings late or never) the samples keep waiting;
+        only when :data:`MAX_PENDING` wait, or the connection ends, is an offset taken from them:
+        the median of their ``t - receipt`` (zero network delay assumed; a median, so no single odd
+        sample sets it), logged. A pong later replaces it.
         """
         if self.settled:
             return
-        self.settled = True
-        if self.clock.best() is not None:
+        if self.clock.best() is None:
+            if not self.pending:
+                return
+            self.fallback_offset_ns = int(statistics.median(int(round(m["t"] * 1e6)) - r for m, r in self.pending))
+            self.rec.log(f"{self.name}: no answer to the clock pings; {len(self.pending)} samples stamped assuming zero "
+                         f"network delay (page clock offset {self.fallback_offset_ns / 1e6:+.1f} ms) until one arrives",
+                         level="warning")
+        else:
             self._log_offset(force=True)
-        elif self.pending:
-            msg, receipt = self.pending[0]
-            self.fallback_offset_ns = int(round(msg["t"] * 1e6)) - receipt
-            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s; samples stamped "
-                         f"assuming zero network delay until one arrives", level="warning")
+        self.settled = True
         self.flush_pending()
+
+    def _waiting_note(self) -> None:
+        """At :data:`PENDING_TIMEOUT_S` with no pong: say once that samples wait (none is dropped)."""
+        if not self.settled and self.clock.best() is None:
+            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s (Wi-Fi power "
+                         f"saving?); samples wait for one, none is dropped", level="warning")
 
     def flush_pending(self) -> None:
         pending, self.pending = self.pending, []
@@ -223,16 +239,16 @@ class Connection:
             if self.clock.pong(msg["id"], msg["t"], receipt_ns) is None:
                 self.rec.stats["pongs rejected"] += 1
                 return
-            if not self.settled and len(self.clock.exchanges) >= PING_AT_CONNECT:
-                self.settle()
-            elif self.settled:
+            if self.settled:
                 self._log_offset()
+            elif len(self.clock.exchanges) >= PING_AT_CONNECT or self.connect_wait_over:
+                self.settle()
             return
         if kind in ("pose", "imu", "anchor") and not self.settled:
-            if len(self.pending) < MAX_PENDING:
-                self.pending.append((msg, receipt_ns))
-                return
-            self.settle()
+            self.pending.append((msg, receipt_ns))
+            if len(self.pending) >= MAX_PENDING:
+                self.settle()
+            return
         self.dispatch(msg, receipt_ns)
 
     def malformed(self, exc: Malformed) -> None:
@@ -286,7 +302,11 @@ class Connection:
         waited = PING_AT_CONNECT * PING_AT_CONNECT_SPACING_S
         if waited < PENDING_TIMEOUT_S and not self.settled:
             await asyncio.sleep(PENDING_TIMEOUT_S - waited)
-        self.settle()
+        self.connect_wait_over = True
+        if self.clock.best() is not None:
+            self.settle()
+        else:
+            self._waiting_note()
         while not self.ws.closed:
             await asyncio.sleep(PING_PERIOD_S)
             await self.send(self.clock.ping(self.rec.clock.now_ns()))
