@@ -126,3 +126,41 @@ def test_a_malformed_first_sample_never_becomes_the_offset(long_media, tmp_path)
     true = np.array([true for kind, _, true in phone.sent[1:] if kind == "imu"])
     assert np.median(np.abs(stamps - true)) < 50e6
     assert s.source.recording.malformed_kinds["imu 't' is not on the page's clock"] == 1
+
+
+def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):
+    """docs/phone-page.md: such a message is ignored and logged once per kind, the connection stays."""
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = Phone(s, s.port, s.token)
+    _wait_video_start(s)
+    big = json.dumps({"type": "hello", "user_agent": "x" * 70_000, "webxr": False, "message": ""})
+    hello = json.dumps({"type": "hello", "user_agent": "scripted phone", "webxr": False, "message": ""})
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            for _ in range(3):
+                await ws.send_str(big)
+                await ws.send_frame(b'{"type": "hello", "user_agent": "\xff\xfe"}', aiohttp.WSMsgType.TEXT)
+            for _ in range(3000):
+                await ws.send_str(hello)
+            await _imu(phone, ws, 20)
+            await wait_until_async(lambda: s.source.recording.stats["imu"] >= 20, what="the samples after them")
+            assert not ws.closed
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    rec = s.source.recording
+    assert rec.malformed_kinds == {"text message over 64 KiB": 3, "text message that is not valid UTF-8": 3}
+    assert rec.repeats == {"hello messages after the first on a connection": 2999}
+    msgs = _messages(tmp_path / "s.mcap")
+    logs = [m.msg.message for m in msgs if m.topic == Topic.LOG]
+    assert sum("over 64 KiB" in t for t in logs) == 2          # once when it came, once in the summary
+    assert sum("not valid UTF-8" in t for t in logs) == 2
+    assert sum("scripted phone" in t for t in logs) == 1       # the first hello
+    assert sum("hello messages after the first" in t for t in logs) == 2
+    assert any("repeated messages ignored: hello messages after the first on a connection: 2999" in t for t in logs)
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in msgs) == 20

@@ -46,7 +46,8 @@ PING_AT_CONNECT_SPACING_S = 0.05
 PING_PERIOD_S = 1.0
 PENDING_TIMEOUT_S = 0.5
 MAX_PENDING = 30_000                  # samples waiting for a first pong (~60 s of poses and IMU); then a fallback
-MAX_MESSAGE_BYTES = 1 << 16
+MAX_MESSAGE_BYTES = 1 << 16            # a text message above this is ignored (logged once per kind, counted)
+MAX_FRAME_BYTES = 1 << 22              # above this aiohttp closes the connection (1009): memory bound
 MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from its receipt is rejected
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
@@ -153,6 +154,7 @@ class Connection:
         self.logged_offset_ns: int | None = None
         self.opened_ns = self.rec.clock.now_ns()
         self.received = 0
+        self.hellos = 0
         self.last_receipt_ns = self.opened_ns
         self.tasks: set[asyncio.Task] = set()
 
@@ -225,10 +227,29 @@ class Connection:
                          f"{best.rtt_ns / 1e6:.1f} ms of {len(self.clock.exchanges)})", echo=force)
 
     # ------------------------------------------------------------------ receiving
-    def handle_text(self, text: str, receipt_ns: int) -> None:
+    def handle_frame(self, data: bytes | str, receipt_ns: int) -> None:
+        """A text message as received (bytes: aiohttp does not decode it, see LiveServer)."""
+        if isinstance(data, str):
+            data = data.encode("utf-8", "surrogatepass")
+        if len(data) > MAX_MESSAGE_BYTES:
+            self._count_received(receipt_ns)
+            self.malformed(Malformed(f"text message over {MAX_MESSAGE_BYTES // 1024} KiB", f"{len(data)} bytes"))
+            return
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            self._count_received(receipt_ns)
+            self.malformed(Malformed("text message that is not valid UTF-8", f"byte {exc.start}"))
+            return
+        self.handle_text(text, receipt_ns)
+
+    def _count_received(self, receipt_ns: int) -> None:
         self.received += 1
         self.last_receipt_ns = receipt_ns
         self.rec.stats["messages"] += 1
+
+    def handle_text(self, text: str, receipt_ns: int) -> None:
+        self._count_received(receipt_ns)
         try:
             msg = parse_message(text)
         except Malformed as exc:
@@ -264,7 +285,11 @@ class Connection:
         kind = msg["type"]
         try:
             if kind == "hello":
-                self.rec.on_hello(self.name, msg)
+                self.hellos += 1
+                if self.hellos == 1:
+                    self.rec.on_hello(self.name, msg)
+                else:   # a page sends one per connection; more are counted, logged once
+                    self.rec.repeated("hello messages after the first on a connection", self.name)
             elif kind == "marker":
                 error = self.rec.on_marker(self.name, msg)
                 if error:
@@ -378,7 +403,10 @@ class LiveServer:
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._authorised(request):
             raise web.HTTPForbidden(text="wrong token\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S)
+        # decode_text=False: text arrives as bytes, so invalid UTF-8 is ignored here (as the protocol
+        # says) instead of aiohttp closing the connection with 1007
+        ws = web.WebSocketResponse(max_msg_size=MAX_FRAME_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S,
+                                   decode_text=False)
         await ws.prepare(request)
         self.connections += 1
         conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
@@ -408,7 +436,7 @@ class LiveServer:
             return False
         if msg.type == WSMsgType.TEXT:
             try:
-                conn.handle_text(msg.data, receipt)
+                conn.handle_frame(msg.data, receipt)
             except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
                 self.recording.stats["malformed"] += 1
                 self.recording.malformed_kinds["could not be handled"] += 1
