@@ -140,6 +140,26 @@ def _size0(m):
     m.size_m = 0.0
 
 
+def _size_huge(m):
+    m.size_m = 1e200
+
+
+def _extreme_imu():
+    """Finite but impossible IMU values (gyro 1e200 rad/s, accel -1e300 m/s^2) in every other sample:
+    these overflowed T8's integration (`zero norm quaternions`)."""
+    k = itertools.count()
+
+    def fn(topic, msg, t):
+        if topic == Topic.CONTROLLER_IMU:
+            i = next(k)
+            if i % 4 == 1:
+                msg.gyro_x = 1e200
+            elif i % 4 == 3:
+                msg.accel_y = -1e300
+        return [(topic, msg, t)]
+    return fn
+
+
 def _garbage_image(m):
     m.data = b"this is not a jpeg"
 
@@ -310,6 +330,10 @@ CASES = [
          lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size0))),
                        "-q", "--out", str(d / "o")],
          4, r"ms\.mcap: marker size 0 m: expected a positive size$"),
+    Case("static-marker-size-huge", "marker size 1e200 m (overflowed T8)",
+         lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size_huge))),
+                       "-q", "--out", str(d / "o")],
+         4, r"ms\.mcap: marker size 1e\+200 m: expected at most 10 m \(the side of a printed or displayed marker\)$"),
     Case("unknown-tracker", "unknown tracker name",
          lambda g, d: ["playback", str(g), "-q", "-t", "T99", "--out", str(d / "o")], 5,
          r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
@@ -541,6 +565,9 @@ WARNING_CASES = [
      _bad_quaternions(), r"/controller/vio/pose: 30 sample\(s\) skipped: NaN/inf value or non-unit quaternion"),
     ("foreign-payloads", "controller VIO where every other payload is an IMU message's bytes", _foreign_payloads(),
      r"/controller/vio/pose: 30 sample\(s\) skipped: no pose in the message \(neither position nor orientation set\)"),
+    ("extreme-imu", "controller IMU with gyro 1e200 rad/s or accel -1e300 m/s^2 in every other sample",
+     _extreme_imu(), r"/controller/imu: 100 sample\(s\) skipped: value outside any IMU's range "
+                     r"\(\|gyro\| > 1000 rad/s or \|accel\| > 10000 m/s\^2\)"),
     ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
      r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
 ]
@@ -612,6 +639,16 @@ if __name__ == "__main__":
 
     with tempfile.TemporaryDirectory() as t:
         print(markdown_table(Path(t)))
+
+
+def test_extreme_imu_values_do_not_reach_the_fusion(good, tmp_path):
+    """T8 integrates the IMU: with the impossible samples skipped it runs, and its poses stay finite."""
+    bad = rewrite(good, tmp_path / "imu.mcap", _extreme_imu())
+    r = _subprocess("playback", str(bad), "-q", "-t", "T8", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.startswith("phonepose: warning: /controller/imu: 100 sample(s) skipped: value outside")
+    est = _tum(tmp_path / "o" / "trajectories" / "T8.tum")
+    assert len(est) > 10 and np.isfinite(est).all()
 
 
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import bisect
 import logging
-import math
 from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Iterator
@@ -373,8 +372,9 @@ class TickScheduler:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it
                 row = codec.imu_row(msg, now)
-                if not all(math.isfinite(v) for v in row):
-                    self.skipped[(topic, "NaN/inf value")] += 1
+                problem = codec.imu_problem(row)
+                if problem is not None:
+                    self.skipped[(topic, problem)] += 1
                     continue
                 imu.append((now, row))
             elif topic == Topic.CALIBRATION_EVENTS:
