@@ -334,6 +334,13 @@ CASES = [
          lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size_huge))),
                        "-q", "--out", str(d / "o")],
          4, r"ms\.mcap: marker size 1e\+200 m: expected at most 10 m \(the side of a printed or displayed marker\)$"),
+    Case("start-end-miss-task", "`--start/--end` outside the task window (0.30-1.80 s)",
+         lambda g, d: ["playback", str(g), "-q", "--start", "1.9", "--end", "2", "--out", str(d / "o")], 5,
+         r"--start 1\.9 --end 2 selects 1\.90-2\.00 s, which misses the task window 0\.30-1\.80 s \(where "
+         r"trajectories and metrics are computed\): choose a range that overlaps it$"),
+    Case("evaluate-no-match", "`evaluate` with trajectories whose stamps never meet",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(_write(d / "late.txt", LATE_ROWS))],
+         4, r"no matching stamps between .*gt\.txt and .*late\.txt \(\|dt\| < 0\.02 s\)$"),
     Case("unknown-tracker", "unknown tracker name",
          lambda g, d: ["playback", str(g), "-q", "-t", "T99", "--out", str(d / "o")], 5,
          r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
@@ -493,6 +500,7 @@ def _fifo_in(folder: Path, name: str) -> Path:
 
 
 TUM_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (k / 10, k / 100) for k in range(20))
+LATE_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (100 + k / 10, k / 100) for k in range(20))   # 100 s later
 
 
 def _mkdir(path: Path) -> Path:
@@ -649,6 +657,25 @@ def test_extreme_imu_values_do_not_reach_the_fusion(good, tmp_path):
     assert r.stderr.startswith("phonepose: warning: /controller/imu: 100 sample(s) skipped: value outside")
     est = _tum(tmp_path / "o" / "trajectories" / "T8.tum")
     assert len(est) > 10 and np.isfinite(est).all()
+
+
+def test_evaluate_warns_when_the_matched_poses_cover_a_small_part(clean_run, tmp_path):
+    """Another session's ground truth (all simulated sessions start at the same stamp) still matches some
+    poses: when they cover under half of either trajectory, one warning line says so; the metrics stand."""
+    gt_rows = (clean_run / "groundtruth.tum").read_text().splitlines()
+    header = [r for r in gt_rows if r.startswith("#")]
+    rows = [r for r in gt_rows if not r.startswith("#")]
+    short = tmp_path / "short.tum"
+    short.write_text("\n".join(header + rows[: len(rows) // 4]) + "\n")
+    est = clean_run / "trajectories" / "T1.tum"
+    n_est = sum(1 for r in est.read_text().splitlines() if not r.startswith("#"))
+    r = _subprocess("evaluate", "--gt", str(short), "--est", str(est), "--metric", "ape")
+    assert r.returncode == 0
+    pct = round(100 * (len(rows) // 4) / n_est)
+    assert r.stderr == (f"phonepose: warning: the matched poses cover {pct}% of {est}'s poses and 100% of {short}'s "
+                        "time span: are they from the same session?\n")
+    ok = _subprocess("evaluate", "--gt", str(clean_run / "groundtruth.tum"), "--est", str(est), "--metric", "ape")
+    assert ok.returncode == 0 and ok.stderr == ""
 
 
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):
