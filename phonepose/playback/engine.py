@@ -263,7 +263,6 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     out = None
     if write_outputs:
         out = Path(out_dir) if out_dir is not None else default_out_dir(session)
-        _prepare_out_dir(out)
     files: dict[str, str] = {}
     with SessionReader(session) as reader:
         context = read_context(reader)
@@ -284,6 +283,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         if out is not None:
             files["trackers.mcap"] = str(out / "trackers.mcap")
             try:
+                _prepare_out_dir(out)   # after every check of the session and options: a refused run creates nothing
                 writer = SessionWriter(out / "trackers.mcap")
             except BaseException:
                 if logger is not None:
