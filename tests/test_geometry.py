@@ -7,6 +7,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation, Slerp
 
 from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_mul, quat_rotate, quat_slerp, raw_compose,
+                                rotation_inverse, rotation_product,
                                 raw_interpolate)
 
 finite = st.floats(-10, 10, allow_nan=False)
@@ -213,3 +214,16 @@ def test_single_pose_builds_its_scipy_rotation_on_demand():
     assert _same(p.apply(m), p.rotation.apply(m) + p.translation)
     stack = Pose(Rotation.from_quat([[0, 0, 0.6, 0.8], [0.6, 0, 0, 0.8]]), np.ones((2, 3)))
     assert not stack.single and len(stack @ p) == 2
+
+
+@given(st.lists(any_quat, min_size=1, max_size=20), st.lists(any_quat, min_size=1, max_size=20), st.booleans())
+def test_stack_products_are_scipys(qa, qb, single_first):
+    a = Rotation.from_quat(qa[0]) if single_first else Rotation.from_quat(np.array(qa))
+    b = Rotation.from_quat(np.array(qb))
+    if not single_first and len(a) != len(b) and len(a) > 1:
+        a = a[:1]
+    got = rotation_product(a, b)
+    assert _same(got.as_quat(), (a * b).as_quat()) and got.single == (a * b).single
+    assert _same(rotation_inverse(b).as_quat(), b.inv().as_quat())
+    stack = Pose(b, np.arange(3.0 * len(b)).reshape(-1, 3))
+    assert _same(stack[::2].quat_xyzw, b[::2].as_quat()) and _same(stack[-1].quat_xyzw, b[-1].as_quat())
