@@ -48,7 +48,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import (Pose, Quat, is_finite, quat_as_matrix, quat_as_rotvec, quat_conj, quat_from_rotvec,
+from phonepose.geometry import (Pose, Quat, is_finite, quat_as_rotvec, quat_from_rotvec, quat_inv, quat_matrix,
                                 quat_mul, quat_normalised)
 from phonepose.pipeline.types import Observation
 
@@ -173,7 +173,7 @@ class CorrectionFilter:
 
     def _set_rotation(self, q: Quat) -> None:
         self.q = q
-        self._Rm = quat_as_matrix(q)        # numpy products below: cheaper per call
+        self._Rm = np.array(quat_matrix(q))        # numpy products below: cheaper per call
 
     def initialise(self, M: RawPose, V: RawPose, d: float = 0.0) -> None:
         """Once per (re-)initialisation, not per tick: scipy for the heading/tilt split."""
@@ -220,7 +220,7 @@ class CorrectionFilter:
         angular rate (world frame, per second). Returns False if the gate rejected it."""
         Rm = self._Rm
         p_world = Rm @ V[1]
-        r_rot = np.array(quat_as_rotvec(quat_mul(M[0], quat_conj(quat_mul(self.q, V[0])))))
+        r_rot = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(quat_mul(self.q, V[0])))))
         r_pos = M[1] - (p_world + self.t)
         y = np.concatenate([r_rot, r_pos])
         H = np.zeros((6, 7))
@@ -325,7 +325,7 @@ def _interpolate(t0: float, s0: list, t1: float, s1: list, t: float) -> RawPose:
     """As geometry.interpolate on raw rows (qx, qy, qz, qw, x, y, z): linear translation, slerp."""
     a = (t - t0) / (t1 - t0)
     q0, q1 = tuple(s0[:4]), tuple(s1[:4])
-    r = quat_as_rotvec(quat_mul(quat_conj(q0), q1))
+    r = quat_as_rotvec(quat_mul(quat_inv(q0), q1))
     q = quat_mul(q0, quat_from_rotvec((a * r[0], a * r[1], a * r[2])))
     return q, (1.0 - a) * np.array(s0[4:]) + a * np.array(s1[4:])
 
@@ -525,7 +525,7 @@ class FusedTracker:
         if dt <= 0:
             return np.zeros(3)
         v = self._vio.v
-        return np.array(quat_as_rotvec(quat_mul(tuple(v[i, 0:4].tolist()), quat_conj(tuple(v[i - 1, 0:4].tolist()))))) / dt
+        return np.array(quat_as_rotvec(quat_mul(tuple(v[i, 0:4].tolist()), quat_inv(tuple(v[i - 1, 0:4].tolist()))))) / dt
 
     # ------------------------------------------------------------------ output
     def step(self, obs: Observation) -> Pose | None:
@@ -612,7 +612,7 @@ class FusedTracker:
         if at_img is None:
             return rotation
         q_at = (f.apply(at_img) if f.ready else at_img)[0]
-        pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_conj(q_at))))
+        pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
         if np.linalg.norm(pull) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull
             return rotation
         t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
