@@ -32,8 +32,12 @@ def _max_or_none(values) -> float | None:
     return max(values) if values else None
 
 
-JUMP_METRICS = (("boundary_jump_max_m", "boundary jump max (cm)", _max_or_none),
-                ("boundary_jump_rms_m", "boundary jump RMS (cm)", mean_or_none))
+JUMP_METRICS = (("boundary_jump_max_m", "boundary jump max (cm)", _max_or_none, 100.0),
+                ("boundary_jump_rms_m", "boundary jump RMS (cm)", mean_or_none, 100.0))
+# the AR-controller metrics (phonepose.evaluation.controller): mean over the sequences
+CONTROLLER_METRICS = (("lag_s", "lag (ms)", mean_or_none, 1000.0),
+                      ("jitter_m", "jitter while still (mm)", mean_or_none, 1000.0),
+                      ("availability", "availability (%)", mean_or_none, 100.0))
 
 
 @dataclass
@@ -89,12 +93,13 @@ def table6_rows(sequences: list[dict]) -> list[dict]:
                 avg = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
                 rows.append({"tracker": tracker, "scope": scope, "metric": label, "scale": scale, "per_path": per_path,
                              "average": avg, "paper": paper.TABLE6_AVERAGE[tracker][scope][PAPER_KEY[key]], "key": key})
-        # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS
-        for key, label, aggregate in JUMP_METRICS:
+        # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS;
+        # then lag, jitter and availability
+        for key, label, aggregate, scale in JUMP_METRICS + CONTROLLER_METRICS:
             per_path = {path: aggregate(_value(s, tracker, "total", key) for s in sequences if s["path"] == path)
                         for path in PATHS_PARTLY_OUTSIDE}
             avg = aggregate(_value(s, tracker, "total", key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
-            rows.append({"tracker": tracker, "scope": "total", "metric": label, "scale": 100.0, "per_path": per_path,
+            rows.append({"tracker": tracker, "scope": "total", "metric": label, "scale": scale, "per_path": per_path,
                          "average": avg, "paper": paper.NO_VALUE, "key": key})
     return rows
 
