@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 from rich.console import Console
@@ -23,7 +23,7 @@ MAX_CAMERA_INDEX = 1023      # cv2.VideoCapture's index (V4L2 /dev/videoN); -1 (
 DEFAULT_SPEC = "charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100"
 
 
-PNG = dict(suffixes=(".png",), what="a PNG image")
+PNG: dict[str, Any] = dict(suffixes=(".png",), what="a PNG image")
 
 
 @app.command("board")

@@ -10,7 +10,7 @@ import os
 import struct
 import zlib
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
@@ -87,7 +87,7 @@ class Message:
     publish_time_ns: int
     channel_id: int
     sequence: int
-    msg: object  # the decoded protobuf message
+    msg: Any  # the decoded protobuf message, of the topic's type (docs/format.md)
 
 
 @dataclass

@@ -27,6 +27,11 @@ def _choice(*values: str) -> Any:
     return field(metadata={"choices": values})
 
 
+def _flag() -> Any:
+    """A true/false field (typed Any like the others, so mypy does not read a default into ``_r``'s fields)."""
+    return field(metadata={})
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     rate_hz: float = _r(1, 120)
@@ -45,7 +50,7 @@ class CameraConfig:
 @dataclass(frozen=True)
 class RenderConfig:
     noise_sigma_dn: float = _r(0, 30)
-    motion_blur: bool = field(metadata={})
+    motion_blur: bool = _flag()
     exposure_s: float = _r(0, 0.05)
     brightness_variation: float = _r(0, 0.5)
     jpeg_quality: int = _r(10, 100)
@@ -257,7 +262,7 @@ def _check(key: str, f: dataclasses.Field, value: Any) -> Any:
     if kind == "str":
         choices = f.metadata.get("choices")
         if not isinstance(value, str) or (choices and value not in choices):
-            raise ConfigError(f"config key {key!r} must be one of {', '.join(choices)}, got {value!r}")
+            raise ConfigError(f"config key {key!r} must be one of {', '.join(choices or ())}, got {value!r}")
         return value
     lo, hi = f.metadata["range"]
     if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -179,6 +179,7 @@ def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, tr
     plan = Plan(scenario=scenario, path=path or "", trial=trial, keys=keys, t_fix=t_fix, t_align=t_align,
                 t_cm2=t_cm2, task_start=0.0, task_end=0.0, end=0.0, cm1_key_index=cm1_index)
     if scenario == "exp2":
+        assert path is not None   # check_choice above: exp2 names a path
         _plan_exp2(plan, world, cfg, pose, rng, t, path, trial)
     else:
         _plan_exp1(plan, world, cfg, pose, rng, t)
@@ -243,7 +244,7 @@ def _plan_exp2(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: 
 def _plan_exp1(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: float):
     cam_targets = np.array(_exp1_targets_cam())
     order = rng.permutation(len(cam_targets))
-    plan.task_start = None
+    task_start: float | None = None   # the first target's hold start
     prev = pose.to_world((0.02, -0.01, 0.28))
     for idx in order:
         p_world = pose.to_world(cam_targets[idx])
@@ -253,8 +254,8 @@ def _plan_exp1(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: 
         move = (0.9 + 2.5 * dist) * (1 + cfg.human.speed_variation * rng.normal() / 2)
         held = KeyPose(t + move, p_world + rng.normal(size=3) * 0.004, pose.facing(p_world))
         hold_start = held.t
-        if plan.task_start is None:
-            plan.task_start = hold_start
+        if task_start is None:
+            task_start = plan.task_start = hold_start
         plan.keys += [held, KeyPose(hold_start + EXP1_HOLD_S, held.position, held.rotation)]
         T_cam_target = world.T_world_camera.inv() @ T_target
         inside = bool(marker_in_view(world, T_cam_target, cfg.marker.size_m)[0])
