@@ -144,3 +144,72 @@ def test_raw_round_trip(p):
     raw = p.as_raw()
     assert len(raw) == 7 and all(type(v) is float for v in raw)
     assert Pose.from_raw(raw).allclose(p, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- single poses = scipy, bit for bit
+# A single Pose computes with the scalar code at the end of phonepose.geometry instead of scipy's
+# Rotation (for speed); these tests hold it to scipy's exact bits, since playback outputs must not
+# change. Quaternions span many scales, rotation vectors include scipy's small-angle branch.
+any_quat = st.tuples(*[st.floats(-1e3, 1e3, allow_nan=False, allow_subnormal=False)] * 4).filter(
+    lambda q: np.linalg.norm(q) > 1e-6).map(np.array)
+rotvec = st.one_of(st.tuples(*[st.floats(-4, 4, allow_nan=False)] * 3),
+                   st.tuples(*[st.floats(-1e-3, 1e-3, allow_nan=False)] * 3)).map(np.array)
+wide_vec3 = st.tuples(*[st.floats(-1e4, 1e4, allow_nan=False)] * 3).map(np.array)
+
+
+def _same(a, b) -> bool:
+    return np.asarray(a, dtype=float).tobytes() == np.asarray(b, dtype=float).tobytes()
+
+
+def _scipy(p: Pose) -> tuple[Rotation, np.ndarray]:
+    """p as scipy holds it (its quaternion as is: normalising it again could move the last bit)."""
+    return Rotation(p.quat_xyzw, normalize=False), p.translation
+
+
+@given(wide_vec3, any_quat)
+def test_from_xyzw_is_scipys(t, q):
+    assert _same(Pose.from_xyzw(t, q).quat_xyzw, Rotation.from_quat(q).as_quat())
+
+
+@given(wide_vec3, rotvec)
+def test_from_rotvec_and_back_are_scipys(t, rv):
+    p = Pose.from_rotvec(t, rv)
+    assert _same(p.quat_xyzw, Rotation.from_rotvec(rv).as_quat())
+    assert _same(p.as_cv()[0].ravel(), Rotation.from_rotvec(rv).as_rotvec())
+    flipped = Pose._of(tuple((-p.quat_xyzw).tolist()), t)    # as_rotvec takes the canonical (w >= 0) quaternion
+    assert _same(flipped.as_cv()[0].ravel(), Rotation(-p.quat_xyzw, normalize=False).as_rotvec())
+
+
+@given(st.builds(Pose.from_xyzw, wide_vec3, any_quat), st.builds(Pose.from_xyzw, wide_vec3, any_quat))
+def test_algebra_is_scipys(a, b):
+    ra, ta = _scipy(a)
+    rb, tb = _scipy(b)
+    ab = a @ b
+    assert _same(ab.quat_xyzw, (ra * rb).as_quat()) and _same(ab.translation, ra.apply(tb) + ta)
+    inv = a.inv()
+    assert _same(inv.quat_xyzw, ra.inv().as_quat()) and _same(inv.translation, -ra.inv().apply(ta))
+    assert _same(a.apply(tb), ra.apply(tb) + ta)
+    assert _same(a.angle_to(b), (ra.inv() * rb).magnitude())
+
+
+@given(st.builds(Pose.from_xyzw, wide_vec3, any_quat), st.builds(Pose.from_rotvec, vec3, rotvec),
+       st.integers(0, 10**9), st.integers(1, 10**9), st.integers(0, 10**9))
+def test_interpolate_is_scipys(a, step, t0, dt, dt_query):
+    b = a @ step            # includes tiny relative rotations (scipy's small-angle branches)
+    t1, t = t0 + dt, t0 + dt_query % (dt + 1)
+    got = interpolate(t0, a, t1, b, t)
+    ra, rb = _scipy(a)[0], _scipy(b)[0]
+    s = (t - t0) / (t1 - t0)
+    want = ra * Rotation.from_rotvec(s * (ra.inv() * rb).as_rotvec())
+    assert _same(got.quat_xyzw, want.as_quat())
+    assert _same(got.translation, (1.0 - s) * a.translation + s * b.translation)
+
+
+def test_single_pose_builds_its_scipy_rotation_on_demand():
+    p = Pose.from_raw((0.0, 0.0, 0.6, 0.8, 1.0, 2.0, 3.0))
+    assert p.single and isinstance(p.rotation, Rotation)
+    assert _same(p.rotation.as_quat(), [0.0, 0.0, 0.6, 0.8])
+    m = p.translation[None, :].T[:, 0]           # a non-contiguous vector takes the same path as in scipy
+    assert _same(p.apply(m), p.rotation.apply(m) + p.translation)
+    stack = Pose(Rotation.from_quat([[0, 0, 0.6, 0.8], [0.6, 0, 0, 0.8]]), np.ones((2, 3)))
+    assert not stack.single and len(stack @ p) == 2
