@@ -149,7 +149,7 @@ def calibrate_camera(
                   f"of {b.n_corners}")
     for name, value, sd in (("fx", K[0, 0], s[0]), ("fy", K[1, 1], s[1]), ("cx", K[0, 2], s[2]), ("cy", K[1, 2], s[3])):
         table.add_row(f"{name} (px)", f"{value:.2f}", f"{sd:.2f}")
-    for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8])):
+    for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8]), strict=True):
         table.add_row(name, f"{value:+.5f}", f"{sd:.5f}")
     table.caption = board_spec(b)
     stdout_console().print(table)
@@ -177,7 +177,7 @@ def calibrate_hand_eye(
 
     Uses the controller's own VIO and the motion-capture ground truth (docs/evaluation.md).
 
-    Example: [bold]phonepose calibrate-hand-eye s.mcap --out hand_eye.yaml && phonepose playback s.mcap --hand-eye hand_eye.yaml[/bold]
+    Example: [bold]phonepose calibrate-hand-eye s.mcap --out he.yaml && phonepose playback s.mcap --hand-eye he.yaml[/bold]
     """
     from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
 
@@ -188,7 +188,8 @@ def calibrate_hand_eye(
         if len(lever) != 3 or not np.isfinite(lever).all() or max(abs(v) for v in lever) > 1:
             raise ValueError
     except ValueError:
-        raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
+        raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), "
+                          "e.g. 0.01,0,-0.005") from None
     check_input(session, "session")
     check_output(out, "--out", inputs=[session], suffixes=(".yaml", ".yml", ".xml", ".json"),
                  what="an OpenCV FileStorage file (YAML, XML or JSON)")
