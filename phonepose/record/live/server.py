@@ -171,7 +171,9 @@ class Connection:
         return off if off is not None else self.fallback_offset_ns
 
     def capture_ns(self, t_ms: float) -> int:
-        return int(round(t_ms * 1e6)) - self.offset_ns
+        off = self.offset_ns
+        assert off is not None   # dispatched after settle(): a pong's offset or the first waiting sample's
+        return int(round(t_ms * 1e6)) - off
 
     def settle(self) -> None:
         """Start stamping: after the connect pings were answered, or at the timeout with what there is.
