@@ -128,7 +128,7 @@ class MocapConfig:
     clock_offset_s: float = _r(-1, 1)
     calibration_translation_m: float = _r(0, 0.1)
     calibration_rotation_deg: float = _r(0, 10)
-    exact: bool = field(metadata={})
+    exact: bool = _flag()
 
     # the errors `exact = true` switches off: ground truth = the phone's true pose on the display's clock
     ERRORS = ("noise_m", "noise_deg", "hand_eye_rotation_deg", "hand_eye_translation_m", "clock_offset_s",
@@ -137,7 +137,8 @@ class MocapConfig:
     def effective(self) -> "MocapConfig":
         """The configuration the simulator uses: with ``exact``, every mocap error is zero (the random
         draws still happen, so every other stream of the session is unchanged)."""
-        return dataclasses.replace(self, **{k: 0.0 for k in self.ERRORS}) if self.exact else self
+        off: dict[str, Any] = {k: 0.0 for k in self.ERRORS}   # (replace() is typed per field)
+        return dataclasses.replace(self, **off) if self.exact else self
 
 
 @dataclass(frozen=True)
