@@ -23,6 +23,7 @@ not remove it. Measure it with a ruler and pass it in (``--translation``).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -167,7 +168,7 @@ def save_hand_eye(path: "str | Path", he: HandEye) -> None:
     fs.release()
 
 
-def load_hand_eye(path: "str | Path") -> HandEye:
+def load_hand_eye(path: "str | os.PathLike") -> HandEye:
     """The calibration ``save_hand_eye`` wrote; a bad file is an InputFileError (one line, exit 2)."""
     path = Path(path)
     fs = open_yaml(path, "hand-eye")
