@@ -19,6 +19,7 @@ messages to and from these types.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -68,7 +69,7 @@ class Pose:
         """The quaternion tuple of a single pose, None for a stack."""
         quat = self._quat
         if quat is None and self._rotation is not None and self._rotation.single:
-            quat = self._quat = tuple(self._rotation.as_quat().tolist())  # type: ignore[assignment]
+            quat = self._quat = tuple(self._rotation.as_quat().tolist())
         return quat
 
     def __reduce__(self):
@@ -206,8 +207,8 @@ class Pose:
     def single(self) -> bool:
         return self._q() is not None
 
-    def angle_to(self, other: "Pose") -> np.ndarray:
-        """Rotation angle (rad) between the two orientations."""
+    def angle_to(self, other: "Pose") -> np.ndarray | np.float64:
+        """Rotation angle (rad) between the two orientations (a scalar for single poses)."""
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None:
             return np.float64(quat_magnitude(quat_compose(quat_inv(qa), qb)))
@@ -254,7 +255,7 @@ def compose_rotations(a: Pose, b: Pose, translation, invert_second: bool = False
     return Pose(a.rotation * (b.rotation.inv() if invert_second else b.rotation), translation)
 
 
-def is_finite(pose: Pose | None) -> bool:
+def is_finite(pose: Pose | None) -> TypeGuard[Pose]:
     """A pose with no NaN/inf anywhere (None is not finite): broken inputs are skipped, never used."""
     if pose is None:
         return False

@@ -75,7 +75,7 @@ def schema_for(rows: list[dict]) -> pa.Schema:
                                                       and n[6:] not in PARAMS)
     fixed = set(HEAD) | set(STATUS) | set(TAIL) | set(params)
     metrics = sorted(n for n in names if n not in fixed)
-    fields = [pa.field(n, t) for n, t in HEAD.items()]
+    fields: list[pa.Field] = [pa.field(n, t) for n, t in HEAD.items()]
     for n in params:
         spec = PARAMS.get(n[6:])
         fields.append(pa.field(n, pa.float64() if spec is not None and spec.arrow_type == "float64" else

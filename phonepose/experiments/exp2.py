@@ -187,7 +187,7 @@ def plot_sequence(seq: dict, out_png: Path) -> Path | None:
     inside = None
     t7 = seq["trajectories"].get("T7")
     if t7 is not None and t7["translation"] is not None:
-        flags = dict(zip(t7["stamps_ns"].tolist(), t7["inside"].tolist()))
+        flags = dict(zip(t7["stamps_ns"].tolist(), t7["inside"].tolist(), strict=True))
         inside = np.array([flags.get(int(t), True) for t in seq["gt"]["stamps_ns"]])
     return plot_fig11(out_png, f"{seq['name']}: ground truth, T1-T7 and ours (display camera axes)",
                       display_camera_pose(seq["session"]), gt, estimates, inside)
@@ -210,6 +210,7 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
     folder = plan.dir(out_dir, "--out", command="experiment exp2")
     with plan:
         out = folder.tmp
+        assert out is not None   # the plan's block made it
         job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path,
                              exact_gt=exact_gt, calibrate_gt=calibrate_gt)
         sequences = run_jobs(job_list, jobs or default_jobs(), progress)
