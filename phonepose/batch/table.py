@@ -125,13 +125,14 @@ def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
         return {}
     try:
         table = pq.read_table(path, page_checksum_verification=True)
-    except (pa.ArrowException, OSError) as exc:
+        names = table.column_names   # the footer's schema has no checksum: a flipped bit can leave a name invalid UTF-8
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as exc:
         raise _refuse(path, f"exists but is not a readable Parquet table ({' '.join(str(exc).split())})") from None
-    missing = [c for c in REQUIRED if c not in table.column_names]
+    missing = [c for c in REQUIRED if c not in names]
     if missing:
         raise _refuse(path, f"is not a phonepose batch table (no column {', '.join(missing)})")
     for name, want in {**HEAD, **STATUS, **TAIL}.items():
-        if name in table.column_names:
+        if name in names:
             got = table.schema.field(name).type
             if got != want and not pa.types.is_null(got):
                 raise _refuse(path, f"is not a phonepose batch table (column {name} is {got}, not {want})")
