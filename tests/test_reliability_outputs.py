@@ -105,6 +105,8 @@ WRITERS = [
     Writer("calibrate-hand-eye", ["calibrate-hand-eye", "{input}"], "--out", "he.yaml", input="session",
            wrong="he.mcap",     # the format's name is w-gt's (a ground-truth calibration file)
            fails=lambda m, d, argv: argv),    # the test session turns about one axis only: exit 4
+    Writer("calibrate-gt", ["calibrate-gt", "{input}"], "--out", "cal.yaml", input="session", wrong="cal.mcap",
+           fails=_fail_recover),    # a damaged session: one line after the checks
     Writer("batch", ["batch", "{input}", "-t", "T1", "-q", "--workers", "1"], "--out", "r.parquet", input="session",
            what="a Parquet table", wrong="r.csv", ok=True, fails=_fail_batch, earlier=_earlier_table),
     Writer("experiment-exp1", ["experiment", "exp1", "-q", "--config", "{input}"], "--out", "exp1-out", kind="dir",
@@ -112,6 +114,11 @@ WRITERS = [
     Writer("experiment-exp2", ["experiment", "exp2", "--trials", "1", "--jobs", "1", "--config", "{input}"], "--out",
            "exp2-out", kind="dir", input="config", fails=_fail_recording, missing_input_code=5),
     Writer("demo", ["demo"], "--out", "phonepose-demo", kind="dir", fails=_fail_recording),
+    # playback's trackers.mcap is written by a SessionWriter too: _fail_recording fills the disk under it
+    Writer("playback", ["playback", "{input}", "-q", "-t", "T1,T4"], "--out", "pb", kind="dir", input="session",
+           ok=True, fails=_fail_recording),
+    Writer("playback-rerun", ["playback", "{input}", "-q", "-t", "T1", "--out", "{d}/pb"], "--rerun", "pb.rrd",
+           input="session", what="a Rerun recording", wrong="pb.txt", also=["{d}/pb"], ok=True, fails=_fail_recording),
 ]
 BY_ID = {w.id: w for w in WRITERS}
 
@@ -373,11 +380,11 @@ CASES = [
          slow=lambda w: w.id in ("experiment-exp2",), what="failed run"),
     # calibrate-camera / -hand-eye need a real video / a two-axis session to succeed (tests/test_calibration.py,
     # tests/test_hand_eye.py write theirs); exp2 runs to success in tests/test_experiments.py
-    Case("replaced-whole", case_replaced_whole, lambda w: w.id not in ("calibrate-camera", "calibrate-hand-eye",
+    Case("replaced-whole", case_replaced_whole, lambda w: w.id not in ("calibrate-camera", "calibrate-hand-eye", "calibrate-gt",
                                                                        "experiment-exp2"),
          slow=lambda w: not w.ok, what="stale output (replaced whole)"),
     # a recording on a full disk: tests/test_reliability_kill.py (it stays, for `phonepose recover`)
-    Case("disk-full", case_disk_full, lambda w: w.id in ("recover", "board", "marker", "batch", "experiment-exp1",
+    Case("disk-full", case_disk_full, lambda w: w.id in ("recover", "board", "marker", "batch", "playback", "experiment-exp1",
                                                          "experiment-exp2", "demo"), what="disk full"),
 ]
 PAIRS = [pytest.param(w, c, id=f"{w.id}-{c.id}", marks=[pytest.mark.slow] if c.slow(w) else [])
@@ -394,7 +401,7 @@ def test_output_rule(w: Writer, case: Case, good_session, tmp_path, capsys, monk
 
 
 def test_every_writing_command_is_in_the_table():
-    """A new command that writes joins WRITERS (playback and record live: their owners add theirs)."""
+    """A new command that writes joins WRITERS (record live writes a new recording: tests/test_record_live.py)."""
     from phonepose.cli import command
 
     writes = set()
@@ -406,7 +413,7 @@ def test_every_writing_command_is_in_the_table():
             walk(sub, f"{path} {name}".strip())
     walk(command(), "")
     covered = {" ".join(w.argv[:2]) if w.argv[0] in ("record", "experiment") else w.argv[0] for w in WRITERS}
-    assert writes - covered == {"playback", "record live"}
+    assert writes - covered == {"record live"}
 
 
 # ----------------------------------------------------------------------------- the docs' matrix
