@@ -1,5 +1,5 @@
 """calibrate-gt (phonepose/calibration/calibrate_gt.py): clock offset, world->display and grip->body from
-marker sightings and a ground truth; its file (evaluation/gt_calibration.py) and its refusals."""
+marker sightings and a ground truth; its file (gt_calibration.py) and its refusals."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from phonepose.calibration.calibrate_gt import closed_form, calibrate_gt
-from phonepose.evaluation.ground_truth import GroundTruthSeries, unique_ascending
-from phonepose.evaluation.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
+from phonepose.calibration.ground_truth import GroundTruthSeries, unique_ascending
+from phonepose.calibration.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
 from phonepose.calibration.sightings import Sightings
 from phonepose.errors import InputFileError, SessionContentError
 from phonepose.geometry import Pose
@@ -155,7 +155,7 @@ def _run(*args):
 def mocap_file(session, out, offset_s: float) -> Pose:
     """A motion-capture export made from the session's own ground truth: its clock ``offset_s`` late,
     in another world W (returned)."""
-    from phonepose.evaluation.ground_truth import session_ground_truth
+    from phonepose.calibration.ground_truth import session_ground_truth
     from phonepose.evaluation.trajectory import write_tum
 
     gt = session_ground_truth(session)

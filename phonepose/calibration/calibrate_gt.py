@@ -38,8 +38,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
-from phonepose.evaluation.ground_truth import GroundTruthSeries
-from phonepose.evaluation.gt_calibration import GtCalibration
+from phonepose.calibration.ground_truth import GroundTruthSeries
+from phonepose.calibration.gt_calibration import GtCalibration
 from phonepose.calibration.sightings import Sightings
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
@@ -378,7 +378,7 @@ def calibrate_gt_session(path: "str | os.PathLike", gt_file: "str | os.PathLike 
     """:func:`calibrate_gt` on a session's marker sightings and its ground truth (``gt_file``, else /gt/controller/pose).
 
     Raises SessionContentError (one line naming the session) when the motion cannot determine the result."""
-    from phonepose.evaluation.ground_truth import load_ground_truth
+    from phonepose.calibration.ground_truth import load_ground_truth
     from phonepose.calibration.sightings import read_sightings
 
     gt = load_ground_truth(path, gt_file, gt_format)

@@ -8,15 +8,15 @@ written by OpenCV's ``calibrate_camera_charuco`` sample loads here.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
 
-from phonepose.errors import InputFileError
-from phonepose.opencv_storage import FORMATS, open_yaml, opencv_text  # noqa: F401  (open_yaml, opencv_text: re-exported)
+from phonepose.errors import InputFileError, OutputError
 
 
 @dataclass(frozen=True)
@@ -29,8 +29,19 @@ class CameraCalibrationFile:
     board: str = ""
 
 
-OPENCV_FORMATS = FORMATS      # what OpenCV's FileStorage writes, by the name's extension
+# What OpenCV's FileStorage writes, by the name's extension (it reads any of them by their content).
+OPENCV_FORMATS = {".yaml": cv2.FILE_STORAGE_FORMAT_YAML, ".yml": cv2.FILE_STORAGE_FORMAT_YAML,
+                  ".xml": cv2.FILE_STORAGE_FORMAT_XML, ".json": cv2.FILE_STORAGE_FORMAT_JSON}
 OPENCV_WHAT = "an OpenCV FileStorage file (YAML, XML or JSON)"
+
+
+def opencv_text(write: Callable[[cv2.FileStorage], None], suffix: str = ".yaml") -> str:
+    """What ``write(fs)`` puts into an OpenCV FileStorage, as text in the format of ``suffix``: made in
+    memory, so the file itself is written by phonepose.files (checked first, complete or not at all)."""
+    fs = cv2.FileStorage("", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY
+                         | OPENCV_FORMATS.get(suffix.lower(), cv2.FILE_STORAGE_FORMAT_YAML))
+    write(fs)
+    return fs.releaseAndGetString()
 
 
 def calibration_text(calib: CameraCalibrationFile, suffix: str = ".yaml") -> str:
@@ -52,6 +63,29 @@ def save_calibration(path: "str | Path", calib: CameraCalibrationFile, option: s
 
     write_text_output(path, calibration_text(calib, Path(path).suffix), option, inputs=inputs,
                       suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)
+
+
+def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
+    """An OpenCV YAML/XML file opened for reading (one it cannot parse is an InputFileError) or for
+    writing (OutputError)."""
+    if not write:
+        from phonepose.files import check_input
+        try:
+            check_input(path, f"{what} file")     # a FIFO or device is refused, never opened
+        except InputFileError:
+            if not os.path.lexists(path):
+                raise InputFileError(f"{path}: no such {what} file") from None
+            raise
+    error = ""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE if write else cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:   # opencv-python 5.0 reports a YAML parse error as SystemError
+        fs, error = None, f": {exc}"
+    if fs is None or not fs.isOpened():
+        if write:
+            raise OutputError(f"cannot write {path}{error}")
+        raise InputFileError(f"{path}: not an OpenCV YAML/XML {what} file")
+    return fs
 
 
 def load_calibration(path: "str | Path") -> CameraCalibrationFile:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from phonepose.evaluation.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
+from phonepose.calibration.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose, interpolate_many
 
@@ -203,7 +203,7 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
             else:
                 stamps.append((m.msg.timestamp.ToNanoseconds() or m.log_time_ns) / 1e9)
             poses.append(pose)
-    from phonepose.evaluation.ground_truth import unique_ascending
+    from phonepose.calibration.ground_truth import unique_ascending
 
     (tp, pp), (tm, pm) = series[Topic.CONTROLLER_VIO_POSE], series[Topic.GT_CONTROLLER_POSE]
     if len(tp) < 2 or len(tm) < 2:
@@ -222,7 +222,7 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
 
 
 def to_gt_calibration(he: HandEye, session: str = "") -> GtCalibration:
-    """The hand-eye result in the common ground-truth calibration format (evaluation/gt_calibration.py)."""
+    """The hand-eye result in the common ground-truth calibration format (gt_calibration.py)."""
     sigma = {k: v for k, v in (("sigma_body_rotation_deg", he.sigma_rotation_deg),
                                ("sigma_time_offset_ms", he.sigma_time_offset_ms)) if np.isfinite(v)}
     return GtCalibration(T_controller_gt=he.T_controller_mocap, time_offset_s=he.time_offset_s,
@@ -231,7 +231,7 @@ def to_gt_calibration(he: HandEye, session: str = "") -> GtCalibration:
 
 
 def save_hand_eye(path: "str | Path", he: HandEye, inputs=(), session: str = "") -> None:
-    """The common calibration file (evaluation/gt_calibration.py), by the output rule (phonepose.files)."""
+    """The common calibration file (gt_calibration.py), by the output rule (phonepose.files)."""
     save_gt_calibration(path, to_gt_calibration(he, session), inputs=inputs)
 
 

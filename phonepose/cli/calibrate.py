@@ -189,7 +189,7 @@ def calibrate_hand_eye(
             raise ValueError
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
-    from phonepose.evaluation.gt_calibration import SUFFIXES, WHAT
+    from phonepose.calibration.gt_calibration import SUFFIXES, WHAT
 
     check_input(session, "session")
     check_output(out, "--out", inputs=[session], suffixes=SUFFIXES, what=WHAT)
@@ -254,8 +254,8 @@ def calibrate_gt(
     Example: [bold]phonepose calibrate-gt s.mcap --out gt.yaml && phonepose playback s.mcap --gt-calibration gt.yaml[/bold]
     """
     from phonepose.calibration.calibrate_gt import calibrate_gt_session
-    from phonepose.evaluation.ground_truth import gt_format_of
-    from phonepose.evaluation.gt_calibration import SUFFIXES, WHAT, save_gt_calibration
+    from phonepose.calibration.ground_truth import gt_format_of
+    from phonepose.calibration.gt_calibration import SUFFIXES, WHAT, save_gt_calibration
 
     check_input(session, "session")
     inputs = [session] + ([gt] if gt is not None else [])

@@ -142,7 +142,7 @@ def evaluate(
         check_input(path, "trajectory file")    # a FIFO or device: refused, never opened
     gt_traj = load_trajectory(gt, fmt)
     if gt_calibration is not None:
-        from phonepose.evaluation.gt_calibration import load_gt_calibration
+        from phonepose.calibration.gt_calibration import load_gt_calibration
         from phonepose.evaluation.trajectory import Trajectory
 
         gt_traj = Trajectory(*load_gt_calibration(gt_calibration).apply(gt_traj.stamps, gt_traj.poses), gt_traj.source)

@@ -65,7 +65,7 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
         save_hand_eye(hand_eye, hand_eye_from_session(session))
     if job.calibrate_gt:
         from phonepose.calibration.calibrate_gt import calibrate_gt_session
-        from phonepose.evaluation.gt_calibration import save_gt_calibration
+        from phonepose.calibration.gt_calibration import save_gt_calibration
         hand_eye = out / "gt_calibration" / f"{job.name}.yaml"
         hand_eye_name = str(Path(job.final_dir or job.out_dir) / "gt_calibration" / hand_eye.name)
         save_gt_calibration(hand_eye, calibrate_gt_session(session))

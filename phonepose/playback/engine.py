@@ -247,7 +247,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     ground truth is moved into the phone's frame, clock and display_vio before any metric
     (docs/calibration.md); metrics.json names it ``gt_calibration_name`` if given (an experiment's file,
     read from the folder before it is renamed into place). ``gt_file`` (TUM or EuRoC, ``gt_format``)
-    replaces the session's ground truth (phonepose.evaluation.ground_truth).
+    replaces the session's ground truth (phonepose.calibration.ground_truth).
     """
     wall0 = time.perf_counter()
     from phonepose.pipeline.trackers import split_names
@@ -255,7 +255,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     from phonepose.pipeline.corrections import CorrectionMath
     math = CorrectionMath.parse(correction_math).value
     tracker_objs = (tracker_factory or _default_trackers)(names, math)
-    from phonepose.evaluation.gt_calibration import ground_truth_setup
+    from phonepose.calibration.gt_calibration import ground_truth_setup
     gt_setup = ground_truth_setup(gt_calibration if gt_calibration is not None else hand_eye,
                                   gt_calibration_name or hand_eye_name, gt_file, gt_format)
     gt_note = gt_setup.note

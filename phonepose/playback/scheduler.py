@@ -157,10 +157,10 @@ class TickScheduler:
                  start_s: float | None = None, end_s: float | None = None,
                  gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, gt_calibration=None,
                  gt_series=None):
-        """``gt_calibration`` (a evaluation.gt_calibration.GtCalibration) re-expresses the ground truth in
+        """``gt_calibration`` (a calibration.gt_calibration.GtCalibration) re-expresses the ground truth in
         the phone's frame and on its clock: T_world_grip · X⁻¹, read ``time_offset_s`` later, and in
         display_vio by its T_world_display_vio when it has one (else the session's /gt/calibration).
-        ``gt_series`` (a evaluation.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
+        ``gt_series`` (a calibration.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
         /gt/controller/pose."""
         if not rate_hz > 0:
             from phonepose.errors import ConfigError

@@ -90,7 +90,7 @@ def _write_pose(fs: cv2.FileStorage, key: str, pose: Pose | None) -> None:
 
 
 def calibration_text(cal: GtCalibration) -> str:
-    from phonepose.opencv_storage import opencv_text
+    from phonepose.calibration.camera_file import opencv_text
 
     def write(fs: cv2.FileStorage) -> None:
         fs.write("format", FORMAT)
@@ -147,7 +147,7 @@ def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | N
 
 def load_gt_calibration(path: "str | os.PathLike", what: str = "calibration") -> GtCalibration:
     """A file of ``save_gt_calibration`` or an older hand-eye file; a bad one is an InputFileError (exit 2)."""
-    from phonepose.opencv_storage import open_yaml
+    from phonepose.calibration.camera_file import open_yaml
 
     path = Path(path)
     fs = open_yaml(path, what)
@@ -183,7 +183,7 @@ class GroundTruthSetup:
 
     calibration: GtCalibration | None = None
     calibration_path: str | None = None
-    series: object | None = None          # a evaluation.ground_truth.GroundTruthSeries (--gt FILE)
+    series: object | None = None          # a calibration.ground_truth.GroundTruthSeries (--gt FILE)
     note: dict | None = None              # metrics.json's "ground_truth"
     rerun_params: dict = field(default_factory=dict)   # what makes the Rerun recording id differ
 
@@ -204,7 +204,7 @@ def ground_truth_setup(calibration: "str | os.PathLike | GtCalibration | None", 
     note = cal.metrics_note(name) if cal is not None else None
     params: dict = {}
     if gt_file is not None:
-        from phonepose.evaluation.ground_truth import file_ground_truth
+        from phonepose.calibration.ground_truth import file_ground_truth
 
         series = file_ground_truth(gt_file, gt_format)
         note = {**(note or {}), "ground_truth_file": os.fspath(gt_file)}
