@@ -31,7 +31,8 @@ import numpy as np
 from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
-from phonepose.playback.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context
+from phonepose.evaluation.controller import controller_metrics
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
 from phonepose.evaluation.trajectory import write_in_view, write_tum
@@ -225,6 +226,8 @@ class PlaybackEngine:
                 continue
             stamps_s = common / 1e9
             out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+            out[name]["total"].update(controller_metrics(gt_t / 1e9, gt_poses, traj.stamps_ns / 1e9, traj.poses,
+                                                         stamps_s, i_gt, i_est))
         return out
 
 
@@ -263,7 +266,6 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     out = None
     if write_outputs:
         out = Path(out_dir) if out_dir is not None else default_out_dir(session)
-        _prepare_out_dir(out)
     files: dict[str, str] = {}
     with SessionReader(session) as reader:
         context = read_context(reader)
@@ -284,6 +286,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
         if out is not None:
             files["trackers.mcap"] = str(out / "trackers.mcap")
             try:
+                _prepare_out_dir(out)   # after every check of the session and options: a refused run creates nothing
                 writer = SessionWriter(out / "trackers.mcap")
             except BaseException:
                 if logger is not None:

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import bisect
 import logging
-import math
 from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Iterator
@@ -150,6 +149,20 @@ _POSE_TOPICS = frozenset((Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Top
                           Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR))
 
 
+def _check_task_overlap(context: SessionContext, start_ns: int, first: int, last: int, start_s: float | None,
+                        end_s: float | None) -> None:
+    """--start/--end that miss the task window score nothing and write empty trajectories: one line
+    naming both ranges (seconds after the session start), before any work."""
+    t0, t1 = context.task_start_ns, context.task_end_ns
+    if t0 is None or t1 is None or (last >= t0 and first <= t1):
+        return
+    from phonepose.errors import ConfigError
+    given = " ".join(f"{name} {v:g}" for name, v in (("--start", start_s), ("--end", end_s)) if v is not None)
+    raise ConfigError(f"{given} selects {(first - start_ns) / 1e9:.2f}-{(last - start_ns) / 1e9:.2f} s, which misses "
+                      f"the task window {(t0 - start_ns) / 1e9:.2f}-{(t1 - start_ns) / 1e9:.2f} s (where trajectories "
+                      "and metrics are computed): choose a range that overlaps it")
+
+
 class TickScheduler:
     """Iterate ``Tick`` objects over one pass of ``reader`` (see the module docstring)."""
 
@@ -208,6 +221,8 @@ class TickScheduler:
             from phonepose.errors import ConfigError
             raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
                               f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
+        if start_s is not None or end_s is not None:
+            _check_task_overlap(context, start_ns, first, last, start_s, end_s)
         self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
                                  session_start_ns=start_ns)
         self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
@@ -385,8 +400,9 @@ class TickScheduler:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it
                 row = codec.imu_row(msg, now)
-                if not all(math.isfinite(v) for v in row):
-                    self.skipped[(topic, "NaN/inf value")] += 1
+                problem = codec.imu_problem(row)
+                if problem is not None:
+                    self.skipped[(topic, problem)] += 1
                     continue
                 imu.append((now, row))
             elif topic == Topic.CALIBRATION_EVENTS:
