@@ -143,6 +143,10 @@ def evaluate(
     rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
                                     "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
+    gt_calibration: Optional[Path] = typer.Option(None, "--gt-calibration", "--hand-eye",
+                                                  help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
+                                                  "move --gt onto the recorder's clock, the phone's frame and display_vio "
+                                                  "first, as playback does (docs/calibration.md)."),
 ) -> None:
     """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
     from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
@@ -157,6 +161,11 @@ def evaluate(
     for path in (gt, est) + ((in_view,) if in_view is not None else ()):
         check_input(path, "trajectory file")    # a FIFO or device: refused, never opened
     gt_traj = load_trajectory(gt, fmt)
+    if gt_calibration is not None:
+        from phonepose.calibration.gt_calibration import load_gt_calibration
+        from phonepose.evaluation.trajectory import Trajectory
+
+        gt_traj = Trajectory(*load_gt_calibration(gt_calibration).apply(gt_traj.stamps, gt_traj.poses), gt_traj.source)
     est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
     est_traj = load_trajectory(est, est_fmt)
     _warn_on_small_overlap(gt, est, gt_traj, est_traj, 0.02 if max_diff is None else max_diff)

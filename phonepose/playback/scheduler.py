@@ -168,9 +168,13 @@ class TickScheduler:
 
     def __init__(self, reader: SessionReader, context: SessionContext, *, rate_hz: float = DEFAULT_RATE_HZ,
                  start_s: float | None = None, end_s: float | None = None,
-                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, hand_eye=None):
-        """``hand_eye`` (a calibration.hand_eye.HandEye) re-expresses the ground truth in the phone's
-        frame and on its clock: T_world_mocap · X⁻¹, read ``time_offset_s`` later."""
+                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, gt_calibration=None,
+                 gt_series=None):
+        """``gt_calibration`` (a calibration.gt_calibration.GtCalibration) re-expresses the ground truth in
+        the phone's frame and on its clock: T_world_grip · X⁻¹, read ``time_offset_s`` later, and in
+        display_vio by its T_world_display_vio when it has one (else the session's /gt/calibration).
+        ``gt_series`` (a calibration.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
+        /gt/controller/pose."""
         if not rate_hz > 0:
             from phonepose.errors import ConfigError
             raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
@@ -182,10 +186,15 @@ class TickScheduler:
         self.max_gap_ns = int(round(max_gap_s * 1e9))
         summary = reader.summary()
         self.has_camera = summary.has(Topic.CAMERA_IMAGE)
-        self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
-        self._T_dvio_world = context.T_world_display_vio.inv().as_raw() if context.T_world_display_vio is not None else None
-        self._T_mocap_controller = hand_eye.T_controller_mocap.inv().as_raw() if hand_eye is not None else None
-        self._gt_shift_ns = int(round(hand_eye.time_offset_s * 1e9)) if hand_eye is not None else 0
+        cal = gt_calibration
+        T_world_dvio = context.T_world_display_vio
+        if cal is not None and cal.T_world_display_vio is not None:
+            T_world_dvio = cal.T_world_display_vio
+        self._gt_series = gt_series
+        self.has_gt = (gt_series is not None or summary.has(Topic.GT_CONTROLLER_POSE)) and T_world_dvio is not None
+        self._T_dvio_world = T_world_dvio.inv().as_raw() if T_world_dvio is not None else None
+        self._T_mocap_controller = cal.T_controller_gt.inv().as_raw() if cal is not None else None
+        self._gt_shift_ns = int(round(cal.time_offset_s * 1e9)) if cal is not None else 0
         self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
         # (topic, reason) -> samples skipped in the pass; reported as one warning line each
@@ -242,6 +251,9 @@ class TickScheduler:
         display = PoseStream()
         controller = PoseStream()
         gt = PoseStream()
+        if self.has_gt and self._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
+            for t_ns, raw in zip(*self._gt_series.raw_samples()):
+                gt.add(int(t_ns) - self._gt_shift_ns, raw)
         images: deque = deque()            # (log_time, CompressedImage), newest at or before next tick kept
         d_anchor: deque = deque()           # (log_time, Pose)
         c_anchor: deque = deque()
@@ -378,7 +390,7 @@ class TickScheduler:
                 if now > info.first_tick_ns - self.period_ns:   # else before the first tick's interval
                     cvio_samples.append((now, codec.stamp_ns(msg, now), raw))
             elif topic == Topic.GT_CONTROLLER_POSE:
-                if self.has_gt:
+                if self.has_gt and self._gt_series is None:
                     gt.add(now - self._gt_shift_ns, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
                 d_anchor.append((now, Pose.from_raw(raw)))
