@@ -19,6 +19,7 @@ import io
 import mmap
 import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,6 +73,8 @@ class RecoveryReport:
     start_ns: int | None = None   # of what was recovered
     end_ns: int | None = None
     had_summary: bool = False     # the input was a finished file (only damage inside, if any)
+    summary_damaged: bool = False  # its summary fails its CRC
+    channels_from_damaged_summary: list[str] = field(default_factory=list)   # topics only that summary named
     metadata_records: int = 0
 
     @property
@@ -85,7 +88,8 @@ class RecoveryReport:
 
     @property
     def damaged(self) -> bool:
-        return bool(self.chunks_skipped or self.bytes_unreadable or self.orphan_messages or not self.had_summary)
+        return bool(self.chunks_skipped or self.bytes_unreadable or self.orphan_messages or not self.had_summary
+                    or self.summary_damaged)
 
 
 # ---------------------------------------------------------------------------- parsing
@@ -156,6 +160,11 @@ class _Salvager:
         self.chunks: list[tuple[int, int, dict, int | None, int | None]] = []
         self.loose: list = []   # messages outside chunks (unchunked writers)
         self.metadata: list[tuple[str, dict]] = []
+        # schemas and channels read after the Data End record: the summary's, used only if its CRC holds
+        self.in_summary = False
+        self.summary_schemas: dict[int, tuple[str, str, bytes]] = {}
+        self.summary_channels: dict[int, tuple[int, str, str, dict]] = {}
+        self.from_summary: set[int] = set()     # channels only the summary defines
         self.bad_regions: list[tuple[int, int, int | None, int | None]] = []  # (from, to, t0, t1)
 
     # one record at ``pos``: returns the next position, or raises _Bad
@@ -174,10 +183,12 @@ class _Salvager:
             self.chunk(start, end)
         elif op == OP_SCHEMA:
             sid, name, enc, data = _schema(b, start, end)
-            self.schemas.setdefault(sid, (name, enc, data))
+            (self.summary_schemas if self.in_summary else self.schemas).setdefault(sid, (name, enc, data))
         elif op == OP_CHANNEL:
             cid, sid, topic, enc, meta = _channel(b, start, end)
-            self.channels.setdefault(cid, (sid, topic, enc, meta))
+            (self.summary_channels if self.in_summary else self.channels).setdefault(cid, (sid, topic, enc, meta))
+        elif op == OP_DATA_END:
+            self.in_summary = True
         elif op == OP_MESSAGE:
             self.loose.append(_message(b, start, end))
         elif op == OP_METADATA:
@@ -185,7 +196,24 @@ class _Salvager:
             self.metadata.append((r.name, r.metadata))
         elif op == OP_FOOTER:
             self.report.had_summary = True
+            self._take_summary(start, end)
         return end
+
+    def _take_summary(self, start: int, end: int) -> None:
+        """The summary's schemas and channels, for the channels of a lost first chunk. When the footer's
+        CRC over the summary fails they may be wrong: chunks' own definitions always win, and the ones
+        taken from a damaged summary are counted for the report."""
+        if end - start < 20:
+            return
+        summary_start, _, crc = struct.unpack_from("<QQI", self.b, start)
+        if crc and (summary_start >= start or zlib.crc32(self.b[summary_start:start + 16]) != crc):
+            self.report.summary_damaged = True
+        for k, v in self.summary_schemas.items():
+            self.schemas.setdefault(k, v)
+        for k, v in self.summary_channels.items():
+            if k not in self.channels:
+                self.channels[k] = v
+                self.from_summary.add(k)
 
     def chunk(self, start: int, end: int) -> None:
         msgs, schemas, channels = self.parse_chunk(start, end)
@@ -345,6 +373,8 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             counts[topic] = counts.get(topic, 0) + n
             t_min = lo if t_min is None else min(t_min, lo)
             t_max = hi if t_max is None else max(t_max, hi)
+    if report.summary_damaged:
+        report.channels_from_damaged_summary = sorted(sal.channels[c][1] for c in sal.from_summary)
     report.chunks_recovered = len(sal.chunks)
     report.metadata_records = len(sal.metadata)
     report.start_ns, report.end_ns = t_min, t_max
