@@ -10,7 +10,7 @@ import time
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from phonepose.batch.executor import open_executor
 from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinations, params_label, parse_param_options
@@ -162,7 +162,7 @@ def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, tra
                          progress, on_start)
 
 
-def _spread(values: list[float]) -> tuple[float | None, float | None]:
+def _spread(values: list[float | None]) -> tuple[float | None, float | None]:
     vals = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
     if not vals:
         return None, None
@@ -181,7 +181,8 @@ def summarize(rows: list[dict]) -> list[dict]:
     out = []
     for (params, tracker), rs in sorted(groups.items(), key=lambda kv: sort_key(kv[1][0])[1:]):
         ok = [r for r in rs if r.get("status") == "ok"]
-        entry = {"tracker": tracker, "params": params_label(json.loads(params), varying) if several else None, "ok": len(ok), "errors": len(rs) - len(ok)}
+        entry: dict[str, Any] = {"tracker": tracker, "params": params_label(json.loads(params), varying) if several else None,
+                                 "ok": len(ok), "errors": len(rs) - len(ok)}
         for col, _, _ in SUMMARY_METRICS:
             entry[col] = _spread([r.get(col) for r in ok])
         out.append(entry)

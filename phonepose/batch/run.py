@@ -98,12 +98,13 @@ def time_budget(budget_s: float | None) -> Iterator[Callable[[int, int], None]]:
     deadline = None if budget_s is None else time.monotonic() + budget_s
 
     def check(done: int, total: int) -> None:
-        if deadline is not None and time.monotonic() > deadline:
+        if deadline is not None and budget_s is not None and time.monotonic() > deadline:   # (both or neither)
             raise UnitTimeout(budget_s)
 
     alarm = budget_s is not None and threading.current_thread() is threading.main_thread() \
         and hasattr(signal, "setitimer")
     if alarm:
+        assert budget_s is not None   # alarm implies it
         def on_alarm(signum, frame):
             raise UnitTimeout(budget_s)
         old = signal.signal(signal.SIGALRM, on_alarm)

@@ -26,6 +26,7 @@ import pyarrow.parquet as pq
 
 from phonepose.batch.plan import PARAMS, params_sort_key, row_key, tracker_sort_key
 from phonepose.errors import OutputError
+from phonepose.evaluation.metrics import flat_columns
 from phonepose.files import OutputFile
 
 # column → arrow type, in table order; metric columns go between "error" and "n_ticks"
@@ -58,6 +59,14 @@ def _infer(values: list) -> pa.DataType:
     return pa.string()
 
 
+def _metric_type(name: str, rows: list[dict]) -> pa.DataType:
+    """A metric's declared type (phonepose.evaluation.metrics); other columns' from their values."""
+    kind = flat_columns().get(name)
+    if kind is not None:
+        return pa.int64() if kind is int else pa.float64()
+    return _infer([r.get(name) for r in rows])
+
+
 def schema_for(rows: list[dict]) -> pa.Schema:
     names: set[str] = set()
     for r in rows:
@@ -66,13 +75,13 @@ def schema_for(rows: list[dict]) -> pa.Schema:
                                                       and n[6:] not in PARAMS)
     fixed = set(HEAD) | set(STATUS) | set(TAIL) | set(params)
     metrics = sorted(n for n in names if n not in fixed)
-    fields = [pa.field(n, t) for n, t in HEAD.items()]
+    fields: list[pa.Field] = [pa.field(n, t) for n, t in HEAD.items()]
     for n in params:
         spec = PARAMS.get(n[6:])
         fields.append(pa.field(n, pa.float64() if spec is not None and spec.arrow_type == "float64" else
                                pa.string() if spec is not None else _infer([r.get(n) for r in rows])))
     fields += [pa.field(n, t) for n, t in STATUS.items()]
-    fields += [pa.field(n, _infer([r.get(n) for r in rows])) for n in metrics]
+    fields += [pa.field(n, _metric_type(n, rows)) for n in metrics]
     fields += [pa.field(n, t) for n, t in TAIL.items()]
     return pa.schema(fields)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 from rich.console import Console
@@ -23,7 +23,7 @@ MAX_CAMERA_INDEX = 1023      # cv2.VideoCapture's index (V4L2 /dev/videoN); -1 (
 DEFAULT_SPEC = "charuco squares=7x5 square_mm=30 marker_mm=22 dictionary=DICT_5X5_100"
 
 
-PNG = dict(suffixes=(".png",), what="a PNG image")
+PNG: dict[str, Any] = dict(suffixes=(".png",), what="a PNG image")
 
 
 @app.command("board")
@@ -149,7 +149,7 @@ def calibrate_camera(
                   f"of {b.n_corners}")
     for name, value, sd in (("fx", K[0, 0], s[0]), ("fy", K[1, 1], s[1]), ("cx", K[0, 2], s[2]), ("cy", K[1, 2], s[3])):
         table.add_row(f"{name} (px)", f"{value:.2f}", f"{sd:.2f}")
-    for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8])):
+    for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8]), strict=True):
         table.add_row(name, f"{value:+.5f}", f"{sd:.5f}")
     table.caption = board_spec(b)
     stdout_console().print(table)
@@ -177,7 +177,7 @@ def calibrate_hand_eye(
 
     Uses the controller's own VIO and the motion-capture ground truth (docs/evaluation.md).
 
-    Example: [bold]phonepose calibrate-hand-eye s.mcap --out hand_eye.yaml && phonepose playback s.mcap --hand-eye hand_eye.yaml[/bold]
+    Example: [bold]phonepose calibrate-hand-eye s.mcap --out he.yaml && phonepose playback s.mcap --hand-eye he.yaml[/bold]
     """
     from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
 
@@ -188,7 +188,8 @@ def calibrate_hand_eye(
         if len(lever) != 3 or not np.isfinite(lever).all() or max(abs(v) for v in lever) > 1:
             raise ValueError
     except ValueError:
-        raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), e.g. 0.01,0,-0.005") from None
+        raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), "
+                          "e.g. 0.01,0,-0.005") from None
     from phonepose.calibration.gt_calibration import SUFFIXES, WHAT
 
     check_input(session, "session")

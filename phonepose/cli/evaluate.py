@@ -72,6 +72,7 @@ def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
     """The paper's metrics as playback computes them, from files: GT, estimate and in-view flags
     associated by timestamp (rpg's greedy association, ``max_diff`` s)."""
     from phonepose.evaluation import associate_rpg, paper_metrics
+    from phonepose.evaluation.controller import controller_metrics
     from phonepose.evaluation.trajectory import load_in_view
     from phonepose.playback.outputs import normalise_metrics
 
@@ -87,8 +88,11 @@ def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
     i_est, i_gt, i_flag = i_est[order], i_gt[order], i_flag[order]
     if i_est.size == 0:
         raise SessionContentError("no estimate, ground-truth and in-view stamps within --max-diff of each other")
-    return normalise_metrics(paper_metrics(est_traj.stamps[i_est], gt_traj.poses[i_gt], est_traj.poses[i_est],
-                                           flags[i_flag]))
+    result = paper_metrics(est_traj.stamps[i_est], gt_traj.poses[i_gt], est_traj.poses[i_est], flags[i_flag])
+    # lag, jitter, availability: the GT file's stamps are the task's ticks (playback writes one per tick)
+    result["total"].update(controller_metrics(gt_traj.stamps, gt_traj.poses, est_traj.stamps, est_traj.poses,
+                                              est_traj.stamps[i_est], i_gt, i_est))
+    return normalise_metrics(result)
 
 
 # Below this, the matched poses are not the two trajectories of one run (a playback's estimate and

@@ -30,7 +30,7 @@ def exp2_summary_tables(result) -> list[Table]:
     t5.add_column("tracker", style="bold")
     for label in ("p_ATE cm", "r_ATE deg", "p_RE cm"):
         t5.add_column(label, justify="right")
-    by = {}
+    by: dict[str, dict] = {}
     for r in result.table5:
         by.setdefault(r["tracker"], {})[r["key"]] = r
     for tracker, d in by.items():
@@ -42,7 +42,7 @@ def exp2_summary_tables(result) -> list[Table]:
     for label in ("p_ATE cm", "r_ATE deg", "p_RE cm"):
         t6.add_column(label, justify="right")
     t6.add_column("jump max / RMS cm", justify="right")
-    rows6 = {}
+    rows6: dict[str, dict] = {}
     for r in result.table6:
         rows6.setdefault(r["tracker"], {})[(r["scope"], r["key"])] = r
     for tracker, d in rows6.items():

@@ -28,7 +28,8 @@ def metrics_table(metrics: dict) -> Table:
     table = Table(title=f"{metrics['session']}" + (f" @ {rate} Hz" if rate is not None else ""))
     table.add_column("tracker", style="bold")
     table.add_column("scope")
-    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm"):
+    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm", "lag ms",
+                  "jitter mm / deg", "avail. %"):
         table.add_column(label, justify="right")
     for name, m in metrics["trackers"].items():
         for i, scope in enumerate(("inside", "outside", "total")):
@@ -37,9 +38,17 @@ def metrics_table(metrics: dict) -> Table:
             if scope == "total" and d.get("boundary_jumps"):
                 jump = f"{_fmt(d['boundary_jump_max_m'], 100.0)} / {_fmt(d['boundary_jump_rms_m'], 100.0)}"
             table.add_row(name if i == 0 else "", scope, str(d["frames"]), _fmt(d["p_ate_m"], 100.0),
-                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump,
+                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump, *_controller_cells(d, scope),
                           end_section=(scope == "total"))
     return table
+
+
+def _controller_cells(d: dict, scope: str) -> list[str]:
+    """Lag, jitter and availability (phonepose.evaluation.controller): the total row only."""
+    if scope != "total" or "lag_s" not in d:
+        return ["", "", ""]
+    jitter = "" if d["jitter_m"] is None else f"{_fmt(d['jitter_m'], 1000.0)} / {_fmt(d['jitter_deg'])}"
+    return [_fmt(d["lag_s"], 1000.0, 0), jitter, _fmt(d["availability"], 100.0, 1)]
 
 
 @app.command()

@@ -102,7 +102,7 @@ def run_jobs(jobs: list[SequenceJob], jobs_in_parallel: int = 1,
     with worker_pool(jobs_in_parallel) as pool:    # workers die with the experiment (phonepose.workers)
         futures = [pool.submit(run_sequence, job) for job in jobs]
         out = []
-        for job, fut in zip(jobs, futures):
+        for job, fut in zip(jobs, futures, strict=True):
             out.append(fut.result())
             if progress:
                 progress(job.name)

@@ -32,8 +32,12 @@ def _max_or_none(values) -> float | None:
     return max(values) if values else None
 
 
-JUMP_METRICS = (("boundary_jump_max_m", "boundary jump max (cm)", _max_or_none),
-                ("boundary_jump_rms_m", "boundary jump RMS (cm)", mean_or_none))
+JUMP_METRICS = (("boundary_jump_max_m", "boundary jump max (cm)", _max_or_none, 100.0),
+                ("boundary_jump_rms_m", "boundary jump RMS (cm)", mean_or_none, 100.0))
+# the AR-controller metrics (phonepose.evaluation.controller): mean over the sequences
+CONTROLLER_METRICS = (("lag_s", "lag (ms)", mean_or_none, 1000.0),
+                      ("jitter_m", "jitter while still (mm)", mean_or_none, 1000.0),
+                      ("availability", "availability (%)", mean_or_none, 100.0))
 
 
 @dataclass
@@ -89,12 +93,13 @@ def table6_rows(sequences: list[dict]) -> list[dict]:
                 avg = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
                 rows.append({"tracker": tracker, "scope": scope, "metric": label, "scale": scale, "per_path": per_path,
                              "average": avg, "paper": paper.TABLE6_AVERAGE[tracker][scope][PAPER_KEY[key]], "key": key})
-        # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS
-        for key, label, aggregate in JUMP_METRICS:
+        # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS;
+        # then lag, jitter and availability
+        for key, label, aggregate, scale in JUMP_METRICS + CONTROLLER_METRICS:
             per_path = {path: aggregate(_value(s, tracker, "total", key) for s in sequences if s["path"] == path)
                         for path in PATHS_PARTLY_OUTSIDE}
             avg = aggregate(_value(s, tracker, "total", key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
-            rows.append({"tracker": tracker, "scope": "total", "metric": label, "scale": 100.0, "per_path": per_path,
+            rows.append({"tracker": tracker, "scope": "total", "metric": label, "scale": scale, "per_path": per_path,
                          "average": avg, "paper": paper.NO_VALUE, "key": key})
     return rows
 
@@ -182,7 +187,7 @@ def plot_sequence(seq: dict, out_png: Path) -> Path | None:
     inside = None
     t7 = seq["trajectories"].get("T7")
     if t7 is not None and t7["translation"] is not None:
-        flags = dict(zip(t7["stamps_ns"].tolist(), t7["inside"].tolist()))
+        flags = dict(zip(t7["stamps_ns"].tolist(), t7["inside"].tolist(), strict=True))
         inside = np.array([flags.get(int(t), True) for t in seq["gt"]["stamps_ns"]])
     return plot_fig11(out_png, f"{seq['name']}: ground truth, T1-T7 and ours (display camera axes)",
                       display_camera_pose(seq["session"]), gt, estimates, inside)
@@ -205,6 +210,7 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
     folder = plan.dir(out_dir, "--out", command="experiment exp2")
     with plan:
         out = folder.tmp
+        assert out is not None   # the plan's block made it
         job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path,
                              exact_gt=exact_gt, calibrate_gt=calibrate_gt)
         sequences = run_jobs(job_list, jobs or default_jobs(), progress)

@@ -32,6 +32,7 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
 from phonepose.playback.context import has_camera, read_context
+from phonepose.evaluation.controller import controller_metrics
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
 from phonepose.evaluation.trajectory import write_in_view, write_tum
@@ -225,6 +226,8 @@ class PlaybackEngine:
                 continue
             stamps_s = common / 1e9
             out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+            out[name]["total"].update(controller_metrics(gt_t / 1e9, gt_poses, traj.stamps_ns / 1e9, traj.poses,
+                                                         stamps_s, i_gt, i_est))
         return out
 
 
