@@ -73,7 +73,7 @@ def read_sightings(path: "str | os.PathLike") -> Sightings:
     """Every marker sighting of the session; SessionContentError when it has no camera or no display VIO."""
     from phonepose.pipeline.markers import MarkerRecognizer
     from phonepose.pipeline.shared import decode_gray
-    from phonepose.playback.context import has_camera, read_context
+    from phonepose.pipeline.context import has_camera, read_context
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader
 

@@ -31,7 +31,7 @@ import numpy as np
 from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
-from phonepose.playback.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
