@@ -632,12 +632,12 @@ def markdown_table(tmp: Path) -> str:
             except SystemExit as exc:
                 code = exc.code or 0
         line = err.getvalue().strip().replace(str(d) + "/", "").replace(str(tmp) + "/", "").replace(str(d), "DIR")
-        if len(line) > 160:
-            line = line[:157] + "..."
+        if len(line) > 240:
+            line = line[:237] + "..."
         command = " ".join(argv[:2]) if argv[0] in ("record", "experiment") else argv[0]
         rows.append(f"| {_cell(case.what)} | `{command}` | {code} | {_code(line)} |")
     for cid, what, fn, message in WARNING_CASES:
-        msg = message.replace("\\(", "(").replace("\\)", ")")
+        msg = re.sub(r"\\(.)", r"\1", message)     # the regex's escapes undone
         rows.append(f"| {_cell(what)} | `playback` | 0 | {_code('phonepose: warning: ' + msg)} (samples skipped) |")
     return "\n".join(rows)
 
