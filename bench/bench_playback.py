@@ -63,7 +63,7 @@ def _make_session(tmp: Path) -> tuple[Path, str]:
 
 def _new_frames(session: Path) -> list:
     """The camera frames the ticks carry as new (what the shared stages decode), with their tick."""
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 
@@ -123,7 +123,7 @@ def long_session(tmp: Path, session: Path | None = None) -> dict:
     (``session``: an exp1 session recorded before, else one is recorded into ``tmp``)."""
     import statistics
 
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.session import SessionReader
 
     if session is None:

@@ -19,6 +19,7 @@ messages to and from these types.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -68,7 +69,7 @@ class Pose:
         """The quaternion tuple of a single pose, None for a stack."""
         quat = self._quat
         if quat is None and self._rotation is not None and self._rotation.single:
-            quat = self._quat = tuple(self._rotation.as_quat().tolist())  # type: ignore[assignment]
+            quat = self._quat = tuple(self._rotation.as_quat().tolist())
         return quat
 
     def __reduce__(self):
@@ -89,7 +90,7 @@ class Pose:
         """From translation(s) and x,y,z,w quaternion(s); quaternions are normalised."""
         quat = np.asarray(quat_xyzw, dtype=float)
         if quat.shape == (4,):
-            return cls._of(_normalized(*quat.tolist()), np.asarray(translation, dtype=float))
+            return cls._of(quat_normalised(quat.tolist()), np.asarray(translation, dtype=float))
         return cls(Rotation.from_quat(quat), np.asarray(translation, dtype=float))
 
     @classmethod
@@ -101,7 +102,7 @@ class Pose:
     def from_rotvec(cls, translation, rotvec) -> "Pose":
         rv = np.asarray(rotvec, dtype=float)
         if rv.shape == (3,):
-            return cls._of(_from_rotvec(*rv.tolist()), np.asarray(translation, dtype=float))
+            return cls._of(quat_from_rotvec(rv.tolist()), np.asarray(translation, dtype=float))
         return cls(Rotation.from_rotvec(rv), np.asarray(translation, dtype=float))
 
     @classmethod
@@ -112,7 +113,7 @@ class Pose:
     @classmethod
     def from_raw(cls, raw: RawPose) -> "Pose":
         """From a raw ``(qx, qy, qz, qw, x, y, z)`` tuple (normalised once more, as scipy's from_quat would)."""
-        return cls._of(_normalized(float(raw[0]), float(raw[1]), float(raw[2]), float(raw[3])),
+        return cls._of(quat_normalised(raw),
                        np.array(raw[4:], dtype=float))
 
     @classmethod
@@ -139,7 +140,7 @@ class Pose:
     def as_cv(self) -> tuple[np.ndarray, np.ndarray]:
         """(rvec, tvec) as float64 column vectors for OpenCV."""
         q = self._q()
-        rvec = np.array(_as_rotvec(q)) if q is not None else self.rotation.as_rotvec()
+        rvec = np.array(quat_as_rotvec(q)) if q is not None else self.rotation.as_rotvec()
         return rvec.reshape(3, 1), self.translation.reshape(3, 1).astype(float)
 
     def as_raw(self) -> RawPose:
@@ -206,8 +207,8 @@ class Pose:
     def single(self) -> bool:
         return self._q() is not None
 
-    def angle_to(self, other: "Pose") -> np.ndarray:
-        """Rotation angle (rad) between the two orientations."""
+    def angle_to(self, other: "Pose") -> np.ndarray | np.float64:
+        """Rotation angle (rad) between the two orientations (a scalar for single poses)."""
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None:
             return np.float64(quat_magnitude(quat_compose(quat_inv(qa), qb)))
@@ -254,7 +255,7 @@ def compose_rotations(a: Pose, b: Pose, translation, invert_second: bool = False
     return Pose(a.rotation * (b.rotation.inv() if invert_second else b.rotation), translation)
 
 
-def is_finite(pose: Pose | None) -> bool:
+def is_finite(pose: Pose | None) -> TypeGuard[Pose]:
     """A pose with no NaN/inf anywhere (None is not finite): broken inputs are skipped, never used."""
     if pose is None:
         return False
@@ -273,9 +274,9 @@ def interpolate(t0: float, pose0: Pose, t1: float, pose1: Pose, t: float) -> Pos
     q0, q1 = pose0._q(), pose1._q()
     if q0 is not None and q1 is not None:
         # the same steps as the scipy expression below, in the scalar code
-        rx, ry, rz = _as_rotvec(quat_compose(quat_inv(q0), q1))
+        rx, ry, rz = quat_as_rotvec(quat_compose(quat_inv(q0), q1))
         step = (a * rx, a * ry, a * rz) if isinstance(a, float) else tuple((a * np.array([rx, ry, rz])).tolist())
-        return Pose._of(quat_compose(q0, _from_rotvec(*step)), translation)
+        return Pose._of(quat_compose(q0, quat_from_rotvec(step)), translation)
     # slerp of two rotations as scipy composes it, without building a Slerp object (a third of the cost)
     rot = pose0.rotation * Rotation.from_rotvec(a * (pose0.rotation.inv() * pose1.rotation).as_rotvec())
     return Pose(rot, translation)
@@ -356,8 +357,9 @@ def raw_compose(a: RawPose, b: RawPose) -> RawPose:
 # vector goes through np.matmul on the 3x3 matrix, as scipy's does: the BLAS kernel behind it
 # rounds differently from a Python sum of products.
 
-def _normalized(x: float, y: float, z: float, w: float) -> Quat:
+def quat_normalised(q) -> Quat:
     """``Rotation.from_quat``'s normalisation (ValueError for a zero or NaN norm, as scipy)."""
+    x, y, z, w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     n = math.sqrt(x * x + y * y + z * z + w * w)
     if n == 0.0 or n != n:
         raise ValueError("Found zero norm quaternions in `quat`.")
@@ -368,10 +370,10 @@ def quat_compose(p: Quat, q: Quat) -> Quat:
     """``p * q`` of scipy Rotations (q first, then p), normalised as scipy does."""
     p0, p1, p2, p3 = p
     q0, q1, q2, q3 = q
-    return _normalized(p3 * q0 + q3 * p0 + (p1 * q2 - p2 * q1),
-                       p3 * q1 + q3 * p1 + (p2 * q0 - p0 * q2),
-                       p3 * q2 + q3 * p2 + (p0 * q1 - p1 * q0),
-                       p3 * q3 - p0 * q0 - p1 * q1 - p2 * q2)
+    return quat_normalised((p3 * q0 + q3 * p0 + (p1 * q2 - p2 * q1),
+                            p3 * q1 + q3 * p1 + (p2 * q0 - p0 * q2),
+                            p3 * q2 + q3 * p2 + (p0 * q1 - p1 * q0),
+                            p3 * q3 - p0 * q0 - p1 * q1 - p2 * q2))
 
 
 def quat_inv(q: Quat) -> Quat:
@@ -402,8 +404,9 @@ def quat_magnitude(q: Quat) -> float:
     return 2 * math.atan2(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]), abs(q[3]))
 
 
-def _from_rotvec(x: float, y: float, z: float) -> Quat:
+def quat_from_rotvec(v) -> Quat:
     """``Rotation.from_rotvec`` of one rotation vector (not normalised afterwards, as in scipy)."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
     angle = math.sqrt(x * x + y * y + z * z)
     if angle <= 1e-3:   # scipy's small-angle series
         angle2 = angle * angle
@@ -413,7 +416,7 @@ def _from_rotvec(x: float, y: float, z: float) -> Quat:
     return (scale * x, scale * y, scale * z, math.cos(angle / 2))
 
 
-def _as_rotvec(q: Quat) -> tuple[float, float, float]:
+def quat_as_rotvec(q: Quat) -> tuple[float, float, float]:
     """``Rotation.as_rotvec()`` of one quaternion (made canonical first, as scipy does)."""
     x, y, z, w = q
     if w < 0 or (w == 0 and (x < 0 or (x == 0 and (y < 0 or (y == 0 and z < 0))))):

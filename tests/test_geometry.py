@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation, Slerp
 
-from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_mul, quat_rotate, quat_slerp, raw_compose,
+from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_as_rotvec, quat_from_rotvec, quat_inv,
+                                quat_matrix, quat_mul, quat_normalised, quat_rotate, quat_slerp, raw_compose,
                                 rotation_inverse, rotation_product,
                                 raw_interpolate)
 
@@ -214,6 +216,37 @@ def test_single_pose_builds_its_scipy_rotation_on_demand():
     assert _same(p.apply(m), p.rotation.apply(m) + p.translation)
     stack = Pose(Rotation.from_quat([[0, 0, 0.6, 0.8], [0.6, 0, 0, 0.8]]), np.ones((2, 3)))
     assert not stack.single and len(stack @ p) == 2
+# ---------------------------------------------------------------- single rotations in closed form (T8's per-tick path)
+# rotation vectors up to pi, and tiny ones on both sides of scipy's 1e-3 rad Taylor switch
+rotvecs = st.one_of(
+    st.tuples(*[st.floats(-1.8, 1.8, allow_nan=False)] * 3).filter(lambda v: np.linalg.norm(v) < np.pi - 1e-6),
+    st.tuples(*[st.floats(-1e-3, 1e-3, allow_nan=False)] * 3)).map(np.array)
+
+
+@given(rotvecs)
+def test_quat_from_rotvec_is_scipys(v):
+    np.testing.assert_allclose(quat_from_rotvec(v), Rotation.from_rotvec(v).as_quat(), rtol=0, atol=1e-15)
+
+
+@given(unit_quat.filter(lambda q: abs(q[3]) > 1e-6))   # w = 0 (a half turn): +-pi are both right
+def test_quat_as_rotvec_is_scipys_both_signs(q):
+    want = Rotation.from_quat(q).as_rotvec()
+    np.testing.assert_allclose(quat_as_rotvec(tuple(q)), want, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(quat_as_rotvec(tuple(-np.asarray(q))), want, rtol=0, atol=1e-14)   # w < 0: same rotation
+
+
+@given(rotvecs)
+def test_rotvec_round_trip_and_small_angles(v):
+    np.testing.assert_allclose(quat_as_rotvec(quat_from_rotvec(v)), v, rtol=0, atol=1e-13)
+
+
+@given(unit_quat, unit_quat)
+def test_quat_matrix_and_inverse_are_scipys(a, b):
+    np.testing.assert_allclose(np.array(quat_matrix(tuple(a))), Rotation.from_quat(a).as_matrix(), rtol=0, atol=1e-15)
+    composed = quat_mul(tuple(a), quat_inv(tuple(b)))
+    assert _angle(composed, (Rotation.from_quat(a) * Rotation.from_quat(b).inv()).as_quat()) < 1e-9
+    assert quat_normalised((2 * a[0], 2 * a[1], 2 * a[2], 2 * a[3])) == pytest.approx(tuple(a), abs=1e-15)
+
 
 
 @given(st.lists(any_quat, min_size=1, max_size=20), st.lists(any_quat, min_size=1, max_size=20), st.booleans())

@@ -20,7 +20,7 @@ from enum import Enum
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, SessionContentError
 from phonepose.evaluation.alignment import Alignment, align, umeyama
 from phonepose.evaluation.association import associate_evo, associate_index
 from phonepose.evaluation.stats import statistics
@@ -272,7 +272,7 @@ def associate(gt: Trajectory, est: Trajectory, max_diff: float = 0.01):
         return associate_index(len(est), len(gt))
     i_est, i_gt = associate_evo(est.stamps, gt.stamps, max_diff)
     if i_est.size == 0:
-        raise ConfigError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
+        raise SessionContentError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
                           f"(|dt| <= {max_diff} s)")
     return i_est, i_gt
 
