@@ -350,7 +350,7 @@ class FusedTracker:
         self._last_image_ns: int | None = None
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
-        self._velocity_cache = None
+        self._velocity_cache: tuple | None = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
         self._source: str | None = None
         self._last_out: np.ndarray | None = None   # the last output's position
