@@ -18,7 +18,7 @@ import cv2
 
 def _observations(session: Path) -> tuple[list, float]:
     from phonepose.pipeline.shared import SharedStages
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +48,7 @@ def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict], gr
 
     ``ground_truth`` (only with ``playback --hand-eye``) says how the ground truth was re-expressed."""
     rate = int(rate_hz) if float(rate_hz).is_integer() else float(rate_hz)
-    doc = {"session": session, "rate_hz": rate}
+    doc: dict[str, Any] = {"session": session, "rate_hz": rate}
     if ground_truth is not None:
         doc["ground_truth"] = ground_truth
     doc["trackers"] = {name: normalise_metrics(trackers[name]) for name in trackers}

@@ -51,6 +51,7 @@ def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | No
         if rerun_path is not None else None
     session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg, motion=motion)
     with plan:
+        assert session_out.tmp is not None   # the plan's block made it
         result = Recorder(SimSource(session), session_out.tmp, progress=progress,
                           rerun_path=rrd.tmp if rrd is not None else None, spawn=spawn,
                           stop_on_signals=stop_on_signals).run()

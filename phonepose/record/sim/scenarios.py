@@ -183,6 +183,7 @@ def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, tr
     if motion is not None:
         _plan_recorded(plan, pose, t, motion)
     elif scenario == "exp2":
+        assert path is not None   # check_choice above: exp2 names a path
         _plan_exp2(plan, world, cfg, pose, rng, t, path, trial)
     else:
         _plan_exp1(plan, world, cfg, pose, rng, t)
@@ -266,7 +267,7 @@ def _plan_recorded(plan: Plan, pose: _Posing, t: float, motion) -> None:
 def _plan_exp1(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: float):
     cam_targets = np.array(_exp1_targets_cam())
     order = rng.permutation(len(cam_targets))
-    plan.task_start = None
+    task_start: float | None = None   # the first target's hold start
     prev = pose.to_world((0.02, -0.01, 0.28))
     for idx in order:
         p_world = pose.to_world(cam_targets[idx])
@@ -276,8 +277,8 @@ def _plan_exp1(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: 
         move = (0.9 + 2.5 * dist) * (1 + cfg.human.speed_variation * rng.normal() / 2)
         held = KeyPose(t + move, p_world + rng.normal(size=3) * 0.004, pose.facing(p_world))
         hold_start = held.t
-        if plan.task_start is None:
-            plan.task_start = hold_start
+        if task_start is None:
+            task_start = plan.task_start = hold_start
         plan.keys += [held, KeyPose(hold_start + EXP1_HOLD_S, held.position, held.rotation)]
         T_cam_target = world.T_world_camera.inv() @ T_target
         inside = bool(marker_in_view(world, T_cam_target, cfg.marker.size_m)[0])
