@@ -275,6 +275,7 @@ class _Stream:
 class FusedTracker:
     """T8: see the module docstring. Same interface as every tracker (reset/step)."""
 
+    needs_camera = True       # the correction comes from marker sightings
     uses_vio_samples = True   # reads obs.controller_vio_samples_dvio (stamped VIO samples)
 
     def __init__(self, name: str = "T8", config: FusionConfig | None = None):
@@ -289,7 +290,6 @@ class FusedTracker:
         self._vio = _Stream()                      # (stamp s) -> Pose in display_vio (anchor-mapped)
         self._gyro = _Stream()                     # (stamp s) -> gyro rad/s, body frame
         self._pending: deque = deque()             # (image s, marker Pose, R_meas)
-        self._last_image_ns: int | None = None
         self._last_filter_t: float | None = None
         self._last_vio_t_for_path: float | None = None
         self._path_since_predict = 0.0
@@ -402,17 +402,16 @@ class FusedTracker:
             self._vio.prune(horizon)
             self._gyro.prune(horizon)
         m = obs.marker
-        if m is not None and is_finite(m.T_dvio_controller):
-            image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
-            if image_ns != self._last_image_ns:
-                self._last_image_ns = image_ns
-                cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
-                t_img = self._s(image_ns)
-                self._pending.append((t_img, m.T_dvio_controller, self._measurement_noise(m.T_dvio_controller, cam)))
-                self._last_marker = (t_img, m.T_dvio_controller)
-                self._sightings.append((t_img, m.T_dvio_controller.translation))
-                while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
-                    self._sightings.popleft()
+        frame = tick.new_frame   # a sighting counts once, on the tick that first carries its frame
+        if m is not None and is_finite(m.T_dvio_controller) and frame is not None:
+            image_ns = frame.t_ns
+            cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
+            t_img = self._s(image_ns)
+            self._pending.append((t_img, m.T_dvio_controller, self._measurement_noise(m.T_dvio_controller, cam)))
+            self._last_marker = (t_img, m.T_dvio_controller)
+            self._sightings.append((t_img, m.T_dvio_controller.translation))
+            while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
+                self._sightings.popleft()
 
     def _update_filter(self) -> None:
         """Pair every pending sighting whose image time the VIO stamps now cover, oldest first."""

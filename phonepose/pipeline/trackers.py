@@ -163,6 +163,13 @@ class CompositeTracker:
         self.correction_math = correction_math
         self.correction = CORRECTION_SOURCES[spec.correction](correction_math, cm1_reading)
 
+    uses_vio_samples = False
+
+    @property
+    def needs_camera(self) -> bool:
+        """A row that uses the marker inside the FoV, or a correction captured from marker sightings (CM2, CM3)."""
+        return self.spec.inside is Method.MARKER or self.spec.correction in (CorrectionKind.CM2, CorrectionKind.CM3)
+
     def reset(self) -> None:
         self.correction.reset()
 
@@ -272,6 +279,7 @@ class LatencyAwareCM3Tracker:
     uncorrected VIO (as T7); without any stamped VIO sample it falls back to T7's VIO pose.
     """
 
+    needs_camera = True
     uses_vio_samples = True             # reads obs.controller_vio_samples_dvio (the shared stages map them only then)
     velocity_window_ns = 100_000_000    # velocity from the newest sample and one ~0.1 s older
     max_prediction_ns = 500_000_000     # never predict further than this (scheduler's max gap)
@@ -288,7 +296,6 @@ class LatencyAwareCM3Tracker:
         self.current: Correction | None = None
         self._pending: list[tuple[int, Pose]] = []     # (image capture ns, marker T_dvio_controller)
         self._vio: list[tuple[int, Pose]] = []         # (capture ns, anchor-mapped VIO), ascending
-        self._last_image_ns: int | None = None
 
     def _vio_at(self, t_ns: int) -> Pose | None:
         """VIO interpolated at capture time ``t`` if samples bracket it, else None."""
@@ -322,11 +329,9 @@ class LatencyAwareCM3Tracker:
             horizon = self._vio[-1][0] - self.buffer_ns
             while len(self._vio) > 2 and self._vio[1][0] < horizon:
                 self._vio.pop(0)
-        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):
-            image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
-            if image_ns != self._last_image_ns:
-                self._pending.append((image_ns, obs.marker.T_dvio_controller))
-                self._last_image_ns = image_ns
+        frame = tick.new_frame   # an observation counts once, on the tick that first carries its frame
+        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller) and frame is not None:
+            self._pending.append((frame.t_ns, obs.marker.T_dvio_controller))
         # pair every observation whose image time is now bracketed by VIO captures
         keep = []
         for image_ns, marker in self._pending:
