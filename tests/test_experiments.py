@@ -135,7 +135,7 @@ def test_exp2_hand_eye_sequence_scores_in_the_phone_frame(tmp_path):
     assert on_disk["ground_truth"] == note
     # inside the view the marker trackers' r_ATE is their own (~1-2 deg), not the 11 deg rigid-body offset
     assert on_disk["trackers"]["T4"]["inside"]["r_ate_deg"] < 4.0
-    md, _ = _write_table6(table6_rows(_sequences()), tmp_path, hand_eye=True)
+    md, _ = _write_table6(table6_rows(_sequences()), tmp_path, [HAND_EYE_NOTE])
     assert HAND_EYE_NOTE in md.read_text()
 
 

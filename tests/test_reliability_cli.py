@@ -247,19 +247,24 @@ CASES = [
          r"x\.mcap: not an MCAP file$"),
     Case("truncated-info", "truncated session (recording killed), `info`",
          lambda g, d: ["info", str(_truncate(g, d / "cut.mcap"))], 3,
-         r"cut\.mcap: damaged MCAP file \(.*\); run `phonepose recover .*cut\.mcap --out FIXED\.mcap`$"),
+         r"cut\.mcap: damaged MCAP file: it ends without its footer \(truncated: a recording killed, or a copy cut "
+         r"short\); run `phonepose recover .*cut\.mcap --out FIXED\.mcap`$"),
     Case("truncated-playback", "truncated session, `playback`",
          lambda g, d: ["playback", str(_truncate(g, d / "cut.mcap")), "-q", "--out", str(d / "o")], 3,
-         r"cut\.mcap: damaged MCAP file .*run `phonepose recover"),
+         r"cut\.mcap: damaged MCAP file: it ends without its footer \(truncated: a recording killed, or a copy cut "
+         r"short\); run `phonepose recover .*cut\.mcap --out FIXED\.mcap`$"),
     Case("corrupt-chunk", "flipped bits inside a chunk, `playback` (info still reads the summary)",
          lambda g, d: ["playback", str(_corrupt_middle(g, d / "bad.mcap")), "-q", "--out", str(d / "o")], 3,
-         r"bad\.mcap: damaged MCAP data \((CRCValidationError|ZstdError)\); run `phonepose recover"),
+         r"bad\.mcap: damaged MCAP file: the chunk at byte 40 \(log time 0\.00-1\.00 s\) does not decompress; run "
+         r"`phonepose recover .*bad\.mcap --out FIXED\.mcap`$"),
     Case("corrupt-chunk-info", "flipped bits inside a chunk, `info --verify` (plain `info` reads only the summary)",
          lambda g, d: ["info", "--verify", str(_corrupt_middle(g, d / "bad.mcap"))], 3,
-         r"bad\.mcap: damaged MCAP data \((CRCValidationError|ZstdError)\); run `phonepose recover"),
+         r"bad\.mcap: damaged MCAP file: the chunk at byte 40 \(log time 0\.00-1\.00 s\) does not decompress; run "
+         r"`phonepose recover .*bad\.mcap --out FIXED\.mcap`$"),
     Case("chunk-header-info", "a chunk's header overwritten, `info` (checks every chunk is where the index says)",
          lambda g, d: ["info", str(_zero_chunk_header(g, d / "hdr.mcap"))], 3,
-         r"hdr\.mcap: damaged MCAP file \(chunk at byte \d+ is not where the index says\); run `phonepose recover"),
+         r"hdr\.mcap: damaged MCAP file: the data at byte 42041 is not an MCAP record \(overwritten\?\); run "
+         r"`phonepose recover .*hdr\.mcap --out FIXED\.mcap`$"),
     Case("empty-session", "valid MCAP without messages",
          lambda g, d: ["playback", str(_empty(g, d)), "-q", "--out", str(d / "o")], 4,
          r"empty\.mcap: empty session \(no messages\)$"),

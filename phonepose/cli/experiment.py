@@ -78,6 +78,8 @@ def exp2(
     hand_eye: bool = typer.Option(False, "--hand-eye", help="Calibrate each session's mocap hand-eye and clock "
                                   "offset from itself and score in the phone's frame (r_ATE without the 11 deg "
                                   "offset; docs/evaluation.md)."),
+    exact_gt: bool = typer.Option(False, "--exact-gt", help="Simulate with [mocap] exact = true: the same sensor "
+                                  "data, scored against the phone's true pose (no mocap error at all)."),
 ) -> None:
     """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
 
@@ -96,7 +98,10 @@ def exp2(
 
     console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
     result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
-                      correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye)
+                      correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye,
+                      exact_gt=exact_gt)
+    if exact_gt:
+        console.print("exact ground truth: the phone's true pose ([mocap] exact = true)")
     if hand_eye:
         console.print("ground truth in the phone's frame and clock: each session's hand-eye calibrated from itself")
     for table in exp2_summary_tables(result):

@@ -25,6 +25,7 @@ class SequenceJob:
     rerun: bool = False
     hand_eye: bool = False   # calibrate the session's hand-eye from itself and score in the phone's frame
     final_dir: str | None = None   # where out_dir (a temporary) lands when the experiment is complete
+    exact_gt: bool = False   # [mocap] exact = true: ground truth = the phone's true pose (docs/simulation.md)
 
 
 def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
@@ -46,8 +47,12 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
     for sub in ("sessions", "playback") + (("rerun",) if job.rerun else ()) + (("hand_eye",) if job.hand_eye else ()):
         (out / sub).mkdir(exist_ok=True)
     session = out / "sessions" / f"{job.name}.mcap"
-    record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=job.config,
-               progress=record_progress)
+    config = job.config
+    if job.exact_gt:   # the same session (every sensor stream unchanged), scored against the true pose
+        from phonepose.record.sim import load_config
+        config = load_config(job.config, overrides={"mocap": {"exact": True}})
+    record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=config,
+               config_file=job.config, progress=record_progress)
     rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
     hand_eye = hand_eye_name = None
     if job.hand_eye:

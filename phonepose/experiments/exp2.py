@@ -51,10 +51,10 @@ def sequence_name(path: str, trial: int) -> str:
 
 def make_jobs(out_dir: Path, trials: int, seed: int, config: str | None, correction_math: str,
               paths: tuple[str, ...] = PATHS_INSIDE + PATHS_PARTLY_OUTSIDE, hand_eye: bool = False,
-              final_dir: Path | None = None) -> list[SequenceJob]:
+              final_dir: Path | None = None, exact_gt: bool = False) -> list[SequenceJob]:
     return [SequenceJob(name=sequence_name(p, t), scenario="exp2", path=p, trial=t, seed=sequence_seed(seed, p, t),
                         out_dir=str(out_dir), config=config, correction_math=correction_math, hand_eye=hand_eye,
-                        final_dir=str(final_dir) if final_dir is not None else None)
+                        final_dir=str(final_dir) if final_dir is not None else None, exact_gt=exact_gt)
             for p in paths for t in range(1, trials + 1)]
 
 
@@ -100,9 +100,15 @@ def table6_rows(sequences: list[dict]) -> list[dict]:
 
 HAND_EYE_NOTE = ("Ground truth in the phone's frame and clock: each session's hand-eye rotation and mocap clock offset "
                  "calibrated from itself (`--hand-eye`, docs/evaluation.md); the paper's r_ATE includes its offset.")
+EXACT_GT_NOTE = ("Exact ground truth (`--exact-gt`: the simulator's `[mocap] exact = true`): the phone's true pose on the "
+                 "display's clock, no hand-eye, clock or calibration error; the sensor data are the same.")
 
 
-def _write_table5(rows: list[dict], out: Path, names: list[str], hand_eye: bool = False) -> tuple[Path, Path]:
+def _notes(notes: list[str]) -> list[str]:
+    return [line for note in notes for line in (note, "")]
+
+
+def _write_table5(rows: list[dict], out: Path, names: list[str], notes: list[str]) -> tuple[Path, Path]:
     md, csv_path = out / "table5.md", out / "table5.csv"
     with open(csv_path, "w", newline="") as f:
         w = csv.writer(f)
@@ -112,7 +118,7 @@ def _write_table5(rows: list[dict], out: Path, names: list[str], hand_eye: bool 
                         fmt(r["average"], r["scale"], 2), r["paper"]])
     lines = ["# Table 5 equivalent: TRI1 and REC1 (entirely inside the view)", "",
              "Ours: RMSE per simulated sequence (total); `paper` = Park & Ogawa 2024 Table 5 average.", "",
-             *([HAND_EYE_NOTE, ""] if hand_eye else []),
+             *_notes(notes),
              "| tracker | metric | " + " | ".join(names) + " | average | paper |",
              "|---|---|" + "---:|" * (len(names) + 2)]
     for r in rows:
@@ -122,7 +128,7 @@ def _write_table5(rows: list[dict], out: Path, names: list[str], hand_eye: bool 
     return md, csv_path
 
 
-def _write_table6(rows: list[dict], out: Path, hand_eye: bool = False) -> tuple[Path, Path]:
+def _write_table6(rows: list[dict], out: Path, notes: list[str]) -> tuple[Path, Path]:
     md, csv_path = out / "table6.md", out / "table6.csv"
     with open(csv_path, "w", newline="") as f:
         w = csv.writer(f)
@@ -133,7 +139,7 @@ def _write_table6(rows: list[dict], out: Path, hand_eye: bool = False) -> tuple[
                         fmt(r["average"], r["scale"], 2), r["paper"]])
     lines = ["# Table 6 equivalent: TRI2 and REC2 (partly outside the view)", "",
              "Ours: mean over trials of the per-sequence RMSE; `paper` = Park & Ogawa 2024 Table 6 average.", "",
-             *([HAND_EYE_NOTE, ""] if hand_eye else []),
+             *_notes(notes),
              "| tracker | scope | metric | TRI2 | REC2 | average | paper |", "|---|---|---|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['tracker']} | {r['scope']} | {r['metric']} | "
@@ -180,9 +186,11 @@ def plot_sequence(seq: dict, out_png: Path) -> Path | None:
 
 def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | None = None,
              correction_math: str = "paper", jobs: int | None = None,
-             progress: Callable[[str], None] | None = None, hand_eye: bool = False) -> Exp2Result:
+             progress: Callable[[str], None] | None = None, hand_eye: bool = False,
+             exact_gt: bool = False) -> Exp2Result:
     """``hand_eye``: calibrate each session's hand-eye from itself (phonepose calibrate-hand-eye) and
-    score against the ground truth in the phone's frame and clock.
+    score against the ground truth in the phone's frame and clock. ``exact_gt``: simulate with
+    ``[mocap] exact = true`` (same sensor data; ground truth = the phone's true pose).
 
     ``out_dir`` follows phonepose.files: checked before the first sequence, written as a temporary
     folder beside it and put in place whole when every table is written."""
@@ -192,21 +200,23 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
     folder = plan.dir(out_dir, "--out", command="experiment exp2")
     with plan:
         out = folder.tmp
-        job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path)
+        job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path,
+                             exact_gt=exact_gt)
         sequences = run_jobs(job_list, jobs or default_jobs(), progress)
         t5 = table5_rows(sequences)
         t6 = table6_rows(sequences)
         files = {}
         names5 = [s["name"] for s in sequences if s["path"] in PATHS_INSIDE]
-        files["table5.md"], files["table5.csv"] = _write_table5(t5, out, names5, hand_eye)
-        files["table6.md"], files["table6.csv"] = _write_table6(t6, out, hand_eye)
+        notes = ([HAND_EYE_NOTE] if hand_eye else []) + ([EXACT_GT_NOTE] if exact_gt else [])
+        files["table5.md"], files["table5.csv"] = _write_table5(t5, out, names5, notes)
+        files["table6.md"], files["table6.csv"] = _write_table6(t6, out, notes)
         fig_seq = next((s for s in sequences if s["path"] == "TRI2"), None)
         if fig_seq is not None:
             png = plot_sequence(fig_seq, out / f"fig11_{fig_seq['name']}.png")
             if png is not None:
                 files["fig11"] = png
         summary = {"seed": seed, "trials": trials, "correction_math": correction_math, "hand_eye": hand_eye,
-                   "sequences": {s["name"]: s["metrics"] for s in sequences}}
+                   **({"exact_gt": True} if exact_gt else {}), "sequences": {s["name"]: s["metrics"] for s in sequences}}
         (out / "exp2.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
         files["exp2.json"] = out / "exp2.json"
         files = {k: str(folder.final(v)) for k, v in files.items()}

@@ -318,7 +318,7 @@ class LatencyAwareCM3Tracker:
         older = [s for s in self._vio[:-1] if tn - s[0] >= self.velocity_window_ns]
         to, po = older[-1] if older else self._vio[0]
         velocity = (pn.translation - po.translation) / (tn - to)
-        return Pose(pn.rotation, pn.translation + velocity * dt)
+        return pn.with_translation(pn.translation + velocity * dt)
 
     def step(self, obs: Observation) -> Pose | None:
         tick = obs.tick

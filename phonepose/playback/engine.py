@@ -99,7 +99,7 @@ class _Collector:
             self.none += 1
             return
         self.t.append(t_ns)
-        self.rot.extend(pose.rotation.as_quat(canonical=False).ravel().tolist())
+        self.rot.extend(pose.quat_xyzw.ravel().tolist())
         self.trans.extend(np.asarray(pose.translation, dtype=float).ravel().tolist())
         self.inside.append(bool(inside))
 

@@ -35,16 +35,22 @@ from typing import Iterator
 
 import numpy as np
 
+from phonepose.errors import ConfigError, SessionContentError
 from phonepose.geometry import Pose, RawPose, raw_compose, raw_interpolate
 from phonepose.pipeline.types import Frame, SessionContext, Tick
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
+from phonepose.session.index import main_span
 
 log = logging.getLogger("phonepose")
 
 DEFAULT_RATE_HZ = 20.0
 GT_TOLERANCE_S = 0.02
 MAX_GAP_S = 0.5
+# A stretch this long without any message gets no ticks: every stream's pose is None there and no
+# tracker has input, so planning its ticks would only bound the work by the clock instead of the data.
+IDLE_GAP_S = 10.0
+OUTLIER = "log time more than an hour away from the rest of the session"
 
 SCHEDULED_TOPICS = (
     Topic.CAMERA_IMAGE, Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Topic.DISPLAY_ANCHOR,
@@ -154,7 +160,6 @@ class TickScheduler:
         """``hand_eye`` (a calibration.hand_eye.HandEye) re-expresses the ground truth in the phone's
         frame and on its clock: T_world_mocap · X⁻¹, read ``time_offset_s`` later."""
         if not rate_hz > 0:
-            from phonepose.errors import ConfigError
             raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
         self.reader = reader
         self.context = context
@@ -170,15 +175,25 @@ class TickScheduler:
         self._gt_shift_ns = int(round(hand_eye.time_offset_s * 1e9)) if hand_eye is not None else 0
         self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
+        # (topic, reason) -> samples skipped in the pass; reported as one warning line each
+        self.skipped: Counter = Counter()
+        start_ns, end_ns = self._span(reader, summary)
+        self.span_ns = (start_ns, end_ns)
         t0 = None
-        for schema, channel, m in reader.raw_messages([origin_topic]):
+        for schema, channel, m in reader.raw_messages([origin_topic], start_ns=start_ns, end_ns=end_ns + 1):
             t0 = m.log_time
             break
         if t0 is None:
-            from phonepose.errors import SessionContentError
             raise SessionContentError(f"{reader.path}: {origin_topic} has no messages")
-        start_ns = summary.start_ns
-        end_ns = summary.end_ns
+        first, last = self._grid(t0, start_ns, end_ns, start_s, end_s)
+        self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
+                                 session_start_ns=start_ns)
+        self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
+        self.ticks_skipped = 0      # grid ticks inside stretches of more than IDLE_GAP_S without data
+
+    def _grid(self, t0: int, start_ns: int, end_ns: int, start_s: float | None,
+              end_s: float | None) -> tuple[int, int]:
+        """The first and last tick of the grid ``t0 + k / rate`` inside ``[start, end]``."""
         first = t0
         if start_s is not None:
             lo = start_ns + int(round(start_s * 1e9))
@@ -189,13 +204,22 @@ class TickScheduler:
             last_limit = min(last_limit, start_ns + int(round(end_s * 1e9)))
         last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
         if last < first and (start_s is not None or end_s is not None):
-            from phonepose.errors import ConfigError
             raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
                               f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
-        self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
-                                 session_start_ns=start_ns)
-        # (topic, reason) -> samples skipped in the pass; reported as one warning line each
-        self.skipped: Counter = Counter()
+        return first, last
+
+    def _span(self, reader: SessionReader, summary) -> tuple[int, int]:
+        """The session's time span without time outliers (counted into ``skipped``): a far-future or
+        far-past log time would otherwise set the span the ticks and --start/--end are planned on."""
+        times = reader.log_times()
+        span = main_span([t for ts in times.values() for t in ts])
+        if span is None:
+            return summary.start_ns, summary.end_ns
+        for topic, ts in times.items():
+            n = sum(1 for t in ts if not span[0] <= t <= span[1])
+            if n:
+                self.skipped[(topic, OUTLIER)] += n
+        return span
 
     def __len__(self) -> int:
         return self.info.n_ticks
@@ -214,8 +238,13 @@ class TickScheduler:
         state = _PassState(self)
         # Nothing after this is needed: the last tick plus the look-ahead.
         read_end = info.last_tick_ns + max(self.max_gap_ns, self._gt_wait_ns) + 1
-        for m in self.reader.messages(SCHEDULED_TOPICS, end_ns=read_end):
+        last_message_ns = None
+        for m in self.reader.messages(SCHEDULED_TOPICS, start_ns=self.span_ns[0],
+                                      end_ns=min(read_end, self.span_ns[1] + 1)):
             now = m.log_time_ns
+            if last_message_ns is not None and now - last_message_ns > self.idle_gap_ns:
+                yield from self._across_idle_gap(state, last_message_ns, now)
+            last_message_ns = now
             while state.next_t <= info.last_tick_ns and state.next_t < now and state.ready(state.next_t, now):
                 yield state.build()
             state.ingest(m.topic, m.msg, now)
@@ -223,6 +252,17 @@ class TickScheduler:
             yield state.build()
         for (topic, reason), n in sorted(self.skipped.items()):
             log.warning("phonepose: warning: %s: %d sample(s) skipped: %s", topic, n, reason)
+
+    def _across_idle_gap(self, state: _PassState, last_message_ns: int, now: int) -> Iterator[tuple[Tick, Pose | None]]:
+        """The ticks the data before a gap of more than IDLE_GAP_S supports, then none until the data resumes."""
+        info = self.info
+        hold = last_message_ns + max(self.max_gap_ns, self._gt_wait_ns)
+        while state.next_t <= info.last_tick_ns and state.next_t <= hold:
+            yield state.build()
+        resume = info.t0_ns + -(-(now - info.t0_ns) // self.period_ns) * self.period_ns
+        if resume > state.next_t:
+            self.ticks_skipped += (min(resume, info.last_tick_ns + self.period_ns) - state.next_t) // self.period_ns
+            state.next_t = resume
 
 
 def _take(queue: list, t_ns: int) -> list:

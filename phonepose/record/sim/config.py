@@ -123,6 +123,16 @@ class MocapConfig:
     clock_offset_s: float = _r(-1, 1)
     calibration_translation_m: float = _r(0, 0.1)
     calibration_rotation_deg: float = _r(0, 10)
+    exact: bool = field(metadata={})
+
+    # the errors `exact = true` switches off: ground truth = the phone's true pose on the display's clock
+    ERRORS = ("noise_m", "noise_deg", "hand_eye_rotation_deg", "hand_eye_translation_m", "clock_offset_s",
+              "calibration_translation_m", "calibration_rotation_deg")
+
+    def effective(self) -> "MocapConfig":
+        """The configuration the simulator uses: with ``exact``, every mocap error is zero (the random
+        draws still happen, so every other stream of the session is unchanged)."""
+        return dataclasses.replace(self, **{k: 0.0 for k in self.ERRORS}) if self.exact else self
 
 
 @dataclass(frozen=True)
@@ -242,6 +252,7 @@ def _build(data: dict) -> SimConfig:
         if extra:
             raise ConfigError(f"unknown config key {sname}.{sorted(extra)[0]!r}")
         sections[sname] = cls(**values)
+    sections["mocap"] = sections["mocap"].effective()
     extra = set(data) - set(_SECTION_TYPES)
     if extra:
         raise ConfigError(f"unknown config section [{sorted(extra)[0]}]")
