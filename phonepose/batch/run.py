@@ -134,7 +134,7 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
     try:
         with time_budget(budget_s) as check_budget:
             result = run_playback(
-                unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
+                unit.path, trackers=unit.tracker_refs, rate_hz=params.get("rate_hz", 20.0),
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
                 end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
