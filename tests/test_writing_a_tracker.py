@@ -110,3 +110,26 @@ def test_a_wrong_reference_is_one_line_before_any_work(on_path):
     with pytest.raises(ConfigError, match=r"'collections:OrderedDict' is not a phonepose tracker: it has no name, "
                                           r"needs_camera, uses_vio_samples, reset, step \(docs/writing-a-tracker.md\)$"):
         make_tracker("collections:OrderedDict")
+
+
+def test_experiments_refuse_a_builtin_as_an_extra_tracker_before_any_work(tmp_path):
+    from phonepose.experiments.exp1 import run_exp1
+
+    with pytest.raises(ConfigError, match=r"^--tracker T4: the experiments always run T1-T8; --tracker adds your own"):
+        run_exp1(tmp_path / "e1", trackers=["T4"])
+    assert not (tmp_path / "e1").exists()
+
+
+@pytest.mark.slow
+def test_example_in_experiment_1_beside_t1_t8(on_path, tmp_path):
+    """`experiment exp1 -t my_tracker:LastSightingTracker`: its rows join Tables 2 and 3 (no paper values)."""
+    from phonepose.experiments.exp1 import run_exp1
+
+    result = run_exp1(tmp_path / "e1", trackers=[REF])
+    s = result.summary
+    assert list(s)[-3:] == ["T7L", "T8", "LastSighting"]
+    assert s["LastSighting"]["inside"] == s["T4"]["inside"]          # the marker inside the view, as T4
+    assert s["LastSighting"]["outside"]["targets"] == s["T7"]["outside"]["targets"] > 0
+    tables = (tmp_path / "e1" / "exp1_tables.md").read_text()
+    assert re.search(r"^\| LastSighting \| outside \| [0-9.]+ \| — \| [0-9.]+ \| — \| \d+/\d+ \|$", tables, re.M)
+    assert (tmp_path / "e1" / "playback" / "exp1" / "trajectories" / "LastSighting.tum").is_file()

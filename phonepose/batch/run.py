@@ -14,6 +14,7 @@ from typing import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
+from phonepose.errors import PhoneposeError
 
 FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
                  "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
@@ -31,8 +32,6 @@ def init_worker() -> None:
 
 def one_line(exc: BaseException) -> str:
     """The error column: a PhoneposeError's own message; anything else prefixed with its type."""
-    from phonepose.errors import PhoneposeError
-
     text = str(exc) if isinstance(exc, (PhoneposeError, UnitTimeout)) else f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split()) or type(exc).__name__
     return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 3] + "..."

@@ -42,6 +42,7 @@ from phonepose.errors import ConfigError
 from phonepose.geometry import Pose, interpolate, is_finite
 from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
                                             marker_correction)
+from phonepose.pipeline.fusion import FusedTracker
 from phonepose.pipeline.types import Observation, Tracker
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.session import codec
@@ -425,7 +426,6 @@ def _latency_aware_cm3(spec: TrackerSpec, math: CorrectionMath, reading: CM1Read
 
 
 def _fused(spec: TrackerSpec, math: CorrectionMath, reading: CM1Reading) -> Tracker:
-    from phonepose.pipeline.fusion import FusedTracker
     return FusedTracker(spec.name)
 
 

@@ -31,12 +31,16 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
+from phonepose.calibration.hand_eye import HandEye, load_hand_eye
 from phonepose.errors import ConfigError, OutputError, SessionContentError
+from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
+from phonepose.pipeline.corrections import CorrectionMath
+from phonepose.pipeline.shared import SharedStages
+from phonepose.pipeline.trackers import make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.context import has_camera, read_context
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
-from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
@@ -44,8 +48,7 @@ from phonepose.session.codec import pose_in_frame
 from phonepose.viewer.annotations import marker_annotations
 
 if TYPE_CHECKING:
-    from phonepose.calibration.hand_eye import HandEye
-    from phonepose.playback.rerun_log import PlaybackRerunLogger
+    from phonepose.playback.rerun_log import PlaybackRerunLogger   # imported when used: rerun-sdk costs ~0.3 s
 
 log = logging.getLogger("phonepose")
 
@@ -113,12 +116,10 @@ class _Collector:
 
 
 def _default_stages(context: SessionContext) -> Stages:
-    from phonepose.pipeline.shared import SharedStages
     return SharedStages(context)
 
 
 def _default_trackers(names: list[str], correction_math: str) -> list[Tracker]:
-    from phonepose.pipeline.trackers import make_trackers
     return make_trackers(names, correction_math)
 
 
@@ -259,7 +260,6 @@ def _hand_eye(options: PlaybackOptions) -> tuple[HandEye | None, dict | None]:
     """The hand-eye calibration to apply to the GT, and how metrics.json names it."""
     if options.hand_eye is None:
         return None, None
-    from phonepose.calibration.hand_eye import load_hand_eye
     cal = load_hand_eye(options.hand_eye)
     note = {"hand_eye_file": options.hand_eye_name or os.fspath(options.hand_eye),
             "hand_eye_rotation_deg": round(cal.rotation_deg, 6),
@@ -269,8 +269,6 @@ def _hand_eye(options: PlaybackOptions) -> tuple[HandEye | None, dict | None]:
 
 
 def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
-    from phonepose.pipeline.corrections import CorrectionMath
-    from phonepose.pipeline.trackers import split_names
     names = split_names(options.trackers)   # --tracker T4,T8 or --tracker T4 --tracker T8
     math = CorrectionMath.parse(options.correction_math).value
     return (options.tracker_factory or _default_trackers)(names, math), math
