@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -117,7 +118,7 @@ class FusionConfig:
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(f"unknown T8 parameter(s) {', '.join(unknown)}; valid: {', '.join(known)}")
-        out = {}
+        out: dict[str, Any] = {}
         for k, v in values.items():
             try:
                 out[k] = int(v) if known[k] in ("int", int) else float(v)
@@ -350,7 +351,7 @@ class FusedTracker:
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
-        self._velocity_cache = None
+        self._velocity_cache: tuple[tuple, tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
         self._source: str | None = None
         self._last_out: np.ndarray | None = None   # the last output's position
@@ -546,11 +547,15 @@ class FusedTracker:
                 marker_now = M[1]
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
-            if obs.in_view and is_finite(obs.marker.T_dvio_controller):
+            if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):   # in view
                 return obs.marker.T_dvio_controller
             return None
         position = self._position(source, corrected, marker_now, velocity, t)
-        rotation = corrected[0] if corrected is not None else self._last_marker[1][0]
+        if corrected is not None:
+            rotation = corrected[0]
+        else:
+            assert self._last_marker is not None   # the source is the marker: marker_now is its sighting
+            rotation = self._last_marker[1][0]
         if source == "marker" and corrected is not None:
             rotation = self._pulled_by_sighting(rotation)
         self._carry_offset(source, corrected, position, velocity, t)
@@ -562,9 +567,10 @@ class FusedTracker:
         self._last_out = out
         return Pose(Rotation.from_quat(rotation), out)
 
-    def _position(self, source: str, corrected: RawPose | None, marker_now: np.ndarray, velocity: np.ndarray,
+    def _position(self, source: str, corrected: RawPose | None, marker_now: np.ndarray | None, velocity: np.ndarray,
                   t: float) -> np.ndarray:
-        position = corrected[1] if source == "vio" else marker_now
+        position = corrected[1] if source == "vio" and corrected is not None else marker_now
+        assert position is not None   # each source is chosen only with its pose
         if source == "marker" and self.cfg.marker_gain < 1:
             # inside: a complementary filter — the newest sightings, moved by the VIO velocity, average the marker's noise
             if self._source == "marker" and self._inside is not None and self._last_t is not None:
@@ -590,6 +596,7 @@ class FusedTracker:
                 marker_velocity = self._marker_velocity(t)
                 if marker_velocity is not None:
                     motion = marker_velocity
+            assert self._last_t is not None   # set with _last_out
             target = self._last_out + motion * (t - self._last_t)
             self._offset = target - position
         self._had_corrected = corrected is not None
@@ -603,6 +610,7 @@ class FusedTracker:
         prediction (the controller's streams arrive ~0.15 s late), small when it has data there.
         """
         c, f = self.cfg, self.filter
+        assert self._last_marker is not None   # called with the marker as the source
         t_img, M = self._last_marker
         at_img = self._vio_at(t_img - f.d)
         if at_img is None:                  # the image is newer than the newest VIO sample (usual)

@@ -193,7 +193,7 @@ class MarkerRecognizer:
         recent = (self._last_seen_ns is not None and t_ns is not None
                   and 0 <= t_ns - self._last_seen_ns <= CONTINUITY_MAX_GAP_NS)
         if not recent and t_ns is not None:
-            self._last_rotation: Pose | None = None
+            self._last_rotation = None
         detection = self.detect_corners(gray)
         if detection is None:
             self._last_corners = None

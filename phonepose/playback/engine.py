@@ -31,15 +31,16 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
-from phonepose.calibration.hand_eye import HandEye, load_hand_eye
+from phonepose.calibration.gt_calibration import GroundTruthSetup, ground_truth_setup
 from phonepose.errors import ConfigError, OutputError, SessionContentError
+from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
+from phonepose.pipeline.context import has_camera, read_context
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
 from phonepose.pipeline.trackers import make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
-from phonepose.playback.context import has_camera, read_context
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
@@ -223,6 +224,8 @@ class PlaybackEngine:
                 continue
             stamps_s = common / 1e9
             out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+            out[name]["total"].update(controller_metrics(gt_t / 1e9, gt_poses, traj.stamps_ns / 1e9, traj.poses,
+                                                         stamps_s, i_gt, i_est))
         return out
 
 
@@ -233,10 +236,12 @@ class PlaybackOptions:
     ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
     default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
     everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
-    replace the pipeline's SharedStages / make_trackers (tests, experiments). ``hand_eye`` is a file
-    from ``phonepose calibrate-hand-eye``: the ground truth is moved into the phone's frame and clock
-    before any metric (docs/evaluation.md, "The hand-eye offset"); metrics.json names it
-    ``hand_eye_name`` if given (an experiment's file, read from the folder before it is renamed into place).
+    replace the pipeline's SharedStages / make_trackers (tests, experiments). ``gt_calibration`` is a
+    file from ``phonepose calibrate-gt`` or ``calibrate-hand-eye`` (``hand_eye`` is its old name): the
+    ground truth is moved into the phone's frame, clock and display_vio before any metric
+    (docs/calibration.md); metrics.json names it ``gt_calibration_name`` if given (an experiment's file,
+    read from the folder before it is renamed into place). ``gt_file`` (TUM or EuRoC, ``gt_format``)
+    replaces the session's ground truth (phonepose.calibration.ground_truth).
     """
 
     trackers: Iterable[str] | str = ("all",)
@@ -252,20 +257,19 @@ class PlaybackOptions:
     write_outputs: bool = True
     stages_factory: Callable[[SessionContext], Stages] | None = None
     tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None
+    gt_calibration: Any = None            # a file (str | PathLike) or a GtCalibration in memory
+    gt_calibration_name: str | None = None
+    gt_file: str | os.PathLike | None = None
+    gt_format: str | None = None
     hand_eye: str | os.PathLike | None = None
     hand_eye_name: str | None = None
 
 
-def _hand_eye(options: PlaybackOptions) -> tuple[HandEye | None, dict | None]:
-    """The hand-eye calibration to apply to the GT, and how metrics.json names it."""
-    if options.hand_eye is None:
-        return None, None
-    cal = load_hand_eye(options.hand_eye)
-    note = {"hand_eye_file": options.hand_eye_name or os.fspath(options.hand_eye),
-            "hand_eye_rotation_deg": round(cal.rotation_deg, 6),
-            "hand_eye_translation_m": [round(float(v), 6) for v in cal.T_controller_mocap.translation],
-            "time_offset_s": round(cal.time_offset_s, 6)}
-    return cal, note
+def _ground_truth(options: PlaybackOptions) -> GroundTruthSetup:
+    """The GT calibration and sidecar ground truth to apply (``hand_eye`` is the calibration's old name)."""
+    o = options
+    return ground_truth_setup(o.gt_calibration if o.gt_calibration is not None else o.hand_eye,
+                              o.gt_calibration_name or o.hand_eye_name, o.gt_file, o.gt_format)
 
 
 def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
@@ -275,13 +279,14 @@ def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
 
 
 def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContext, names: list[str],
-                  math: str) -> PlaybackRerunLogger | None:
+                  math: str, gt_setup: GroundTruthSetup) -> PlaybackRerunLogger | None:
     if options.rerun_path is None and not options.spawn:
         return None
     from phonepose.playback.rerun_log import PlaybackRerunLogger
     return PlaybackRerunLogger(context, names, session=session,
                                params={"rate_hz": options.rate_hz, "correction_math": math, "start_s": options.start_s,
-                                       "end_s": options.end_s, "hand_eye": options.hand_eye},
+                                       "end_s": options.end_s, "hand_eye": gt_setup.calibration_path,
+                                       **gt_setup.rerun_params},
                                rrd_path=options.rerun_path, spawn=options.spawn)
 
 
@@ -328,7 +333,8 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         options = replace(options, **kwargs)
     wall0 = time.perf_counter()
     tracker_objs, math = _make_trackers(options)
-    hand_eye_cal, gt_note = _hand_eye(options)
+    gt_setup = _ground_truth(options)
+    gt_note = gt_setup.note
     session = os.fspath(session)
     out = None
     if options.write_outputs:
@@ -339,13 +345,14 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         context = read_context(reader)
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=options.rate_hz, start_s=options.start_s,
-                                  end_s=options.end_s, hand_eye=hand_eye_cal)
+                                  end_s=options.end_s, gt_calibration=gt_setup.calibration,
+                                  gt_series=gt_setup.series)
         stages = (options.stages_factory or _default_stages)(context)
         stages.map_vio_samples = any(t.uses_vio_samples for t in tracker_objs)
         engine = PlaybackEngine(context, stages, tracker_objs)   # refuses a tracker named twice
         # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
         # before any file is opened), then the output folder and trackers.mcap
-        engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math)
+        engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math, gt_setup)
         if engine.rerun_logger is not None:
             stack.callback(engine.rerun_logger.close)
         if out is not None:

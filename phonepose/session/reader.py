@@ -9,7 +9,7 @@ from __future__ import annotations
 import heapq
 import os
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 from google.protobuf.message import DecodeError
 from mcap.records import ChunkIndex
@@ -35,7 +35,7 @@ class Message:
     publish_time_ns: int
     channel_id: int
     sequence: int
-    msg: object  # the decoded protobuf message
+    msg: Any  # the decoded protobuf message, of the topic's type (docs/format.md)
 
 
 @dataclass
@@ -99,7 +99,7 @@ class SessionReader:
         except Exception as exc:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
             self._file.close()
             raise damaged(self.path, f"its summary and index do not parse: {type(exc).__name__}") from None
-        self._decoders: dict[int, object] = {}
+        self._decoders: dict[int, Callable[[bytes], Any]] = {}
         self._file_order_chunks: list | None | bool = False  # False: not checked yet
         self._fallback = DecoderFactory()
 
@@ -237,7 +237,7 @@ class SessionReader:
         if self._file_order_chunks is False:
             c = self.index.chunks
             self._file_order_chunks = not self.index.loose and all(
-                b.message_start_time >= a.message_end_time for a, b in zip(c, c[1:]))
+                b.message_start_time >= a.message_end_time for a, b in zip(c, c[1:], strict=False))
         return bool(self._file_order_chunks)
 
     def _iter_sorted(self, chunks, wanted, start_ns, end_ns) -> Iterator[McapMessage]:

@@ -52,7 +52,7 @@ import threading
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -136,6 +136,7 @@ class LiveRecording:
         self.echo = echo
         self.stats: Counter = Counter()
         self.malformed_kinds: Counter = Counter()
+        self.repeats: Counter = Counter()            # kind -> harmless repeated messages (see repeated())
         self.backwards: Counter = Counter()          # topic -> samples whose capture time did not increase
         self._last_capture: dict[str, int] = {}
         self.anchor_set = False
@@ -205,9 +206,11 @@ class LiveRecording:
         size = msg["size_m"]
         detail = f"{size * 1000:.1f} mm (ppi {msg['ppi']:g}, device pixel ratio {msg['device_pixel_ratio']:g})"
         if not self.marker_spec_written:      # the size in effect until the anchor fixes it
+            if size != self.marker_size_m:    # logged when it changes, not at every message (a reconnect repeats it)
+                self.log(f"{who}: marker side {detail}")
             self.marker_size_m = size
-            self.log(f"{who}: marker side {detail}")
             return None
+        assert self.marker_size_m is not None   # the spec is written with the size
         if abs(size - self.marker_size_m) <= SIZE_MISMATCH * self.marker_size_m:
             return None
         self.stats["marker size changes ignored"] += 1
@@ -257,6 +260,12 @@ class LiveRecording:
         msg.timestamp.FromNanoseconds(capture_ns)
         self.emit(Topic.CONTROLLER_IMU, msg, receipt_ns)
 
+    def repeated(self, kind: str, who: str) -> None:
+        """A harmless message the page should not repeat: logged the first time, counted (closing summary)."""
+        self.repeats[kind] += 1
+        if self.repeats[kind] == 1:
+            self.log(f"{who}: {kind}: ignored; further ones are only counted (closing summary)", level="warning")
+
     def refused(self, remote: str, path: str, had_token: bool) -> None:
         self.stats["refused"] += 1
         if self.stats["refused"] <= 10:
@@ -273,6 +282,7 @@ class LiveRecording:
 
     def find_marker(self, t_ns: int):
         """(frame, MarkerObservation) of the frame closest to ``t_ns`` that shows the marker, or (n tried, None)."""
+        assert self.marker_size_m is not None   # resolve_anchor refuses before the size is known
         recognizer = MarkerRecognizer(self.camera, MarkerModel(self.marker_dictionary, self.marker_id,
                                                                self.marker_size_m, T_BODY_MARKER))
         frames = self._frames_near(t_ns)
@@ -376,10 +386,12 @@ class LiveSource:
                               f"(choose another --port)") from None
 
     def _run_loop(self, ready: threading.Event) -> None:
-        asyncio.set_event_loop(self._loop)
-        self._loop.call_soon(ready.set)
-        self._loop.run_forever()
-        self._loop.close()
+        loop = self._loop
+        assert loop is not None   # start() made it
+        asyncio.set_event_loop(loop)
+        loop.call_soon(ready.set)
+        loop.run_forever()
+        loop.close()
 
     def _stop_loop(self) -> None:
         if self._loop is not None and self._server_thread is not None and self._server_thread.is_alive():
@@ -447,7 +459,7 @@ class LiveSource:
             self.stop_reason = reason
             self._stop.set()
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Record]:
         self.camera.restart_clock()
         t_begin = self.clock.now_ns()
         self._camera_thread = threading.Thread(target=self._camera_loop, name="phonepose-live-camera", daemon=True)
@@ -518,7 +530,10 @@ class LiveSource:
         if rec.stats["malformed"]:
             lines.append(f"malformed messages ignored: {rec.stats['malformed']} ("
                          + ", ".join(f"{k}: {n}" for k, n in rec.malformed_kinds.most_common()) + ")")
+        if rec.repeats:
+            lines.append("repeated messages ignored: " + ", ".join(f"{k}: {n}" for k, n in rec.repeats.most_common()))
         if rec.stats["marker size changes ignored"]:
+            assert rec.marker_size_m is not None   # counted only once the size was fixed
             lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "
                          f"the session's size ({rec.marker_size_m * 1000:.1f} mm) was fixed")
         if rec.stats["refused"]:
@@ -550,6 +565,8 @@ class LiveSource:
 
 class LiveRecorder(Recorder):
     """The :class:`Recorder` whose SIGINT/SIGTERM stop the live source, which then drains into the file."""
+
+    source: LiveSource
 
     def stop(self) -> None:
         self.source.interrupted = True
