@@ -20,14 +20,13 @@ import time
 
 import cv2
 import numpy as np
-from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary, marker_object_points
 from phonepose.pipeline.shared import SharedStages
 from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
-from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
+from phonepose.pipeline.types import Frame, MarkerModel, SessionContext, Tick
 
 CAMERA = pinhole_camera()
 MARKER = MarkerModel("DICT_4X4_50", 7, 0.05, Pose.identity())
@@ -132,8 +131,9 @@ def main() -> dict:
     context = SessionContext(camera=CAMERA, marker=MARKER)
     anchors = dict(T_dvio_anchor=Pose.from_rotvec([0, 0, 0.5], [1.0, 0.0, 0.0]),
                    T_cvio_anchor=Pose.from_rotvec([0, 0, -0.3], [0.0, 2.0, 0.0]))
-    ticks = [Tick(index=i, t_ns=i * 50_000_000, image=CompressedImage(data=data, format="jpeg"),
-                  image_t_ns=i * 50_000_000, image_is_new=True, T_dvio_display=Pose.identity(),
+    ticks = [Tick(index=i, t_ns=i * 50_000_000,
+                  frame=Frame(data, "jpeg", i * 50_000_000, is_new=True, T_dvio_display=Pose.identity()),
+                  T_dvio_display=Pose.identity(),
                   T_cvio_controller=Pose.from_rotvec([0, 0.01 * i, 0], [0.01 * i, 0, 0]), **anchors)
              for i, (_, data) in enumerate(sequence_frames)]
     stages = SharedStages(context)

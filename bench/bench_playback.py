@@ -71,8 +71,8 @@ def _new_frames(session: Path) -> list:
     with SessionReader(session) as r:
         ctx = read_context(r)
         for tick in TickScheduler(r, ctx):
-            if tick.image is not None and tick.image_is_new:
-                frames.append((tick.image, tick.image_t_ns, tick.T_dvio_display))
+            if tick.new_frame is not None:
+                frames.append((tick.frame, tick.frame.t_ns, tick.T_dvio_display))
     return frames, ctx
 
 

@@ -10,6 +10,7 @@ from phonepose.pipeline.anchors import controller_in_display_vio
 from phonepose.pipeline.shared import SharedStages, detections_message
 from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
+from phonepose.pipeline.types import Frame as PipelineFrame
 from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
 from phonepose.schemas.topics import Frame
 from phonepose.session import codec
@@ -31,8 +32,8 @@ def jpeg(pose: Pose | None) -> CompressedImage:
 
 
 def tick(i, image=None, image_t_ns=None, new=False, display=T_DVIO_DISPLAY, **kw) -> Tick:
-    return Tick(index=i, t_ns=i * 50_000_000, image=image, image_t_ns=image_t_ns, image_is_new=new,
-                T_dvio_display=display, **{**ANCHORS, **kw})
+    frame = None if image is None else PipelineFrame(image.data, image.format, image_t_ns, new, display)
+    return Tick(index=i, t_ns=i * 50_000_000, frame=frame, T_dvio_display=display, **{**ANCHORS, **kw})
 
 
 def test_process_detects_reuses_and_maps():

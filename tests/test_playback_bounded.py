@@ -58,7 +58,7 @@ def _with_extra_vio(src: Path, dst: Path, *offsets_ns: int) -> Path:
 def _play(session: Path, out: Path, capsys) -> tuple[int, str]:
     capsys.readouterr()
     try:
-        main(["playback", str(session), "-q", "-t", "T1,T8", "--out", str(out)])
+        main(["playback", str(session), "-q", "-t", "T1,T2", "--out", str(out)])
         code = 0
     except SystemExit as exc:
         code = exc.code or 0

@@ -90,6 +90,11 @@ def ticks_of(path, **kw):
         return ticks, sched
 
 
+def truth_of(path, **kw):
+    with SessionReader(path) as r:
+        return list(TickScheduler(r, read_context(r), **kw).with_truth())
+
+
 @pytest.fixture
 def session(tmp_path):
     p = tmp_path / "s.mcap"
@@ -121,11 +126,12 @@ def test_newest_frame_at_or_before_and_display_at_its_stamp(session):
     for tick in ticks:
         t_ms = (tick.t_ns - T0) / MS
         expect = frames[frames <= t_ms].max()
-        assert tick.image_t_ns == T0 + int(expect) * MS
-        assert tick.image.data == b"x%d" % expect
-        assert tick.image_is_new == (tick.image_t_ns != prev)
-        prev = tick.image_t_ns
+        assert tick.frame.t_ns == T0 + int(expect) * MS
+        assert tick.frame.data == b"x%d" % expect and tick.frame.format == "jpeg"
+        assert tick.frame.is_new == (tick.frame.t_ns != prev)
+        prev = tick.frame.t_ns
         assert tick.T_dvio_display.allclose(display_pose(expect / 1000), atol=1e-9)
+        assert tick.frame.T_dvio_display is tick.T_dvio_display
 
 
 def test_imu_rows_partition_exactly_across_ticks(session):
@@ -165,13 +171,15 @@ def test_latest_anchor_at_or_before_the_tick(session):
 def test_gt_associated_within_tolerance_and_in_display_vio(tmp_path):
     p = tmp_path / "gap.mcap"
     write_streams(p, gt_gap_ms=(390, 460))   # samples at 390 and 460: ticks at 405 and 455 are > 20 ms away
-    ticks, _ = ticks_of(p)
-    for tick in ticks:
+    pairs = truth_of(p)
+    assert pairs
+    for tick, gt in pairs:
+        assert not hasattr(tick, "gt_T_dvio_controller")   # trackers cannot reach the GT
         t_ms = (tick.t_ns - T0) / MS
         if t_ms in (405, 455):
-            assert tick.gt_T_dvio_controller is None
+            assert gt is None
         else:
-            assert tick.gt_T_dvio_controller.allclose(ctrl_pose(t_ms / 1000), atol=1e-9)
+            assert gt.allclose(ctrl_pose(t_ms / 1000), atol=1e-9)
 
 
 def test_in_task_from_the_session_window(session):
@@ -185,7 +193,7 @@ def test_start_end_select_grid_ticks(session):
     ticks, _ = ticks_of(session, start_s=0.3, end_s=0.6)
     assert [(t.t_ns - T0) // MS for t in ticks] == [305, 355, 405, 455, 505, 555]
     # state from before the start is there: anchors, the newest frame, the events
-    assert ticks[0].T_dvio_anchor is not None and ticks[0].image is not None
+    assert ticks[0].T_dvio_anchor is not None and ticks[0].frame is not None
     assert len(ticks[0].events) == 2
 
 
@@ -199,7 +207,8 @@ def test_no_camera_grid_from_controller_vio_and_no_gt(tmp_path):
     write_streams(p, camera=False, gt=False, imu_ms=0)
     ticks, sched = ticks_of(p)
     assert ticks[0].t_ns == T0 + 2 * MS
-    assert all(t.image is None and t.gt_T_dvio_controller is None and t.imu.shape == (0, 7) for t in ticks)
+    assert all(t.frame is None and t.imu.shape == (0, 7) for t in ticks)
+    assert all(gt is None for _, gt in truth_of(p))
 
 
 def test_controller_stream_ending_early_does_not_stall(tmp_path):

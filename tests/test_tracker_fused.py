@@ -17,7 +17,7 @@ from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
 from phonepose.geometry import Pose
 from phonepose.pipeline.fusion import FusedTracker, FusionConfig
 from phonepose.pipeline.trackers import make_tracker
-from phonepose.pipeline.types import MarkerObservation, Observation, Tick
+from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
 LATENCY_NS = 120_000_000
 VIO_PERIOD_NS = 33_333_333
@@ -59,7 +59,8 @@ def observations(truth, n_ticks: int, visible=lambda i: True, stamp_offset_ns: i
             marker = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(),
                                        T_dvio_controller=pose, reprojection_error_px=0.1,
                                        chosen_solution=0, ambiguity_ratio=10.0, id=7)
-        tick = Tick(index=i, t_ns=t, image_t_ns=t, image_is_new=True, T_dvio_display=Pose.identity())
+        tick = Tick(index=i, t_ns=t, frame=Frame(b"", "jpeg", t, is_new=True, T_dvio_display=Pose.identity()),
+                    T_dvio_display=Pose.identity())
         out.append(Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio(t - LATENCY_NS),
                                controller_vio_samples_dvio=samples))
     return out
@@ -198,7 +199,7 @@ def test_a_recognised_marker_without_display_pose_and_no_vio_keeps_the_last_sigh
                              reprojection_error_px=0.1, chosen_solution=0, ambiguity_ratio=10.0, id=7)
     unplaced = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(), T_dvio_controller=None,
                                  reprojection_error_px=0.1, chosen_solution=0, ambiguity_ratio=10.0, id=7)
-    obs = [Observation(tick=Tick(index=i, t_ns=i * TICK_NS, image_t_ns=i * TICK_NS, image_is_new=True),
+    obs = [Observation(tick=Tick(index=i, t_ns=i * TICK_NS, frame=Frame(b"", "jpeg", i * TICK_NS, is_new=True)),
                        marker=m, T_dvio_controller_vio=None) for i, m in enumerate([seen, unplaced])]
     est = run(FusedTracker(), obs)
     assert est[0].allclose(pose, atol=1e-12) and est[1].allclose(pose, atol=1e-12)

@@ -12,7 +12,7 @@ import numpy as np
 from phonepose.geometry import Pose
 from phonepose.pipeline.corrections import marker_correction
 from phonepose.pipeline.trackers import PAPER_TRACKERS, LatencyAwareCM3Tracker, make_tracker, make_trackers, tracker_names
-from phonepose.pipeline.types import MarkerObservation, Observation, Tick
+from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
 LATENCY_NS = 120_000_000
 VIO_PERIOD_NS = 20_000_000
@@ -49,7 +49,7 @@ def observations(n_ticks: int, cut_after: int | None = None, stop_ns: int | None
             marker = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(),
                                        T_dvio_controller=truth_at(t, stop_ns), reprojection_error_px=0.1,
                                        chosen_solution=0, ambiguity_ratio=10.0, id=7)
-        tick = Tick(index=i, t_ns=t, image_t_ns=t, image_is_new=True)
+        tick = Tick(index=i, t_ns=t, frame=Frame(b"", "jpeg", t, is_new=True))
         # what the scheduler gives T1-T7: VIO interpolated at t by receipt time = captured at t - latency
         out.append(Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio_at(t - LATENCY_NS, stop_ns),
                                controller_vio_samples_dvio=samples))

@@ -42,14 +42,20 @@ class BatchResult:
         return self.plan.skipped
 
 
-def resolve_trackers(trackers: Sequence[str] | str) -> list[str]:
-    """Names as make_trackers resolves them (``all``, ``paper``, ``T1,T7``); unknown names: ConfigError."""
-    from phonepose.pipeline.trackers import make_trackers
+def resolve_trackers(trackers: Sequence[str] | str) -> tuple[list[str], dict[str, str]]:
+    """Names as make_trackers resolves them (``all``, ``paper``, ``T1,T7``, ``pkg.mod:Class``), and for a
+    user's tracker the reference a worker builds it from (name -> reference); unknown names: ConfigError."""
+    from phonepose.pipeline.trackers import expand_names, is_user_tracker, make_tracker
 
-    names = [t.name for t in make_trackers(trackers)]
+    names, refs = [], {}
+    for ref in expand_names(trackers):
+        name = make_tracker(ref).name
+        names.append(name)
+        if is_user_tracker(ref):
+            refs[name] = ref
     if len(set(names)) != len(names):
         raise ConfigError(f"tracker given twice: {', '.join(names)}")
-    return names
+    return names, refs
 
 
 @dataclass
@@ -83,7 +89,7 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
         check_number("--unit-timeout", unit_timeout_s, 0, SECONDS_MAX, lo_open=True, unit="s")
     if not sessions:
         raise ConfigError("no session given")
-    names = resolve_trackers(trackers)
+    names, refs = resolve_trackers(trackers)
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
     combos = param_combinations(sweep)
@@ -96,7 +102,7 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     table_output = outputs.file(out, "--out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
     outputs.check()
     table = ResultTable(out)
-    plan = make_plan(sessions, names, combos, table.rows)
+    plan = make_plan(sessions, names, combos, table.rows, refs)
     return PreparedBatch(Path(out), plan, table, workers, scheduler, t0, outputs, table_output, unit_timeout_s)
 
 

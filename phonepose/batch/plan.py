@@ -155,6 +155,13 @@ class Unit:
     path: str                    # what the worker opens (absolute, resolved on the client)
     params: tuple[tuple[str, object], ...]
     trackers: tuple[str, ...]
+    refs: tuple[tuple[str, str], ...] = ()   # a user's tracker: (name, package.module:Class or entry point)
+
+    @property
+    def tracker_refs(self) -> list[str]:
+        """What make_trackers builds this unit's trackers from (in the worker)."""
+        refs = dict(self.refs)
+        return [refs.get(t, t) for t in self.trackers]
 
     @property
     def params_dict(self) -> dict:
@@ -175,7 +182,7 @@ class Plan:
 
 
 def make_plan(sessions: Sequence[str | os.PathLike], trackers: Sequence[str], combos: list[dict],
-              existing: dict[tuple[str, str, str], dict]) -> Plan:
+              existing: dict[tuple[str, str, str], dict], refs: dict[str, str] | None = None) -> Plan:
     """Which (session, params, tracker) rows the batch wants, and which playbacks still have to run.
 
     ``existing``: rows of the table already written, by key. A row is skipped when its status is
@@ -207,6 +214,7 @@ def make_plan(sessions: Sequence[str | os.PathLike], trackers: Sequence[str], co
                     retried += 1
                 todo.append(tracker)
             if todo:
-                units.append(Unit(session, path, tuple(combo.items()), tuple(todo)))
+                units.append(Unit(session, path, tuple(combo.items()), tuple(todo),
+                                  tuple((t, refs[t]) for t in todo if refs and t in refs)))
     varying = [k for k in PARAMS if len({json.dumps(c.get(k)) for c in combos}) > 1]
     return Plan(units, keys, skipped, retried, stale, len(seen), len(combos), list(trackers), varying)

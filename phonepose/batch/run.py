@@ -14,6 +14,7 @@ from typing import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
+from phonepose.errors import PhoneposeError
 
 FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
                  "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
@@ -31,8 +32,6 @@ def init_worker() -> None:
 
 def one_line(exc: BaseException) -> str:
     """The error column: a PhoneposeError's own message; anything else prefixed with its type."""
-    from phonepose.errors import PhoneposeError
-
     text = str(exc) if isinstance(exc, (PhoneposeError, UnitTimeout)) else f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split()) or type(exc).__name__
     return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 3] + "..."
@@ -139,7 +138,7 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
                 from phonepose.calibration.calibrate_gt import calibrate_gt_session
                 calibration = calibrate_gt_session(unit.path)
             result = run_playback(
-                unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
+                unit.path, trackers=unit.tracker_refs, rate_hz=params.get("rate_hz", 20.0),
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
                 end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))

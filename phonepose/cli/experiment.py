@@ -15,6 +15,9 @@ from phonepose.cli.output import ProgressBar, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import WORKERS_MAX
 
+USER_TRACKER_HELP = ("Your own tracker beside T1-T8 (repeat): package.module:ClassName or an installed "
+                     "phonepose.trackers entry point (docs/writing-a-tracker.md); its rows join the tables.")
+
 experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.", no_args_is_help=True,
                              add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
 app.add_typer(experiment_app, name="experiment")
@@ -83,6 +86,7 @@ def exp2(
                                   "data, scored against the phone's true pose (no mocap error at all)."),
     calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from itself "
                                       "(`phonepose calibrate-gt`: clock, world and rigid body; docs/calibration.md)."),
+    tracker: list[str] = typer.Option([], "--tracker", "-t", help=USER_TRACKER_HELP),
 ) -> None:
     """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
 
@@ -104,7 +108,7 @@ def exp2(
     console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
     result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
                       correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye,
-                      exact_gt=exact_gt, calibrate_gt=calibrate_gt)
+                      exact_gt=exact_gt, calibrate_gt=calibrate_gt, trackers=tracker)
     if calibrate_gt:
         console.print("ground truth calibrated from each session itself (clock, world, rigid body: calibrate-gt)")
     if exact_gt:
@@ -126,6 +130,7 @@ def exp1(
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (eq. 1-6) or se3."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    tracker: list[str] = typer.Option([], "--tracker", "-t", help=USER_TRACKER_HELP),
 ) -> None:
     """Experiment 1 (discrete data): 16 targets at 25 and 35 cm, Tables 2 and 3 and target selection."""
     from phonepose.experiments.exp1 import exp1_tables, run_exp1
@@ -148,7 +153,8 @@ def exp1(
                 bar.update(play, completed=done, total=total, done=f"{done}/{total} ticks", visible=True)
 
         result = run_exp1(out, seed=seed, config=str(config) if config else None,
-                          correction_math=correction_math.value, record_progress=recorded, playback_progress=played)
+                          correction_math=correction_math.value, record_progress=recorded, playback_progress=played,
+                          trackers=tracker)
     for table in exp1_tables(result):
         console.print(table)
     for name, path in result.files.items():

@@ -105,4 +105,5 @@ class PoseRelation(str, Enum):
     full = "full"
 
 
-TRACKER_HELP = "Tracker name (repeat, or T1,T4), 'paper' (T1-T7) or 'all' (T1-T7, T7L, T8)."
+TRACKER_HELP = ("Tracker name (repeat, or T1,T4), 'paper' (T1-T7), 'all' (T1-T7, T7L, T8), or your own: "
+                "package.module:ClassName or an installed phonepose.trackers entry point (docs/writing-a-tracker.md).")

@@ -27,6 +27,21 @@ class SequenceJob:
     calibrate_gt: bool = False   # calibrate-gt the session from itself: clock, world and grip (docs/calibration.md)
     final_dir: str | None = None   # where out_dir (a temporary) lands when the experiment is complete
     exact_gt: bool = False   # [mocap] exact = true: ground truth = the phone's true pose (docs/simulation.md)
+    trackers: tuple[str, ...] = ()   # a user's trackers beside T1-T8 (package.module:Class or an entry point)
+
+
+def user_trackers(refs: Iterable[str]) -> tuple[tuple[str, ...], list[str]]:
+    """The user's trackers an experiment runs beside T1-T8: their references and their names (the
+    table rows), each built once here so a wrong one fails before the first sequence."""
+    from phonepose.errors import ConfigError
+    from phonepose.pipeline.trackers import is_user_tracker, make_tracker, split_names
+
+    refs = tuple(split_names(list(refs)))
+    builtin = [r for r in refs if not is_user_tracker(r)]
+    if builtin:
+        raise ConfigError(f"--tracker {builtin[0]}: the experiments always run T1-T8; --tracker adds your own "
+                          "(package.module:ClassName or an installed entry point)")
+    return refs, [make_tracker(r).name for r in refs]
 
 
 def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:
@@ -69,7 +84,7 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
         hand_eye = out / "gt_calibration" / f"{job.name}.yaml"
         hand_eye_name = str(Path(job.final_dir or job.out_dir) / "gt_calibration" / hand_eye.name)
         save_gt_calibration(hand_eye, calibrate_gt_session(session))
-    result = run_playback(session, trackers="all", out_dir=out / "playback" / job.name,
+    result = run_playback(session, trackers=["all", *job.trackers], out_dir=out / "playback" / job.name,
                           correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye,
                           hand_eye_name=hand_eye_name, progress=playback_progress)
     return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,

@@ -15,13 +15,13 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 from rich.table import Table
 
 from phonepose.experiments import paper
-from phonepose.experiments.common import SequenceJob, fmt, mean_or_none, run_sequence, sequence_seed
+from phonepose.experiments.common import SequenceJob, fmt, mean_or_none, run_sequence, sequence_seed, user_trackers
 from phonepose.geometry import Pose
 from phonepose.session import codec
 
@@ -47,12 +47,12 @@ def read_targets(session: str) -> tuple[list[dict], float]:
     return out, float(msg.select_radius_m or 0.02)
 
 
-def target_errors(seq: dict, targets: list[dict], radius: float) -> list[dict]:
+def target_errors(seq: dict, targets: list[dict], radius: float, names: list[str] = paper.REPORTED) -> list[dict]:
     gt = seq["gt"]
     rows = []
     gt_t = np.asarray(gt["stamps_ns"])
     gt_pose = Pose.from_xyzw(gt["translation"], gt["quat"])
-    for name in paper.REPORTED:
+    for name in names:
         tr = seq["trajectories"].get(name)
         if tr is None or tr["translation"] is None:
             continue
@@ -75,9 +75,9 @@ def target_errors(seq: dict, targets: list[dict], radius: float) -> list[dict]:
     return rows
 
 
-def summarise(rows: list[dict]) -> dict:
+def summarise(rows: list[dict], names: list[str] = paper.REPORTED) -> dict:
     out: dict[str, dict] = {}
-    for name in paper.REPORTED:
+    for name in names:
         out[name] = {}
         for scope, flag in (("inside", True), ("outside", False)):
             sel = [r for r in rows if r["tracker"] == name and r["inside"] == flag]
@@ -96,9 +96,9 @@ def exp1_tables(result: Exp1Result) -> list[Table]:
         t.add_column("pos cm", justify="right")
         t.add_column("rot deg", justify="right")
         t.add_column("selected (2 cm)", justify="right")
-        for name in paper.REPORTED:
+        for name in result.summary:
             d = result.summary[name][scope]
-            p = ref[name]
+            p = ref.get(name, (paper.NO_VALUE, paper.NO_VALUE))
             t.add_row(name, f"{fmt(d['pos_m'], 100)} / {p[0]}", f"{fmt(d['rot_deg'])} / {p[1]}",
                       f"{d['selected']}/{d['targets']}")
         tables.append(t)
@@ -116,11 +116,12 @@ def _write(result: Exp1Result) -> None:
     lines = ["# Tables 2 and 3 equivalent: experiment 1 (16 targets)", "",
              "Ours: mean over targets of the per-target RMSE during the 5 s hold; `paper` = Park & Ogawa 2024.", "",
              "| tracker | scope | pos cm | paper | rot deg | paper | selected (≤ 2 cm) |", "|---|---|---:|---:|---:|---:|---:|"]
-    for name in paper.REPORTED:
+    for name in result.summary:
         for scope, ref in (("inside", paper.TABLE2_INSIDE), ("outside", paper.TABLE3_OUTSIDE)):
             d = result.summary[name][scope]
-            lines.append(f"| {name} | {scope} | {fmt(d['pos_m'], 100)} | {ref[name][0]} | {fmt(d['rot_deg'])} | "
-                         f"{ref[name][1]} | {d['selected']}/{d['targets']} |")
+            p = ref.get(name, (paper.NO_VALUE, paper.NO_VALUE))
+            lines.append(f"| {name} | {scope} | {fmt(d['pos_m'], 100)} | {p[0]} | {fmt(d['rot_deg'])} | "
+                         f"{p[1]} | {d['selected']}/{d['targets']} |")
     (out / "exp1_tables.md").write_text("\n".join(lines) + "\n")
     (out / "exp1.json").write_text(json.dumps(result.summary, indent=2, sort_keys=True))
     result.files.update({"exp1_tables.md": str(out / "exp1_tables.md"), "exp1_targets.csv": str(out / "exp1_targets.csv"),
@@ -129,7 +130,8 @@ def _write(result: Exp1Result) -> None:
 
 def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, correction_math: str = "paper",
              record_progress: Callable[[int, int | None], None] | None = None,
-             playback_progress: Callable[[int, int], None] | None = None) -> Exp1Result:
+             playback_progress: Callable[[int, int], None] | None = None,
+             trackers: Iterable[str] = ()) -> Exp1Result:
     """The exp1 session recorded, played back and scored into ``out_dir`` (phonepose.files: checked first,
     a temporary folder put in place whole at the end); the progress callbacks are record_sim's and
     run_playback's."""
@@ -137,15 +139,18 @@ def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, corr
 
     plan = OutputPlan(inputs=[config] if config else [])
     folder = plan.dir(out_dir, "--out", command="experiment exp1")
+    refs, extra = user_trackers(trackers)
+    names = paper.REPORTED + extra
     with plan:
         out = folder.tmp
         assert out is not None   # the plan's block made it
         job = SequenceJob(name="exp1", scenario="exp1", path=None, trial=1, seed=sequence_seed(seed, None, 1),
-                          out_dir=str(out), config=config, correction_math=correction_math, final_dir=str(folder.path))
+                          out_dir=str(out), config=config, correction_math=correction_math, final_dir=str(folder.path),
+                          trackers=refs)
         seq = run_sequence(job, record_progress, playback_progress)
         targets, radius = read_targets(seq["session"])
-        rows = target_errors(seq, targets, radius) if seq["gt"] is not None else []
-        result = Exp1Result(out, rows, summarise(rows), {"session": seq["session"]})
+        rows = target_errors(seq, targets, radius, names) if seq["gt"] is not None else []
+        result = Exp1Result(out, rows, summarise(rows, names), {"session": seq["session"]})
         _write(result)
     result.out_dir = folder.path
     result.files = {k: str(folder.final(v)) for k, v in result.files.items()}

@@ -13,12 +13,13 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from phonepose.experiments import paper
-from phonepose.experiments.common import SequenceJob, default_jobs, fmt, mean_or_none, run_jobs, sequence_seed
+from phonepose.experiments.common import (SequenceJob, default_jobs, fmt, mean_or_none, run_jobs, sequence_seed,
+                                          user_trackers)
 from phonepose.geometry import Pose
 
 PATHS_INSIDE = ("TRI1", "REC1")
@@ -55,11 +56,12 @@ def sequence_name(path: str, trial: int) -> str:
 
 def make_jobs(out_dir: Path, trials: int, seed: int, config: str | None, correction_math: str,
               paths: tuple[str, ...] = PATHS_INSIDE + PATHS_PARTLY_OUTSIDE, hand_eye: bool = False,
-              final_dir: Path | None = None, exact_gt: bool = False, calibrate_gt: bool = False) -> list[SequenceJob]:
+              final_dir: Path | None = None, exact_gt: bool = False, calibrate_gt: bool = False,
+              trackers: tuple[str, ...] = ()) -> list[SequenceJob]:
     return [SequenceJob(name=sequence_name(p, t), scenario="exp2", path=p, trial=t, seed=sequence_seed(seed, p, t),
                         out_dir=str(out_dir), config=config, correction_math=correction_math, hand_eye=hand_eye,
                         final_dir=str(final_dir) if final_dir is not None else None, exact_gt=exact_gt,
-                        calibrate_gt=calibrate_gt)
+                        calibrate_gt=calibrate_gt, trackers=trackers)
             for p in paths for t in range(1, trials + 1)]
 
 
@@ -67,24 +69,24 @@ def _value(seq: dict, tracker: str, scope: str, key: str):
     return seq["metrics"]["trackers"].get(tracker, {}).get(scope, {}).get(key)
 
 
-def table5_rows(sequences: list[dict]) -> list[dict]:
+def table5_rows(sequences: list[dict], names: list[str] = paper.REPORTED) -> list[dict]:
     """One row per tracker and metric: per-sequence totals, our average, the paper's average."""
     seqs = [s for s in sequences if s["path"] in PATHS_INSIDE]
     rows = []
-    for tracker in paper.REPORTED:
+    for tracker in names:
         for key, label, scale in METRICS:
             values = {s["name"]: _value(s, tracker, "total", key) for s in seqs}
             avg = mean_or_none(values.values())
-            p = paper.TABLE5_AVERAGE[tracker][{"p_ate_m": "p_ate_cm", "r_ate_deg": "r_ate_deg", "p_re_m": "p_re_cm"}[key]]
+            p = paper.TABLE5_AVERAGE.get(tracker, paper.NO_VALUES)[{"p_ate_m": "p_ate_cm", "r_ate_deg": "r_ate_deg", "p_re_m": "p_re_cm"}[key]]
             rows.append({"tracker": tracker, "metric": label, "scale": scale, "values": values, "average": avg,
                          "paper": p, "key": key})
     return rows
 
 
-def table6_rows(sequences: list[dict]) -> list[dict]:
+def table6_rows(sequences: list[dict], names: list[str] = paper.REPORTED) -> list[dict]:
     """One row per tracker, scope and metric: TRI2 and REC2 averages, overall average, paper."""
     rows = []
-    for tracker in paper.REPORTED:
+    for tracker in names:
         for scope in ("inside", "outside", "total"):
             for key, label, scale in METRICS:
                 per_path = {}
@@ -92,7 +94,7 @@ def table6_rows(sequences: list[dict]) -> list[dict]:
                     per_path[path] = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] == path)
                 avg = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
                 rows.append({"tracker": tracker, "scope": scope, "metric": label, "scale": scale, "per_path": per_path,
-                             "average": avg, "paper": paper.TABLE6_AVERAGE[tracker][scope][PAPER_KEY[key]], "key": key})
+                             "average": avg, "paper": paper.TABLE6_AVERAGE.get(tracker, paper.NO_VALUES6)[scope][PAPER_KEY[key]], "key": key})
         # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS;
         # then lag, jitter and availability
         for key, label, aggregate, scale in JUMP_METRICS + CONTROLLER_METRICS:
@@ -196,7 +198,7 @@ def plot_sequence(seq: dict, out_png: Path) -> Path | None:
 def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | None = None,
              correction_math: str = "paper", jobs: int | None = None,
              progress: Callable[[str], None] | None = None, hand_eye: bool = False,
-             exact_gt: bool = False, calibrate_gt: bool = False) -> Exp2Result:
+             exact_gt: bool = False, calibrate_gt: bool = False, trackers: Iterable[str] = ()) -> Exp2Result:
     """``hand_eye``: calibrate each session's hand-eye from itself (phonepose calibrate-hand-eye) and
     score against the ground truth in the phone's frame and clock. ``calibrate_gt``: calibrate each
     session's ground truth from itself (phonepose calibrate-gt: clock, world and grip) instead. ``exact_gt``: simulate with
@@ -208,14 +210,15 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
 
     plan = OutputPlan(inputs=[config] if config else [])
     folder = plan.dir(out_dir, "--out", command="experiment exp2")
+    refs, extra = user_trackers(trackers)
     with plan:
         out = folder.tmp
         assert out is not None   # the plan's block made it
         job_list = make_jobs(out, trials, seed, config, correction_math, hand_eye=hand_eye, final_dir=folder.path,
-                             exact_gt=exact_gt, calibrate_gt=calibrate_gt)
+                             exact_gt=exact_gt, calibrate_gt=calibrate_gt, trackers=refs)
         sequences = run_jobs(job_list, jobs or default_jobs(), progress)
-        t5 = table5_rows(sequences)
-        t6 = table6_rows(sequences)
+        t5 = table5_rows(sequences, paper.REPORTED + extra)
+        t6 = table6_rows(sequences, paper.REPORTED + extra)
         files = {}
         names5 = [s["name"] for s in sequences if s["path"] in PATHS_INSIDE]
         notes = ([HAND_EYE_NOTE] if hand_eye else []) + ([GT_NOTE] if calibrate_gt else []) + \

@@ -55,6 +55,9 @@ TRACKERS = ["T1", "T2", "T3", "T4", "T5", "T6", "T7"]
 OURS = ["T7L", "T8"]
 REPORTED = TRACKERS + OURS
 NO_VALUE = "—"
+# the paper's cells for a tracker it does not have (ours, a user's --tracker)
+NO_VALUES = {"p_ate_cm": NO_VALUE, "r_ate_deg": NO_VALUE, "p_re_cm": NO_VALUE}
+NO_VALUES6 = {s: (NO_VALUE,) * 3 for s in ("inside", "outside", "total")}
 
 for _table in (TABLE5_AVERAGE,):
     for _name in OURS:

@@ -343,6 +343,7 @@ def _interpolate(t0: float, s0: list, t1: float, s1: list, t: float) -> RawPose:
 class FusedTracker:
     """T8: see the module docstring. Same interface as every tracker (reset/step)."""
 
+    needs_camera = True       # the correction comes from marker sightings
     uses_vio_samples = True   # reads obs.controller_vio_samples_dvio (stamped VIO samples)
 
     def __init__(self, name: str = "T8", config: FusionConfig | None = None):
@@ -357,7 +358,6 @@ class FusedTracker:
         self._vio = _Ring(7)                       # (stamp s) -> qx qy qz qw x y z in display_vio (anchor-mapped)
         self._gyro = _Ring(3)                      # (stamp s) -> gyro rad/s, body frame
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
-        self._last_image_ns: int | None = None
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
         self._velocity_cache: tuple[tuple, tuple[np.ndarray, np.ndarray, float | None]] | None = None
@@ -477,13 +477,11 @@ class FusedTracker:
             self._vio.prune(horizon)
             self._gyro.prune(horizon)
         m = obs.marker
+        frame = tick.new_frame   # a sighting counts once, on the tick that first carries its frame
         raw = _raw(m.T_dvio_controller) if m is not None and m.T_dvio_controller is not None else None
-        if raw is not None:
-            image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
-            if image_ns != self._last_image_ns:
-                self._last_image_ns = image_ns
-                cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
-                self._add_sighting(self._s(image_ns), raw, cam)
+        if raw is not None and frame is not None:
+            cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
+            self._add_sighting(self._s(frame.t_ns), raw, cam)
 
     def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None) -> None:
         self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position)))

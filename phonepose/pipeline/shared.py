@@ -2,8 +2,7 @@
 anchor mapping. Their output, one :class:`Observation`, is what every tracker steps on.
 
 Image reuse: the paper recognises the marker per camera frame. When a tick carries the same
-frame as the previous tick (``image_is_new`` False and the same ``image_t_ns``), the previous
-frame's recognition is reused instead of decoding and detecting again, so a frame counts as
+frame as the previous tick (``Frame.is_new`` False), the previous frame's recognition is reused instead of decoding and detecting again, so a frame counts as
 "in view" for every tick that carries it.
 
 A recognised marker needs the display pose to be placed in display_vio; while the display
@@ -17,14 +16,14 @@ import numpy as np
 
 from phonepose.pipeline.anchors import AnchorMap
 from phonepose.pipeline.markers import MarkerRecognizer
-from phonepose.pipeline.types import MarkerObservation, Observation, SessionContext, Tick
+from phonepose.pipeline.types import Frame, MarkerObservation, Observation, SessionContext, Tick
 from phonepose.schemas import phonepose_pb2 as pb
-from phonepose.schemas.topics import Frame
+from phonepose.schemas import topics
 from phonepose.session.codec import encode_pose
 
 
-def decode_gray(image) -> np.ndarray | None:
-    """Grayscale pixels of a foxglove CompressedImage (JPEG/PNG), decoded once; None if undecodable."""
+def decode_gray(image: Frame) -> np.ndarray | None:
+    """Grayscale pixels of a frame (JPEG/PNG; anything with ``.data``), decoded once; None if undecodable."""
     data = np.frombuffer(image.data, dtype=np.uint8)
     if data.size == 0:
         return None
@@ -46,27 +45,23 @@ class SharedStages:
 
     def reset(self) -> None:
         self.recognizer.reset()
-        self._last_image_t_ns: int | None = None
         self._last_marker: MarkerObservation | None = None
         self.frames_decoded = 0
         self.frames_undecodable = 0   # reported once by the caller (docs/reliability.md)
 
     def _recognize(self, tick: Tick) -> MarkerObservation | None:
-        if tick.image is None:
+        frame = tick.frame
+        if frame is None:
             return None
-        same_frame = (not tick.image_is_new and tick.image_t_ns is not None
-                      and tick.image_t_ns == self._last_image_t_ns)
-        if same_frame:
+        if not frame.is_new:
             return self._last_marker
-        gray = decode_gray(tick.image)
+        gray = decode_gray(frame)
         self.frames_decoded += 1
         marker = None
         if gray is None:
             self.frames_undecodable += 1
         else:
-            t_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
-            marker = self.recognizer.recognize(gray, tick.T_dvio_display, t_ns)
-        self._last_image_t_ns = tick.image_t_ns
+            marker = self.recognizer.recognize(gray, frame.T_dvio_display, frame.t_ns)
         self._last_marker = marker
         return marker
 
@@ -82,11 +77,14 @@ class SharedStages:
                 samples.append((capture_ns, mapped))
         return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio, controller_vio_samples_dvio=samples)
 
+    def detections_message(self, obs: Observation) -> pb.MarkerDetections:
+        return detections_message(obs)
+
 
 def detections_message(obs: Observation) -> pb.MarkerDetections:
     """The /pipeline/markers message for this tick's frame (empty when nothing was recognised)."""
-    msg = pb.MarkerDetections(frame_id=Frame.DISPLAY_CAMERA)
-    stamp = obs.tick.image_t_ns if obs.tick.image_t_ns is not None else obs.tick.t_ns
+    msg = pb.MarkerDetections(frame_id=topics.Frame.DISPLAY_CAMERA)
+    stamp = obs.tick.frame_t_ns
     msg.timestamp.FromNanoseconds(int(stamp))
     m = obs.marker
     if m is not None:

@@ -30,6 +30,8 @@ phonepose/pipeline/fusion.py). ``"paper"`` selects T1-T7, ``"all"`` every row.
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
 import logging
 from dataclasses import dataclass
 from enum import Enum
@@ -40,6 +42,7 @@ from phonepose.errors import ConfigError
 from phonepose.geometry import Pose, interpolate, is_finite
 from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
                                             marker_correction)
+from phonepose.pipeline.fusion import FusedTracker
 from phonepose.pipeline.types import Observation, Tracker
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.session import codec
@@ -163,6 +166,13 @@ class CompositeTracker:
         self.correction_math = correction_math
         self.correction = CORRECTION_SOURCES[spec.correction](correction_math, cm1_reading)
 
+    uses_vio_samples = False
+
+    @property
+    def needs_camera(self) -> bool:
+        """A row that uses the marker inside the FoV, or a correction captured from marker sightings (CM2, CM3)."""
+        return self.spec.inside is Method.MARKER or self.spec.correction in (CorrectionKind.CM2, CorrectionKind.CM3)
+
     def reset(self) -> None:
         self.correction.reset()
 
@@ -224,11 +234,69 @@ def split_names(names: "Iterable[str] | str") -> list[str]:
     return [n.strip() for item in names for n in str(item).split(",") if n.strip()]
 
 
+# ----------------------------------------------------------------------------- a user's own trackers
+ENTRY_POINT_GROUP = "phonepose.trackers"
+TRACKER_PROTOCOL = ("name", "needs_camera", "uses_vio_samples", "reset", "step")   # docs/writing-a-tracker.md
+
+
+def _entry_points() -> dict[str, "importlib.metadata.EntryPoint"]:
+    """Installed trackers: entry points of the group ``phonepose.trackers``, by name."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def _import_reference(ref: str) -> Callable[[], object]:
+    """``package.module:ClassName`` (or ``:factory``): the object named, imported."""
+    module, _, attr = ref.partition(":")
+    if not module or not attr:
+        raise ConfigError(f"tracker {ref!r}: a reference is package.module:ClassName")
+    try:
+        obj = importlib.import_module(module)
+    except ImportError as exc:
+        raise ConfigError(f"tracker {ref!r}: cannot import {module}: {exc}") from None
+    for part in attr.split("."):
+        obj = getattr(obj, part, None)
+        if obj is None:
+            raise ConfigError(f"tracker {ref!r}: {module} has no {attr}")
+    return obj
+
+
+def _user_tracker(ref: str, factory: Callable[[], object]) -> Tracker:
+    """A user's tracker, built without arguments and checked against the protocol before any tick."""
+    try:
+        tracker = factory()
+    except Exception as exc:  # noqa: BLE001 - a user's constructor: whatever it raises is its error
+        raise ConfigError(f"tracker {ref!r}: could not be created: {type(exc).__name__}: {exc}") from None
+    missing = [a for a in TRACKER_PROTOCOL if not hasattr(tracker, a)]
+    if missing:
+        raise ConfigError(f"tracker {ref!r} is not a phonepose tracker: it has no {', '.join(missing)} "
+                          "(docs/writing-a-tracker.md)")
+    if tracker.name in TRACKERS:
+        raise ConfigError(f"tracker {ref!r} is named {tracker.name!r}, the name of a built-in tracker")
+    return tracker  # type: ignore[return-value]
+
+
+def is_user_tracker(name: str) -> bool:
+    """Whether ``name`` refers to a user's tracker (module:Class or an installed entry point), not T1-T8."""
+    return ":" in name or (name not in TRACKERS and str(name).upper() not in TRACKERS and name in _entry_points())
+
+
 def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Tracker:
+    """A built-in tracker by name, or a user's: ``package.module:ClassName`` or an installed entry point's name."""
     spec = TRACKERS.get(name) or TRACKERS.get(str(name).upper())
     if spec is None:
-        raise ConfigError(f"unknown tracker {name!r}; valid: {', '.join(tracker_names())}, all, paper")
+        if ":" in name:
+            return _user_tracker(name, _import_reference(name))
+        ep = _entry_points().get(name)
+        if ep is None:
+            installed = "".join(f", {n}" for n in sorted(_entry_points()))
+            raise ConfigError(f"unknown tracker {name!r}; valid: {', '.join(tracker_names())}{installed}, all, paper, "
+                              "or package.module:ClassName")
+        try:
+            factory = ep.load()
+        except Exception as exc:  # noqa: BLE001 - an installed package's import: its error, in one line
+            raise ConfigError(f"tracker {name!r} ({ep.value}): cannot load: {type(exc).__name__}: {exc}") from None
+        return _user_tracker(name, factory)
     math = CorrectionMath.parse(correction_math)
     reading = CM1Reading.parse(cm1_reading)
     if spec.factory is not None:
@@ -236,20 +304,23 @@ def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
     return CompositeTracker(spec, math, reading)
 
 
-def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "CorrectionMath | str" = "paper",
-                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
-    """Trackers by name; ``"all"`` means every registered one (T1-T7, then ours), ``"paper"`` T1-T7.
-
-    Accepts a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``).
-    """
+def expand_names(names: "Iterable[str] | str") -> list[str]:
+    """What the user named, one tracker each: ``"all"`` is every registered one (T1-T7, then ours),
+    ``"paper"`` T1-T7; a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``)."""
     names = split_names(names)
     if any(n.lower() == "all" for n in names):
-        names = tracker_names()
+        names = tracker_names() + [n for n in names if is_user_tracker(n)]
     elif any(n.lower() == "paper" for n in names):
-        names = list(PAPER_TRACKERS)
+        names = list(PAPER_TRACKERS) + [n for n in names if is_user_tracker(n)]
     if not names:
         raise ConfigError(f"no tracker given; valid: {', '.join(tracker_names())}, all")
-    return [make_tracker(n, correction_math, cm1_reading) for n in names]
+    return names
+
+
+def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "CorrectionMath | str" = "paper",
+                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
+    """Trackers by name (:func:`expand_names`), built-in or a user's (:func:`make_tracker`)."""
+    return [make_tracker(n, correction_math, cm1_reading) for n in expand_names(names)]
 
 
 # ----------------------------------------------------------------------------- ours
@@ -273,6 +344,7 @@ class LatencyAwareCM3Tracker:
     uncorrected VIO (as T7); without any stamped VIO sample it falls back to T7's VIO pose.
     """
 
+    needs_camera = True
     uses_vio_samples = True             # reads obs.controller_vio_samples_dvio (the shared stages map them only then)
     velocity_window_ns = 100_000_000    # velocity from the newest sample and one ~0.1 s older
     max_prediction_ns = 500_000_000     # never predict further than this (scheduler's max gap)
@@ -289,7 +361,6 @@ class LatencyAwareCM3Tracker:
         self.current: Correction | None = None
         self._pending: list[tuple[int, Pose]] = []     # (image capture ns, marker T_dvio_controller)
         self._vio: list[tuple[int, Pose]] = []         # (capture ns, anchor-mapped VIO), ascending
-        self._last_image_ns: int | None = None
 
     def _vio_at(self, t_ns: int) -> Pose | None:
         """VIO interpolated at capture time ``t`` if samples bracket it, else None."""
@@ -323,11 +394,9 @@ class LatencyAwareCM3Tracker:
             horizon = self._vio[-1][0] - self.buffer_ns
             while len(self._vio) > 2 and self._vio[1][0] < horizon:
                 self._vio.pop(0)
-        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):
-            image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
-            if image_ns != self._last_image_ns:
-                self._pending.append((image_ns, obs.marker.T_dvio_controller))
-                self._last_image_ns = image_ns
+        frame = tick.new_frame   # an observation counts once, on the tick that first carries its frame
+        if obs.marker is not None and is_finite(obs.marker.T_dvio_controller) and frame is not None:
+            self._pending.append((frame.t_ns, obs.marker.T_dvio_controller))
         # pair every observation whose image time is now bracketed by VIO captures
         keep = []
         for image_ns, marker in self._pending:
@@ -358,7 +427,6 @@ def _latency_aware_cm3(spec: TrackerSpec, math: CorrectionMath, reading: CM1Read
 
 
 def _fused(spec: TrackerSpec, math: CorrectionMath, reading: CM1Reading) -> Tracker:
-    from phonepose.pipeline.fusion import FusedTracker
     return FusedTracker(spec.name)
 
 

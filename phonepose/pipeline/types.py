@@ -9,7 +9,7 @@ objects would run live. Poses follow phonepose.geometry: ``T_a_b`` is frame b in
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -49,26 +49,52 @@ class SessionContext:
     path: object | None = None                # phonepose.PathSpec
 
 
+@dataclass(frozen=True)
+class Frame:
+    """The newest camera frame at or before a tick, as the scheduler decided it once.
+
+    ``is_new``: the previous tick did not carry this frame (the shared stages decode and detect
+    only then; a frame carried again reuses its recognition). ``t_ns``: the frame's time on the
+    display clock, the one every stage pairs it by (its ``log_time``).
+    """
+
+    data: bytes                               # the encoded image, as recorded
+    format: str                               # "jpeg" or "png" (foxglove CompressedImage.format)
+    t_ns: int
+    is_new: bool
+    T_dvio_display: Pose | None = None        # display body in display_vio at ``t_ns`` (None: not known yet)
+
+
 @dataclass
 class Tick:
-    """Everything a tracker may know at time ``t_ns`` (display clock), causally."""
+    """Everything a tracker may know at time ``t_ns`` (display clock), causally.
+
+    No ground truth: the scheduler hands that beside the tick, to the engine and the metrics only.
+    """
 
     index: int
     t_ns: int
-    image: object | None = None               # foxglove CompressedImage: newest frame at or before t
-    image_t_ns: int | None = None
-    image_is_new: bool = False                # not already carried by the previous tick
-    T_dvio_display: Pose | None = None        # display body in display_vio, at image_t (else t)
+    frame: Frame | None = None                # newest camera frame at or before t (None: none yet, or no camera)
+    T_dvio_display: Pose | None = None        # display body in display_vio, at frame.t_ns (else t)
     T_cvio_controller: Pose | None = None     # controller body in controller_vio, interpolated at t
     T_dvio_anchor: Pose | None = None         # anchor as the display resolved it (latest)
     T_cvio_anchor: Pose | None = None         # anchor as the controller resolved it (latest)
     imu: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # rows t_s, gx gy gz, ax ay az since last tick
     events: list = field(default_factory=list)  # phonepose.CalibrationEvent received since the last tick
-    gt_T_dvio_controller: Pose | None = None  # ground truth in display_vio (None: no GT within tolerance)
     in_task: bool = True                      # inside [task_start, task_end]
     # controller VIO samples received since the previous tick: (capture_ns from the message's
     # timestamp, T_cvio_controller), in receipt order (used by T8; the rows above do not need it)
     controller_vio_samples: list = field(default_factory=list)
+
+    @property
+    def new_frame(self) -> Frame | None:
+        """The frame if this tick is the first to carry it, else None."""
+        return self.frame if self.frame is not None and self.frame.is_new else None
+
+    @property
+    def frame_t_ns(self) -> int:
+        """The time this tick's image-derived values refer to: the frame's, else the tick's."""
+        return self.frame.t_ns if self.frame is not None else self.t_ns
 
 
 @dataclass
@@ -101,12 +127,36 @@ class Observation:
 
 
 class Tracker(Protocol):
-    """A causal streaming tracker (one row of the paper's Table 1)."""
+    """A causal streaming tracker (one row of the paper's Table 1, or a user's own: docs/writing-a-tracker.md).
+
+    Capabilities, read by the engine before the first tick: ``needs_camera`` (the session must have
+    camera images; refused on one without, before any output) and ``uses_vio_samples`` (the shared
+    stages map ``Tick.controller_vio_samples`` into display_vio for it:
+    ``Observation.controller_vio_samples_dvio``; ~0.2 ms per tick, skipped when no tracker asks).
+    """
 
     name: str
+    needs_camera: bool
+    uses_vio_samples: bool
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Forget everything: the next ``step`` is the first tick of a session."""
+        ...
 
     def step(self, obs: Observation) -> Pose | None:
         """The controller pose in display_vio at ``obs.tick.t_ns``, or None if it has none yet."""
+        ...
+
+
+class Stages(Protocol):
+    """The stages every tracker shares (phonepose.pipeline.shared.SharedStages), run once per tick."""
+
+    map_vio_samples: bool      # map Tick.controller_vio_samples (set by the engine from the trackers' capabilities)
+    frames_decoded: int        # camera frames decoded so far
+    frames_undecodable: int    # of which could not be decoded (reported once by the engine)
+
+    def process(self, tick: Tick) -> Observation: ...
+
+    def detections_message(self, obs: Observation) -> Any:
+        """The /pipeline/markers message (phonepose.MarkerDetections) for this tick's new frame."""
         ...

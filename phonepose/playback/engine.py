@@ -1,6 +1,7 @@
 """The playback engine: ticks → shared stages (once) → every tracker → outputs.
 
     result = run_playback("s.mcap", trackers=["all"], out_dir="out", rerun_path="out/s.rrd")
+    result = run_playback("s.mcap", PlaybackOptions(trackers=["T1", "T8"], write_outputs=False))
 
 Per tick the shared stages run once (decode, marker recognition, anchor mapping) and every
 tracker steps on the same Observation. The engine records per tracker ``(t, pose or None,
@@ -19,28 +20,38 @@ Nothing depends on the wall clock unless ``realtime`` paces the ticks.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import time
 from array import array
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
+from phonepose.calibration.gt_calibration import GroundTruthSetup, ground_truth_setup
 from phonepose.errors import ConfigError, OutputError, SessionContentError
-from phonepose.geometry import Pose
-from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
-from phonepose.pipeline.context import has_camera, read_context
 from phonepose.evaluation.controller import controller_metrics
-from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
-
 from phonepose.evaluation.trajectory import write_in_view, write_tum
+from phonepose.geometry import Pose
+from phonepose.pipeline.context import has_camera, read_context
+from phonepose.pipeline.corrections import CorrectionMath
+from phonepose.pipeline.shared import SharedStages
+from phonepose.pipeline.trackers import make_trackers, split_names
+from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
+from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.codec import pose_in_frame
 from phonepose.viewer.annotations import marker_annotations
+
+if TYPE_CHECKING:
+    from phonepose.playback.rerun_log import PlaybackRerunLogger   # imported when used: rerun-sdk costs ~0.3 s
+
+log = logging.getLogger("phonepose")
 
 
 @dataclass
@@ -105,39 +116,21 @@ class _Collector:
         return Pose.from_xyzw(np.array(self.trans, dtype=float).reshape(-1, 3), np.array(self.rot, dtype=float).reshape(-1, 4))
 
 
-def _default_stages(context: SessionContext):
-    from phonepose.pipeline.shared import SharedStages
+def _default_stages(context: SessionContext) -> Stages:
     return SharedStages(context)
 
 
 def _default_trackers(names: list[str], correction_math: str) -> list[Tracker]:
-    from phonepose.pipeline.trackers import make_trackers
     return make_trackers(names, correction_math)
 
 
-def _detections_message(stages, obs: Observation):
-    fn = getattr(stages, "detections_message", None)
-    if fn is None:
-        from phonepose.pipeline.shared import detections_message as fn
-    return fn(obs)
-
-
-def _needs_camera(tracker) -> bool:
-    """A row that uses the marker inside the FoV, or a correction captured from marker sightings (CM2, CM3)."""
-    spec = getattr(tracker, "spec", None)
-    if spec is None:
-        return False
-    return getattr(spec.inside, "value", spec.inside) == "marker" or \
-        getattr(spec.correction, "value", spec.correction) in ("CM2", "CM3")
-
-
-def _check_camera_trackers(session: str, context: SessionContext, trackers) -> None:
+def _check_camera_trackers(session: str, context: SessionContext, trackers: list[Tracker]) -> None:
     """A session without camera images cannot run marker-based trackers: say so instead of reporting VIO as them."""
     if has_camera(context):
         return
-    need = [t.name for t in trackers if _needs_camera(t)]
+    need = [t.name for t in trackers if t.needs_camera]
     if need:
-        able = [t.name for t in trackers if not _needs_camera(t)]
+        able = [t.name for t in trackers if not t.needs_camera]
         raise SessionContentError(
             f"{session}: no camera images ({Topic.CAMERA_IMAGE}): {', '.join(need)} need the camera"
             + (f"; run the VIO-only trackers with {' '.join('-t ' + n for n in able)}" if able else
@@ -160,8 +153,8 @@ def _prepare_out_dir(out_dir: Path) -> None:
 class PlaybackEngine:
     """Drive one session through the shared stages and trackers, tick by tick."""
 
-    def __init__(self, context: SessionContext, stages, trackers: list[Tracker], *, writer: SessionWriter | None = None,
-                 rerun_logger=None):
+    def __init__(self, context: SessionContext, stages: Stages, trackers: list[Tracker], *,
+                 writer: SessionWriter | None = None, rerun_logger: PlaybackRerunLogger | None = None):
         names = [t.name for t in trackers]
         if len(set(names)) != len(names):
             raise ConfigError(f"tracker given twice: {', '.join(names)}")
@@ -178,7 +171,8 @@ class PlaybackEngine:
         for t in trackers:
             t.reset()
 
-    def step(self, tick: Tick) -> tuple[Observation, dict[str, Pose | None]]:
+    def step(self, tick: Tick, gt: Pose | None = None) -> tuple[Observation, dict[str, Pose | None]]:
+        """One tick through the stages and every tracker; ``gt`` (beside the tick) goes to the metrics only."""
         obs = self.stages.process(tick)
         poses = {tr.name: tr.step(obs) for tr in self.trackers}
         self.n_ticks += 1
@@ -187,22 +181,26 @@ class PlaybackEngine:
             inside = obs.in_view
             for name, pose in poses.items():
                 self.collectors[name].add(tick.t_ns, pose, inside)
-            self.gt.add(tick.t_ns, tick.gt_T_dvio_controller, inside)
+            self.gt.add(tick.t_ns, gt, inside)
         if self.writer is not None:
-            if tick.image is not None and tick.image_is_new:
-                self.writer.write(Topic.PIPELINE_MARKERS, _detections_message(self.stages, obs), tick.t_ns)
-                self.writer.write(Topic.PIPELINE_MARKER_ANNOTATIONS, marker_annotations(obs), tick.t_ns)
-            encoded: dict[int, tuple] = {}   # trackers often return the very same Pose object (e.g. the marker's)
-            for name, pose in poses.items():
-                if pose is not None:
-                    hit = encoded.get(id(pose))
-                    if hit is None:
-                        msg = pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns)
-                        hit = encoded[id(pose)] = (msg, msg.SerializeToString())
-                    self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
+            self._write(tick, obs, poses)
         if self.rerun_logger is not None:
-            self.rerun_logger.log_tick(tick, obs, poses)
+            self.rerun_logger.log_tick(tick, obs, poses, gt)
         return obs, poses
+
+    def _write(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
+        assert self.writer is not None
+        if tick.new_frame is not None:
+            self.writer.write(Topic.PIPELINE_MARKERS, self.stages.detections_message(obs), tick.t_ns)
+            self.writer.write(Topic.PIPELINE_MARKER_ANNOTATIONS, marker_annotations(obs), tick.t_ns)
+        encoded: dict[int, tuple] = {}   # trackers often return the very same Pose object (e.g. the marker's)
+        for name, pose in poses.items():
+            if pose is not None:
+                hit = encoded.get(id(pose))
+                if hit is None:
+                    msg = pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns)
+                    hit = encoded[id(pose)] = (msg, msg.SerializeToString())
+                self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
 
     def trajectories(self) -> dict[str, TrackerTrajectory]:
         out = {}
@@ -231,16 +229,9 @@ class PlaybackEngine:
         return out
 
 
-def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("all",), out_dir: str | os.PathLike | None = None,
-                 rate_hz: float = DEFAULT_RATE_HZ, correction_math: str = "paper", rerun_path: str | os.PathLike | None = None,
-                 spawn: bool = False, start_s: float | None = None, end_s: float | None = None, realtime: bool = False,
-                 progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
-                 stages_factory: Callable[[SessionContext], object] | None = None,
-                 tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None,
-                 gt_calibration: str | os.PathLike | None = None, gt_calibration_name: str | None = None,
-                 gt_file: str | os.PathLike | None = None, gt_format: str | None = None,
-                 hand_eye: str | os.PathLike | None = None, hand_eye_name: str | None = None) -> PlaybackResult:
-    """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
+@dataclass(frozen=True)
+class PlaybackOptions:
+    """Everything a playback can be asked (the CLI's options; ``run_playback(session, **options)`` also works).
 
     ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
     default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
@@ -252,94 +243,143 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     read from the folder before it is renamed into place). ``gt_file`` (TUM or EuRoC, ``gt_format``)
     replaces the session's ground truth (phonepose.calibration.ground_truth).
     """
+
+    trackers: Iterable[str] | str = ("all",)
+    out_dir: str | os.PathLike | None = None
+    rate_hz: float = DEFAULT_RATE_HZ
+    correction_math: str = "paper"
+    rerun_path: str | os.PathLike | None = None
+    spawn: bool = False
+    start_s: float | None = None
+    end_s: float | None = None
+    realtime: bool = False
+    progress: Callable[[int, int], None] | None = None
+    write_outputs: bool = True
+    stages_factory: Callable[[SessionContext], Stages] | None = None
+    tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None
+    gt_calibration: Any = None            # a file (str | PathLike) or a GtCalibration in memory
+    gt_calibration_name: str | None = None
+    gt_file: str | os.PathLike | None = None
+    gt_format: str | None = None
+    hand_eye: str | os.PathLike | None = None
+    hand_eye_name: str | None = None
+
+
+def _ground_truth(options: PlaybackOptions) -> GroundTruthSetup:
+    """The GT calibration and sidecar ground truth to apply (``hand_eye`` is the calibration's old name)."""
+    o = options
+    return ground_truth_setup(o.gt_calibration if o.gt_calibration is not None else o.hand_eye,
+                              o.gt_calibration_name or o.hand_eye_name, o.gt_file, o.gt_format)
+
+
+def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
+    names = split_names(options.trackers)   # --tracker T4,T8 or --tracker T4 --tracker T8
+    math = CorrectionMath.parse(options.correction_math).value
+    return (options.tracker_factory or _default_trackers)(names, math), math
+
+
+def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContext, names: list[str],
+                  math: str, gt_setup: GroundTruthSetup) -> PlaybackRerunLogger | None:
+    if options.rerun_path is None and not options.spawn:
+        return None
+    from phonepose.playback.rerun_log import PlaybackRerunLogger
+    return PlaybackRerunLogger(context, names, session=session,
+                               params={"rate_hz": options.rate_hz, "correction_math": math, "start_s": options.start_s,
+                                       "end_s": options.end_s, "hand_eye": gt_setup.calibration_path,
+                                       **gt_setup.rerun_params},
+                               rrd_path=options.rerun_path, spawn=options.spawn)
+
+
+def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOptions) -> None:
+    total = len(scheduler)
+    pace0 = None
+    for tick, gt in scheduler.with_truth():
+        if options.realtime:
+            if pace0 is None:
+                pace0 = (time.monotonic(), tick.t_ns)
+            delay = pace0[0] + (tick.t_ns - pace0[1]) / 1e9 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        engine.step(tick, gt)
+        if options.progress is not None:
+            options.progress(engine.n_ticks, total)
+
+
+def _write_files(out: Path, engine: PlaybackEngine, trajs: dict[str, TrackerTrajectory], files: dict[str, str]) -> None:
+    for name, traj in trajs.items():
+        p = out / "trajectories" / f"{name}.tum"
+        write_tum(p, traj.stamps_ns, traj.poses)
+        files[f"trajectories/{name}.tum"] = str(p)
+    gt = engine.gt.poses()
+    if gt is not None:
+        gt_stamps = engine.gt.stamps()
+        write_tum(out / "groundtruth.tum", gt_stamps, gt)
+        files["groundtruth.tum"] = str(out / "groundtruth.tum")
+        write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
+        files["in_view.txt"] = str(out / "in_view.txt")
+
+
+def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = None, **kwargs: Any) -> PlaybackResult:
+    """Play ``session`` back and write the outputs (:class:`PlaybackOptions`, given whole or as keywords).
+
+    Everything that can be refused is checked before the first side effect: tracker names,
+    correction math, the hand-eye file, the session and its content (camera for the trackers that
+    need it, --rate/--start/--end); only then are the output folder, trackers.mcap and the Rerun
+    sink opened, and an ``ExitStack`` closes whatever was opened, however the ticks end.
+    """
+    if options is None:
+        options = PlaybackOptions(**kwargs)
+    elif kwargs:
+        options = replace(options, **kwargs)
     wall0 = time.perf_counter()
-    from phonepose.pipeline.trackers import split_names
-    names = split_names(trackers)   # --tracker T4,T8 or --tracker T4 --tracker T8
-    from phonepose.pipeline.corrections import CorrectionMath
-    math = CorrectionMath.parse(correction_math).value
-    tracker_objs = (tracker_factory or _default_trackers)(names, math)
-    from phonepose.calibration.gt_calibration import ground_truth_setup
-    gt_setup = ground_truth_setup(gt_calibration if gt_calibration is not None else hand_eye,
-                                  gt_calibration_name or hand_eye_name, gt_file, gt_format)
+    tracker_objs, math = _make_trackers(options)
+    gt_setup = _ground_truth(options)
     gt_note = gt_setup.note
     session = os.fspath(session)
     out = None
-    if write_outputs:
-        out = Path(out_dir) if out_dir is not None else default_out_dir(session)
+    if options.write_outputs:
+        out = Path(options.out_dir) if options.out_dir is not None else default_out_dir(session)
     files: dict[str, str] = {}
-    with SessionReader(session) as reader:
+    with contextlib.ExitStack() as stack:
+        reader = stack.enter_context(SessionReader(session))
         context = read_context(reader)
         _check_camera_trackers(session, context, tracker_objs)
-        scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s,
-                                  gt_calibration=gt_setup.calibration, gt_series=gt_setup.series)
-        stages = (stages_factory or _default_stages)(context)
-        if hasattr(stages, "map_vio_samples"):
-            stages.map_vio_samples = any(getattr(t, "uses_vio_samples", False) for t in tracker_objs)
-        logger = None   # first: a --rerun path that cannot be written fails before any file is opened
-        if rerun_path is not None or spawn:
-            from phonepose.playback.rerun_log import PlaybackRerunLogger
-            logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session=session,
-                                         params={"rate_hz": rate_hz, "correction_math": math, "start_s": start_s,
-                                                 "end_s": end_s, "hand_eye": gt_setup.calibration_path, **gt_setup.rerun_params},
-                                         rrd_path=rerun_path, spawn=spawn)
-        writer = None
+        scheduler = TickScheduler(reader, context, rate_hz=options.rate_hz, start_s=options.start_s,
+                                  end_s=options.end_s, gt_calibration=gt_setup.calibration,
+                                  gt_series=gt_setup.series)
+        stages = (options.stages_factory or _default_stages)(context)
+        stages.map_vio_samples = any(t.uses_vio_samples for t in tracker_objs)
+        engine = PlaybackEngine(context, stages, tracker_objs)   # refuses a tracker named twice
+        # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
+        # before any file is opened), then the output folder and trackers.mcap
+        engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math, gt_setup)
+        if engine.rerun_logger is not None:
+            stack.callback(engine.rerun_logger.close)
         if out is not None:
+            _prepare_out_dir(out)
             files["trackers.mcap"] = str(out / "trackers.mcap")
-            try:
-                _prepare_out_dir(out)   # after every check of the session and options: a refused run creates nothing
-                writer = SessionWriter(out / "trackers.mcap")
-            except BaseException:
-                if logger is not None:
-                    logger.close()
-                raise
-        engine = PlaybackEngine(context, stages, tracker_objs, writer=writer, rerun_logger=logger)
-        total = len(scheduler)
-        try:
-            pace0 = None
-            for tick in scheduler:
-                if realtime:
-                    if pace0 is None:
-                        pace0 = (time.monotonic(), tick.t_ns)
-                    delay = pace0[0] + (tick.t_ns - pace0[1]) / 1e9 - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                engine.step(tick)
-                if progress is not None:
-                    progress(engine.n_ticks, total)
-        finally:
-            if writer is not None:
-                writer.finish()
-            if logger is not None:
-                logger.close()
-    undecodable = getattr(stages, "frames_undecodable", 0)
-    if undecodable:
-        import logging
-        logging.getLogger("phonepose").warning(
-            "phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
-            Topic.CAMERA_IMAGE, undecodable)
+            engine.writer = SessionWriter(out / "trackers.mcap")
+            stack.callback(engine.writer.finish)
+        _play(scheduler, engine, options)
+    if stages.frames_undecodable:
+        log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
+                    Topic.CAMERA_IMAGE, stages.frames_undecodable)
     trajs = engine.trajectories()
     for c in engine.collectors.values():
-        c.__init__()   # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
+        c.__init__()   # type: ignore[misc]  # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
     per_tracker = engine.metrics(trajs)
-    gt_stamps = engine.gt.stamps()
-    gt = engine.gt.poses()
     session_name = Path(session).name
-    metrics_doc = metrics_document(session_name, rate_hz, per_tracker, ground_truth=gt_note)
+    metrics_doc = metrics_document(session_name, options.rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
-        for name, traj in trajs.items():
-            p = out / "trajectories" / f"{name}.tum"
-            write_tum(p, traj.stamps_ns, traj.poses)
-            files[f"trajectories/{name}.tum"] = str(p)
-        if gt is not None:
-            write_tum(out / "groundtruth.tum", gt_stamps, gt)
-            files["groundtruth.tum"] = str(out / "groundtruth.tum")
-            write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
-            files["in_view.txt"] = str(out / "in_view.txt")
-        metrics_doc = write_metrics(out / "metrics.json", session_name, rate_hz, per_tracker, ground_truth=gt_note)
+        _write_files(out, engine, trajs, files)
+        metrics_doc = write_metrics(out / "metrics.json", session_name, options.rate_hz, per_tracker,
+                                    ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
+    rerun_path = options.rerun_path
     return PlaybackResult(
-        session=session, out_dir=out, rate_hz=rate_hz, n_ticks=engine.n_ticks, n_task_ticks=engine.n_task_ticks,
-        frames_decoded=int(getattr(stages, "frames_decoded", 0)), trajectories=trajs, gt_stamps_ns=gt_stamps, gt=gt,
-        metrics=metrics_doc, rerun_path=os.fspath(rerun_path) if rerun_path is not None else None,
+        session=session, out_dir=out, rate_hz=options.rate_hz, n_ticks=engine.n_ticks,
+        n_task_ticks=engine.n_task_ticks, frames_decoded=int(stages.frames_decoded), trajectories=trajs,
+        gt_stamps_ns=engine.gt.stamps(), gt=engine.gt.poses(), metrics=metrics_doc,
+        rerun_path=os.fspath(rerun_path) if rerun_path is not None else None,
         wall_s=time.perf_counter() - wall0, files=files,
     )

@@ -205,11 +205,11 @@ class CameraLogger:
 
     def log(self, tick: Tick) -> None:
         # the display pose is the one at the frame's stamp: it changes with the frame
-        if tick.T_dvio_display is not None and (tick.image_is_new or not self.enabled or tick.image is None):
+        if tick.T_dvio_display is not None and (tick.new_frame is not None or not self.enabled or tick.frame is None):
             self.poses.add(tick.t_ns, tick.index, translation=tick.T_dvio_display.translation,
                            quaternion=tick.T_dvio_display.quat_xyzw)
-        image: Any = tick.image
-        if self.enabled and image is not None and tick.image_is_new:
+        image = tick.new_frame
+        if self.enabled and image is not None:
             fmt = (image.format or "jpeg").lower()
             self.images.add(tick.t_ns, tick.index, blob=np.frombuffer(image.data, dtype=np.uint8),  # as recorded
                             media="image/png" if "png" in fmt else "image/jpeg")
@@ -243,7 +243,7 @@ class MarkerLogger:
         self.rows = Columns(rec, E.MARKER, _marker_columns)
 
     def log(self, tick: Tick, obs: Observation) -> None:
-        if tick.image is None or not tick.image_is_new:
+        if tick.new_frame is None:
             return
         m = obs.marker
         if m is None:
@@ -403,7 +403,7 @@ class StatusLogger:
             self.rec.log(E.STATUS_TASK, rr.StateChange(state=task))
             self.task = task
         marker = "in_view" if obs.in_view else "out_of_view"
-        if tick.image is not None and marker != self.marker:
+        if tick.frame is not None and marker != self.marker:
             self.rec.log(E.STATUS_MARKER, rr.StateChange(state=marker))
             self.marker = marker
 
@@ -476,7 +476,8 @@ class PlaybackRerunLogger:
         self.rec.set_time(E.TICK, sequence=tick.index)
         self.rec.set_time(E.TIME, timestamp=np.datetime64(int(tick.t_ns), "ns"))
 
-    def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
+    def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None], gt: Pose | None = None) -> None:
+        """``gt``: the ground truth the scheduler associated with this tick (beside it, never in it)."""
         self.set_time(tick)
         self._ticks += 1
         if not self.blueprint_sent and (tick.T_dvio_display is not None or self._ticks >= BLUEPRINT_WAIT_TICKS):
@@ -484,10 +485,10 @@ class PlaybackRerunLogger:
         self.camera.log(tick)
         self.markers.log(tick, obs)
         self.status.log(tick, obs)
-        self.gt.log(tick, tick.gt_T_dvio_controller)
+        self.gt.log(tick, gt)
         for name, pose in poses.items():
             self.trackers[name].log(tick, pose)
-        self.errors.log(tick, tick.gt_T_dvio_controller, poses)
+        self.errors.log(tick, gt, poses)
         self._since_columns += 1
         self._since_trajectory += 1
         if self._since_columns >= self.columns_every:

@@ -6,7 +6,7 @@ The tick rule (docs/playback.md):
   first controller VIO sample when the session has no camera). ``--start/--end`` select the
   grid ticks inside ``[start, end]`` (seconds after the session's first message).
 * A tick at ``t`` carries every message with ``log_time <= t`` and nothing later: the newest
-  camera frame at or before ``t`` (``image_is_new`` if the previous tick did not carry it), the
+  camera frame at or before ``t`` (a :class:`Frame`, ``is_new`` if the previous tick did not carry it), the
   display VIO pose interpolated at that frame's stamp, the controller VIO pose interpolated at
   ``t``, the latest anchors, the IMU rows and calibration events with ``t_prev < log_time <= t``,
   and the ground truth associated as the TUM benchmark does: interpolated at ``t`` from the two
@@ -34,8 +34,9 @@ from typing import Iterator
 
 import numpy as np
 
+from phonepose.errors import ConfigError, SessionContentError
 from phonepose.geometry import Pose, RawPose, raw_compose, raw_interpolate
-from phonepose.pipeline.types import SessionContext, Tick
+from phonepose.pipeline.types import Frame, SessionContext, Tick
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
 from phonepose.session.index import main_span
@@ -156,7 +157,6 @@ def _check_task_overlap(context: SessionContext, start_ns: int, first: int, last
     t0, t1 = context.task_start_ns, context.task_end_ns
     if t0 is None or t1 is None or (last >= t0 and first <= t1):
         return
-    from phonepose.errors import ConfigError
     given = " ".join(f"{name} {v:g}" for name, v in (("--start", start_s), ("--end", end_s)) if v is not None)
     raise ConfigError(f"{given} selects {(first - start_ns) / 1e9:.2f}-{(last - start_ns) / 1e9:.2f} s, which misses "
                       f"the task window {(t0 - start_ns) / 1e9:.2f}-{(t1 - start_ns) / 1e9:.2f} s (where trajectories "
@@ -176,7 +176,6 @@ class TickScheduler:
         ``gt_series`` (a calibration.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
         /gt/controller/pose."""
         if not rate_hz > 0:
-            from phonepose.errors import ConfigError
             raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
         self.reader = reader
         self.context = context
@@ -206,8 +205,16 @@ class TickScheduler:
             t0 = m.log_time
             break
         if t0 is None:
-            from phonepose.errors import SessionContentError
             raise SessionContentError(f"{reader.path}: {origin_topic} has no messages")
+        first, last = self._grid(t0, start_ns, end_ns, start_s, end_s)
+        self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
+                                 session_start_ns=start_ns)
+        self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
+        self.ticks_skipped = 0      # grid ticks inside stretches of more than IDLE_GAP_S without data
+
+    def _grid(self, t0: int, start_ns: int, end_ns: int, start_s: float | None,
+              end_s: float | None) -> tuple[int, int]:
+        """The first and last tick of the grid ``t0 + k / rate`` inside ``[start, end]``."""
         first = t0
         if start_s is not None:
             lo = start_ns + int(round(start_s * 1e9))
@@ -218,15 +225,11 @@ class TickScheduler:
             last_limit = min(last_limit, start_ns + int(round(end_s * 1e9)))
         last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
         if last < first and (start_s is not None or end_s is not None):
-            from phonepose.errors import ConfigError
             raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
                               f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
         if start_s is not None or end_s is not None:
-            _check_task_overlap(context, start_ns, first, last, start_s, end_s)
-        self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
-                                 session_start_ns=start_ns)
-        self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
-        self.ticks_skipped = 0      # grid ticks inside stretches of more than IDLE_GAP_S without data
+            _check_task_overlap(self.context, start_ns, first, last, start_s, end_s)
+        return first, last
 
     def _span(self, reader: SessionReader, summary) -> tuple[int, int]:
         """The session's time span without time outliers (counted into ``skipped``): a far-future or
@@ -240,180 +243,237 @@ class TickScheduler:
             if n:
                 self.skipped[(topic, OUTLIER)] += n
         return span
+
     def __len__(self) -> int:
         return self.info.n_ticks
 
     # ------------------------------------------------------------------ the pass
     def __iter__(self) -> Iterator[Tick]:
+        """The ticks alone (what trackers may see)."""
+        for tick, _gt in self.with_truth():
+            yield tick
+
+    def with_truth(self) -> Iterator[tuple[Tick, Pose | None]]:
+        """``(tick, ground truth)`` pairs: the GT stays beside the tick, for the engine and the metrics."""
         info = self.info
         if info.n_ticks == 0:
             return
-        display = PoseStream()
-        controller = PoseStream()
-        gt = PoseStream()
-        if self.has_gt and self._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
-            for t_ns, raw in zip(*self._gt_series.raw_samples()):
-                gt.add(int(t_ns) - self._gt_shift_ns, raw)
-        images: deque = deque()            # (log_time, CompressedImage), newest at or before next tick kept
-        d_anchor: deque = deque()           # (log_time, Pose)
-        c_anchor: deque = deque()
-        imu: list = []                      # (log_time, row)
-        cvio_samples: list = []             # (log_time, capture_ns, raw): controller VIO with its capture stamp
-        events: list = []                   # (log_time, CalibrationEvent)
-        state = {"image": None, "image_t": None, "display_cache": (None, None), "d_anchor": None, "c_anchor": None}
-        next_t = info.first_tick_ns
-        index = 0
+        state = _PassState(self)
         # Nothing after this is needed: the last tick plus the look-ahead.
         read_end = info.last_tick_ns + max(self.max_gap_ns, self._gt_wait_ns) + 1
-        need_display = self.has_camera
-
-        def ready(t: int, now: int) -> bool:
-            if not controller.has_after(t) and now - t <= self.max_gap_ns:
-                return False
-            if need_display and not display.has_after(t) and now - t <= self.max_gap_ns:
-                return False
-            if self.has_gt and not gt.has_after(t) and now - t <= self._gt_wait_ns:
-                return False
-            return True
-
-        def build(t: int, idx: int, prev_t: int | None) -> Tick:
-            # newest image at or before t
-            new_image = False
-            while images and images[0][0] <= t:
-                lt, img = images.popleft()
-                state["image"], state["image_t"] = img, lt
-                new_image = True
-            while d_anchor and d_anchor[0][0] <= t:
-                state["d_anchor"] = d_anchor.popleft()[1]
-            while c_anchor and c_anchor[0][0] <= t:
-                state["c_anchor"] = c_anchor.popleft()[1]
-            k = 0
-            while k < len(imu) and imu[k][0] <= t:
-                k += 1
-            rows = np.array([r for _, r in imu[:k]], dtype=float).reshape(-1, 7)
-            del imu[:k]
-            k = 0
-            while k < len(events) and events[k][0] <= t:
-                k += 1
-            evs = [e for _, e in events[:k]]
-            del events[:k]
-            k = 0
-            while k < len(cvio_samples) and cvio_samples[k][0] <= t:
-                k += 1
-            vio_samples = [(c, Pose.from_raw(r)) for _, c, r in cvio_samples[:k]]
-            del cvio_samples[:k]
-            image_t = state["image_t"]
-            T_dvio_display = None
-            if need_display:
-                q = image_t if image_t is not None else t
-                cached_t, cached = state["display_cache"]
-                if cached_t == q and cached is not None:
-                    T_dvio_display = cached
-                else:
-                    T_dvio_display = display.at(q, self.max_gap_ns)
-                    state["display_cache"] = (q, T_dvio_display)
-            else:
-                T_dvio_display = display.at(t, self.max_gap_ns)
-            gt_pose = None
-            if self.has_gt:
-                T_world_ctrl = gt.raw_associate(t, self.gt_tol_ns)
-                if T_world_ctrl is not None:
-                    if self._T_mocap_controller is not None:
-                        T_world_ctrl = raw_compose(T_world_ctrl, self._T_mocap_controller)
-                    gt_pose = Pose.from_raw(raw_compose(self._T_dvio_world, T_world_ctrl))
-            ctx = self.context
-            in_task = True
-            if ctx.task_start_ns is not None and t < ctx.task_start_ns:
-                in_task = False
-            if ctx.task_end_ns is not None and t > ctx.task_end_ns:
-                in_task = False
-            tick = Tick(
-                index=idx, t_ns=t, image=state["image"], image_t_ns=image_t, image_is_new=new_image,
-                T_dvio_display=T_dvio_display, T_cvio_controller=controller.at(t, self.max_gap_ns),
-                T_dvio_anchor=state["d_anchor"], T_cvio_anchor=state["c_anchor"], imu=rows, events=evs,
-                gt_T_dvio_controller=gt_pose, in_task=in_task, controller_vio_samples=vio_samples,
-            )
-            # forget what no later tick can use
-            controller.prune(t)
-            gt.prune(t)
-            display.prune(image_t if (need_display and image_t is not None) else t)
-            return tick
-
-        prev_t = None
-        last_stamp: dict[str, tuple[int, int]] = {}   # topic -> (log_time, header stamp) of the last sample used
         last_message_ns = None
         for m in self.reader.messages(SCHEDULED_TOPICS, start_ns=self.span_ns[0],
                                       end_ns=min(read_end, self.span_ns[1] + 1)):
             now = m.log_time_ns
             if last_message_ns is not None and now - last_message_ns > self.idle_gap_ns:
-                # the ticks the data before the gap supports, then none until the data resumes
-                hold = last_message_ns + max(self.max_gap_ns, self._gt_wait_ns)
-                while next_t <= info.last_tick_ns and next_t <= hold:
-                    yield build(next_t, index, prev_t)
-                    prev_t = next_t
-                    next_t += self.period_ns
-                    index += 1
-                resume = info.t0_ns + -(-(now - info.t0_ns) // self.period_ns) * self.period_ns
-                if resume > next_t:
-                    self.ticks_skipped += (min(resume, info.last_tick_ns + self.period_ns) - next_t) // self.period_ns
-                    next_t = resume
+                yield from self._across_idle_gap(state, last_message_ns, now)
             last_message_ns = now
-            while next_t <= info.last_tick_ns and next_t < now and ready(next_t, now):
-                yield build(next_t, index, prev_t)
-                prev_t = next_t
-                next_t += self.period_ns
-                index += 1
-            topic, msg = m.topic, m.msg
-            if topic != Topic.CALIBRATION_EVENTS:
-                # duplicate or backwards timestamps on one stream: skipped and reported, never used
-                stamp = msg.timestamp.ToNanoseconds()
-                prev = last_stamp.get(topic)
-                # Judged by the header stamp only: controller streams carry the receipt time as
-                # log_time, so several samples of one network packet share it legitimately.
-                if prev is not None and stamp and prev[1] and stamp <= prev[1]:
-                    self.skipped[(topic, "duplicate or non-monotonic timestamp")] += 1
-                    continue
-                last_stamp[topic] = (now, stamp)
-            raw = None
-            if topic in _POSE_TOPICS:
-                try:
-                    raw = codec.raw_pose(msg.pose)
-                except codec.BrokenPose as exc:
-                    self.skipped[(topic, exc.reason)] += 1
-                    continue
-            if topic == Topic.CAMERA_IMAGE:
-                images.append((now, msg))
-            elif topic == Topic.DISPLAY_VIO_POSE:
-                display.add(now, raw)
-            elif topic == Topic.CONTROLLER_VIO_POSE:
-                controller.add(now, raw)
-                if now > info.first_tick_ns - self.period_ns:   # else before the first tick's interval
-                    cvio_samples.append((now, codec.stamp_ns(msg, now), raw))
-            elif topic == Topic.GT_CONTROLLER_POSE:
-                if self.has_gt and self._gt_series is None:
-                    gt.add(now - self._gt_shift_ns, raw)
-            elif topic == Topic.DISPLAY_ANCHOR:
-                d_anchor.append((now, Pose.from_raw(raw)))
-            elif topic == Topic.CONTROLLER_ANCHOR:
-                c_anchor.append((now, Pose.from_raw(raw)))
-            elif topic == Topic.CONTROLLER_IMU:
-                if now <= info.first_tick_ns - self.period_ns:
-                    continue  # before the first tick's interval (--start): nobody will read it
-                row = codec.imu_row(msg, now)
-                problem = codec.imu_problem(row)
-                if problem is not None:
-                    self.skipped[(topic, problem)] += 1
-                    continue
-                imu.append((now, row))
-            elif topic == Topic.CALIBRATION_EVENTS:
-                events.append((now, msg))
-            # bound the image queue: only the newest frame at or before the next tick matters
-            while len(images) >= 2 and images[1][0] <= next_t:
-                images.popleft()
-        while next_t <= info.last_tick_ns:
-            yield build(next_t, index, prev_t)
-            prev_t = next_t
-            next_t += self.period_ns
-            index += 1
+            while state.next_t <= info.last_tick_ns and state.next_t < now and state.ready(state.next_t, now):
+                yield state.build()
+            state.ingest(m.topic, m.msg, now)
+        while state.next_t <= info.last_tick_ns:
+            yield state.build()
         for (topic, reason), n in sorted(self.skipped.items()):
             log.warning("phonepose: warning: %s: %d sample(s) skipped: %s", topic, n, reason)
+
+    def _across_idle_gap(self, state: _PassState, last_message_ns: int, now: int) -> Iterator[tuple[Tick, Pose | None]]:
+        """The ticks the data before a gap of more than IDLE_GAP_S supports, then none until the data resumes."""
+        info = self.info
+        hold = last_message_ns + max(self.max_gap_ns, self._gt_wait_ns)
+        while state.next_t <= info.last_tick_ns and state.next_t <= hold:
+            yield state.build()
+        resume = info.t0_ns + -(-(now - info.t0_ns) // self.period_ns) * self.period_ns
+        if resume > state.next_t:
+            self.ticks_skipped += (min(resume, info.last_tick_ns + self.period_ns) - state.next_t) // self.period_ns
+            state.next_t = resume
+
+
+def _take(queue: list, t_ns: int) -> list:
+    """Remove and return the leading ``(log_time, ...)`` items with ``log_time <= t``."""
+    k = 0
+    while k < len(queue) and queue[k][0] <= t_ns:
+        k += 1
+    taken = queue[:k]
+    del queue[:k]
+    return taken
+
+
+class _PassState:
+    """What one pass holds between messages and ticks: ``ingest`` a message, ask whether the next
+    tick is ``ready``, ``build`` it (see the module docstring for the rule)."""
+
+    def __init__(self, sched: TickScheduler) -> None:
+        self.s = sched
+        self.next_t = sched.info.first_tick_ns
+        self.index = 0
+        self.before_first_ns = sched.info.first_tick_ns - sched.period_ns   # end of the interval before the first tick
+        self.display = PoseStream()
+        self.controller = PoseStream()
+        self.gt = PoseStream()
+        if sched.has_gt and sched._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
+            for t_ns, raw in zip(*sched._gt_series.raw_samples()):
+                self.gt.add(int(t_ns) - sched._gt_shift_ns, raw)
+        self.images: deque = deque()        # (log_time, CompressedImage), newest at or before next tick kept
+        self.d_anchors: deque = deque()     # (log_time, Pose)
+        self.c_anchors: deque = deque()
+        self.imu: list = []                 # (log_time, row)
+        self.cvio_samples: list = []        # (log_time, capture_ns, raw): controller VIO with its capture stamp
+        self.events: list = []              # (log_time, CalibrationEvent)
+        self.image: tuple[bytes, str] | None = None   # the newest frame carried so far (data, format), and its log_time
+        self.image_t: int | None = None
+        self.display_cache: tuple = (None, None)
+        self.d_anchor: Pose | None = None
+        self.c_anchor: Pose | None = None
+        self.last_stamp: dict[str, tuple[int, int]] = {}   # topic -> (log_time, header stamp) of the last sample used
+        self.handlers = {
+            Topic.CAMERA_IMAGE: self._image, Topic.DISPLAY_VIO_POSE: self._display_vio,
+            Topic.CONTROLLER_VIO_POSE: self._controller_vio, Topic.GT_CONTROLLER_POSE: self._gt,
+            Topic.DISPLAY_ANCHOR: self._display_anchor, Topic.CONTROLLER_ANCHOR: self._controller_anchor,
+            Topic.CONTROLLER_IMU: self._imu, Topic.CALIBRATION_EVENTS: self._event,
+        }
+
+    # ---------------------------------------------------------------- ingest
+    def ingest(self, topic: str, msg, now: int) -> None:
+        """One message of the pass, in log_time order."""
+        if topic != Topic.CALIBRATION_EVENTS and self._out_of_order(topic, msg, now):
+            return
+        raw = None
+        if topic in _POSE_TOPICS:
+            try:
+                raw = codec.raw_pose(msg.pose)
+            except codec.BrokenPose as exc:
+                self.s.skipped[(topic, exc.reason)] += 1
+                return
+        self.handlers[topic](msg, now, raw)
+
+    def _out_of_order(self, topic: str, msg, now: int) -> bool:
+        """Duplicate or backwards timestamps on one stream: skipped and reported, never used.
+
+        Judged by the header stamp only: controller streams carry the receipt time as log_time,
+        so several samples of one network packet share it legitimately."""
+        stamp = msg.timestamp.ToNanoseconds()
+        prev = self.last_stamp.get(topic)
+        if prev is not None and stamp and prev[1] and stamp <= prev[1]:
+            self.s.skipped[(topic, "duplicate or non-monotonic timestamp")] += 1
+            return True
+        self.last_stamp[topic] = (now, stamp)
+        return False
+
+    def _image(self, msg, now: int, raw: RawPose | None) -> None:
+        self.images.append((now, msg))
+        # bound the queue: only the newest frame at or before the next tick matters
+        while len(self.images) >= 2 and self.images[1][0] <= self.next_t:
+            self.images.popleft()
+
+    def _display_vio(self, msg, now: int, raw: RawPose | None) -> None:
+        self.display.add(now, raw)
+
+    def _controller_vio(self, msg, now: int, raw: RawPose | None) -> None:
+        self.controller.add(now, raw)
+        if now > self.before_first_ns:   # else before the first tick's interval
+            self.cvio_samples.append((now, codec.stamp_ns(msg, now), raw))
+
+    def _gt(self, msg, now: int, raw: RawPose | None) -> None:
+        if self.s.has_gt and self.s._gt_series is None:
+            self.gt.add(now - self.s._gt_shift_ns, raw)
+
+    def _display_anchor(self, msg, now: int, raw: RawPose) -> None:
+        self.d_anchors.append((now, Pose.from_raw(raw)))
+
+    def _controller_anchor(self, msg, now: int, raw: RawPose) -> None:
+        self.c_anchors.append((now, Pose.from_raw(raw)))
+
+    def _imu(self, msg, now: int, raw: RawPose | None) -> None:
+        if now <= self.before_first_ns:
+            return  # before the first tick's interval (--start): nobody will read it
+        row = codec.imu_row(msg, now)
+        problem = codec.imu_problem(row)
+        if problem is not None:
+            self.s.skipped[(Topic.CONTROLLER_IMU, problem)] += 1
+            return
+        self.imu.append((now, row))
+
+    def _event(self, msg, now: int, raw: RawPose | None) -> None:
+        self.events.append((now, msg))
+
+    # ---------------------------------------------------------------- ready / build
+    def ready(self, t: int, now: int) -> bool:
+        """Every interpolated stream has shown a sample after ``t``, or waiting longer is pointless."""
+        s = self.s
+        if not self.controller.has_after(t) and now - t <= s.max_gap_ns:
+            return False
+        if s.has_camera and not self.display.has_after(t) and now - t <= s.max_gap_ns:
+            return False
+        if s.has_gt and not self.gt.has_after(t) and now - t <= s._gt_wait_ns:
+            return False
+        return True
+
+    def build(self) -> tuple[Tick, Pose | None]:
+        """The tick at ``next_t`` and its ground truth; then forget what no later tick can use."""
+        t, s = self.next_t, self.s
+        new_image = self._advance_frame(t)
+        while self.d_anchors and self.d_anchors[0][0] <= t:
+            self.d_anchor = self.d_anchors.popleft()[1]
+        while self.c_anchors and self.c_anchors[0][0] <= t:
+            self.c_anchor = self.c_anchors.popleft()[1]
+        rows = np.array([r for _, r in _take(self.imu, t)], dtype=float).reshape(-1, 7)
+        evs = [e for _, e in _take(self.events, t)]
+        vio_samples = [(c, Pose.from_raw(r)) for _, c, r in _take(self.cvio_samples, t)]
+        T_dvio_display = self._display_pose(t)
+        frame = None
+        if self.image is not None:
+            data, fmt = self.image
+            frame = Frame(data=data, format=fmt, t_ns=self.image_t, is_new=new_image, T_dvio_display=T_dvio_display)
+        tick = Tick(
+            index=self.index, t_ns=t, frame=frame,
+            T_dvio_display=T_dvio_display, T_cvio_controller=self.controller.at(t, s.max_gap_ns),
+            T_dvio_anchor=self.d_anchor, T_cvio_anchor=self.c_anchor, imu=rows, events=evs,
+            in_task=self._in_task(t), controller_vio_samples=vio_samples,
+        )
+        gt = self._truth(t)
+        self.controller.prune(t)
+        self.gt.prune(t)
+        self.display.prune(self.image_t if (s.has_camera and self.image_t is not None) else t)
+        self.next_t += s.period_ns
+        self.index += 1
+        return tick, gt
+
+    def _advance_frame(self, t: int) -> bool:
+        """Take the newest image at or before ``t``; True if the previous tick did not carry it."""
+        msg = None
+        while self.images and self.images[0][0] <= t:
+            self.image_t, msg = self.images.popleft()
+        if msg is None:
+            return False
+        self.image = (msg.data, msg.format)   # read once per frame: protobuf copies bytes on every access
+        return True
+
+    def _display_pose(self, t: int) -> Pose | None:
+        """The display pose at the frame's stamp (at ``t`` without camera), computed once per frame."""
+        s = self.s
+        if not s.has_camera:
+            return self.display.at(t, s.max_gap_ns)
+        q = self.image_t if self.image_t is not None else t
+        cached_t, cached = self.display_cache
+        if cached_t == q and cached is not None:
+            return cached
+        pose = self.display.at(q, s.max_gap_ns)
+        self.display_cache = (q, pose)
+        return pose
+
+    def _truth(self, t: int) -> Pose | None:
+        s = self.s
+        if not s.has_gt:
+            return None
+        T_world_ctrl = self.gt.raw_associate(t, s.gt_tol_ns)
+        if T_world_ctrl is None:
+            return None
+        if s._T_mocap_controller is not None:
+            T_world_ctrl = raw_compose(T_world_ctrl, s._T_mocap_controller)
+        return Pose.from_raw(raw_compose(s._T_dvio_world, T_world_ctrl))
+
+    def _in_task(self, t: int) -> bool:
+        ctx = self.s.context
+        if ctx.task_start_ns is not None and t < ctx.task_start_ns:
+            return False
+        return not (ctx.task_end_ns is not None and t > ctx.task_end_ns)

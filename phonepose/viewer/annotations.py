@@ -23,7 +23,7 @@ def marker_annotations(obs: Observation) -> ImageAnnotations:
     label with its id, reprojection error and ambiguity ratio; no annotation when nothing was
     recognised, so the overlay clears on that frame."""
     msg = ImageAnnotations()
-    stamp = obs.tick.image_t_ns if obs.tick.image_t_ns is not None else obs.tick.t_ns
+    stamp = obs.tick.frame_t_ns
     msg.timestamp.FromNanoseconds(int(stamp))
     m = obs.marker
     if m is None:
