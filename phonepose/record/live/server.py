@@ -35,6 +35,7 @@ from aiohttp import WSMessage, WSMsgType, web
 
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
+from phonepose.record.live.gate import ConnectionGate
 from phonepose.record.live.websocket import PageSocket
 
 if TYPE_CHECKING:   # pragma: no cover
@@ -52,6 +53,10 @@ MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from 
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
+MAX_CONNECTIONS = 64                  # open TCP connections at a time (a phone page uses a few); see gate.py
+HANDSHAKE_TIMEOUT_S = 10.0            # TLS handshake deadline
+FIRST_REQUEST_S = 15.0                # a connection silent this long after it opened is closed
+KEEPALIVE_S = 15.0                    # an idle HTTP keep-alive connection is closed after this
 CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
 
 
@@ -359,6 +364,8 @@ class LiveServer:
         self.current: Connection | None = None
         self.connections = 0
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.AbstractServer | None = None
+        self.gate: ConnectionGate | None = None
         self.app = self._make_app()
 
     # ------------------------------------------------------------------ HTTP
@@ -452,11 +459,15 @@ class LiveServer:
 
     # ------------------------------------------------------------------ lifetime
     async def start(self) -> int:
-        self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0)
+        self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0,
+                                     keepalive_timeout=KEEPALIVE_S)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context, reuse_address=True)
-        await site.start()
-        sockets = getattr(site._server, "sockets", None) or []
+        # aiohttp's protocol factory behind the gate (connection cap, TLS and first-request deadlines)
+        self.gate = ConnectionGate(self._runner.server, self.ssl_context, limit=MAX_CONNECTIONS,
+                                   handshake_timeout_s=HANDSHAKE_TIMEOUT_S, first_request_s=FIRST_REQUEST_S)
+        loop = asyncio.get_running_loop()
+        self._listener = await loop.create_server(self.gate, self.host, self.port, reuse_address=True)
+        sockets = self._listener.sockets or []
         if sockets:
             self.port = sockets[0].getsockname()[1]
         return self.port
@@ -478,6 +489,12 @@ class LiveServer:
             if conn.pending or not conn.settled:
                 conn.settle()
             await conn.sock.close(message=b"recording finished")
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        if self.gate is not None and (self.gate.dropped or self.gate.refused):
+            self.recording.log(f"connections closed while idle: {self.gate.dropped}, refused (all "
+                               f"{MAX_CONNECTIONS} busy): {self.gate.refused}", level="warning")
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
