@@ -11,6 +11,7 @@ import asyncio
 import json
 import os
 import socket
+import ssl
 
 import aiohttp
 import numpy as np
@@ -209,3 +210,24 @@ def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_m
     assert grown < 80, f"{grown:.0f} MB for 2000 idle connections"     # ~590 MB before the gate, 35 MB in a bare server
     assert sum(m.topic == Topic.CONTROLLER_IMU for m in _messages(tmp_path / "s.mcap")) == 20
     assert any("connections closed while idle" in line for line in lines)
+
+
+def test_deep_static_paths_and_oversized_request_lines_are_one_line_not_a_traceback(long_media, tmp_path, capfd):
+    s, out, th, lines = _start(long_media, tmp_path)
+    ctx = ssl.create_default_context()
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+
+    def status(request: bytes) -> bytes:
+        with ctx.wrap_socket(socket.create_connection(("127.0.0.1", s.port), timeout=DEADLINE_S)) as c:
+            c.sendall(request)
+            return c.recv(64).split(b"\r\n")[0]
+
+    for _ in range(3):
+        assert status(b"GET /static/" + b"a/" * 3000 + b"x HTTP/1.1\r\nHost: x\r\n\r\n") == b"HTTP/1.1 404 Not Found"
+        assert status(b"GET /" + b"a" * 20000 + b" HTTP/1.1\r\nHost: x\r\n\r\n") == b"HTTP/1.0 400 Bad Request"
+    s.stop("test done")
+    _finish(th)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "File name too long" not in err
+    assert sum("bad HTTP requests (LineTooLong)" in line for line in lines) == 1
+    assert s.source.recording.repeats["bad HTTP requests (LineTooLong)"] == 3

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import secrets
 import statistics
@@ -138,6 +139,33 @@ def parse_message(text: str) -> dict:
             raise Malformed("pong 'id' is not an integer")
         return {"type": kind, "id": pid, "t": _number(msg, "t")}
     raise Malformed("unknown message type", repr(kind)[:40])
+
+
+@web.middleware
+async def _no_traceback(request: web.Request, handler):
+    """A path the file system cannot look up (e.g. 3000 levels deep: "File name too long") is a 404,
+    not a traceback on the recorder's terminal."""
+    try:
+        return await handler(request)
+    except OSError:
+        raise web.HTTPNotFound() from None
+
+
+class _RequestErrors(logging.Handler):
+    """aiohttp's request-handling log (bad request lines, oversized headers, handler errors) as one
+    line per kind on the terminal and ``/log`` and a count, instead of a traceback per request."""
+
+    def __init__(self, recording: "LiveRecording") -> None:
+        super().__init__(level=logging.WARNING)
+        self.recording = recording
+        self.logger = logging.getLogger(f"phonepose.live.http.{id(self)}")
+        self.logger.propagate = False
+        self.logger.addHandler(self)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        exc = record.exc_info[1] if record.exc_info else None
+        kind = type(exc).__name__ if exc is not None else record.getMessage()[:60]
+        self.recording.repeated(f"bad HTTP requests ({kind})", "http")
 
 
 class Connection:
@@ -370,7 +398,7 @@ class LiveServer:
 
     # ------------------------------------------------------------------ HTTP
     def _make_app(self) -> web.Application:
-        app = web.Application(client_max_size=MAX_MESSAGE_BYTES)
+        app = web.Application(client_max_size=MAX_MESSAGE_BYTES, middlewares=[_no_traceback])
         app.router.add_get("/", self._index)
         app.router.add_get("/marker.png", self._marker)
         app.router.add_get("/config", self._config)
@@ -460,7 +488,7 @@ class LiveServer:
     # ------------------------------------------------------------------ lifetime
     async def start(self) -> int:
         self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0,
-                                     keepalive_timeout=KEEPALIVE_S)
+                                     keepalive_timeout=KEEPALIVE_S, logger=_RequestErrors(self.recording).logger)
         await self._runner.setup()
         # aiohttp's protocol factory behind the gate (connection cap, TLS and first-request deadlines)
         self.gate = ConnectionGate(self._runner.server, self.ssl_context, limit=MAX_CONNECTIONS,
