@@ -367,7 +367,7 @@ class OutputPlan:
 
     def __init__(self, inputs: Iterable[str | os.PathLike] = ()):
         self.inputs = [Path(p) for p in inputs]
-        self.outputs: list[_Output] = []
+        self.outputs: list[OutputFile | OutputDir] = []
         self._open = False
 
     def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
@@ -451,8 +451,9 @@ def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *
     out = plan.file(path, option, suffixes=suffixes, what=what)
     data = text.encode() if isinstance(text, str) else bytes(text)
     with plan:
+        assert out.tmp is not None   # the plan's block made it
         try:
-            with open(out.tmp, "wb") as f:   # type: ignore[arg-type]
+            with open(out.tmp, "wb") as f:
                 f.write(data)
                 f.flush()
                 os.fsync(f.fileno())
@@ -530,7 +531,7 @@ def _fsync_tree(root: Path) -> None:
 
 _RENAME_EXCHANGE = 2
 _AT_FDCWD = -100
-_libc = None
+_libc: ctypes.CDLL | bool | None = None   # None: not looked up yet; False: no renameat2 here
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -542,7 +543,7 @@ def _exchange(a: Path, b: Path) -> bool:
             _libc.renameat2  # noqa: B018 - glibc >= 2.28
         except (OSError, AttributeError):
             _libc = False
-    if _libc is False:
+    if not isinstance(_libc, ctypes.CDLL):
         return False
     rc = _libc.renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
     if rc == 0:

@@ -137,7 +137,9 @@ def test_reader_on_damaged_files_points_to_recover(tmp_path):
     bad.write_bytes(bytes(b))
     with SessionReader(bad) as r:
         assert r.summary().message_count == len(read_keys(path))
-        with pytest.raises(DamagedFileError, match="damaged MCAP data .*run `phonepose recover"):
+        with pytest.raises(DamagedFileError, match=r"damaged MCAP file: the chunk at byte \d+ \(log time "
+                                                   r"\d+\.\d\d-\d+\.\d\d s\) (fails its CRC check|does not decompress); "
+                                                   "run `phonepose recover"):
             for _ in r.messages():
                 pass
 

@@ -73,6 +73,23 @@ def test_bad_config_names_the_key_and_range(tmp_path, text, needle):
     assert needle in str(exc.value)
 
 
+def test_exact_mocap_is_the_true_pose_and_leaves_every_sensor_stream_unchanged(tri2):
+    exact = SimSession("exp2", "TRI2", 1, seed=0, config=default_config().replace(mocap={"exact": True}))
+    m = exact.cfg.mocap
+    assert m.exact and all(getattr(m, k) == 0.0 for k in m.ERRORS) and m.rate_hz == 60.0
+    # ground truth = the true controller pose on the display's clock, no calibration error
+    np.testing.assert_array_equal(exact.log_gt, exact.t_gt)
+    true = exact.traj(exact.t_gt)
+    assert np.abs(exact.gt_ctrl.translation - true.translation).max() < 1e-12
+    assert np.abs((exact.gt_ctrl.rotation * true.rotation.inv()).magnitude()).max() < 1e-9
+    assert exact.world.calibration_error.translation.tolist() == [0.0, 0.0, 0.0]
+    # the sensors see exactly the default session (the mocap's random draws still happen)
+    np.testing.assert_array_equal(exact.t_cam, tri2.t_cam)
+    np.testing.assert_array_equal(exact.T_cvio_ctrl.translation, tri2.T_cvio_ctrl.translation)
+    np.testing.assert_array_equal(exact.gyro, tri2.gyro)
+    assert tomllib.loads(exact.cfg.to_toml())["mocap"]["exact"] is True
+
+
 # ---------------------------------------------------------------- anchors and VIO
 def test_anchor_mapping_is_exact_without_errors(tri2_clean):
     s = tri2_clean

@@ -208,13 +208,14 @@ def _pull_case(data_until_s: float, sighting_error_deg: float) -> tuple[Rotation
     """A T8 whose filter is not yet ready (no correction), a still phone at R0 whose VIO and gyro samples
     end at ``data_until_s``, and one sighting at 0.9 s turned ``sighting_error_deg`` about x from R0."""
     t8 = FusedTracker("T8")
+    q0 = tuple(R0.as_quat().tolist())
     for k in range(int(round(data_until_s * 30)) + 1):
-        t8._vio.add(k / 30, Pose(R0, np.zeros(3)))
+        t8._add_vio(k / 30, (q0, np.zeros(3)))
     for k in range(int(round(data_until_s * 200)) + 1):
         t8._gyro.add(k / 200, np.zeros(3))
     delta = Rotation.from_rotvec([np.radians(sighting_error_deg), 0, 0])
-    t8._last_marker = (0.9, Pose(delta * R0, np.zeros(3)))
-    return t8._pulled_by_sighting(R0), delta, t8.cfg
+    t8._last_marker = (0.9, (tuple((delta * R0).as_quat().tolist()), np.zeros(3)))
+    return Rotation.from_quat(t8._pulled_by_sighting(q0)), delta, t8.cfg
 
 
 def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():

@@ -10,7 +10,7 @@ import time
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from phonepose.batch.executor import open_executor
 from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinations, params_label, parse_param_options
@@ -70,7 +70,7 @@ class PreparedBatch:
 def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
                   trackers: Sequence[str] | str = ("all",), params: Sequence[str] | dict[str, list] = (),
                   workers: int | None = None, scheduler: str | None = None,
-                  unit_timeout_s: float | None = UNIT_TIMEOUT_S) -> PreparedBatch:
+                  unit_timeout_s: float | None = UNIT_TIMEOUT_S, calibrate_gt: bool = False) -> PreparedBatch:
     """Check every argument and make the plan against what ``out`` holds already; raises ConfigError /
     OutputError (one line) before any playback. ``out`` follows phonepose.files (a .parquet file, never
     a session, in a folder that exists); each version of it is renamed into place whole."""
@@ -87,6 +87,8 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
     combos = param_combinations(sweep)
+    if calibrate_gt:   # each session's ground truth calibrated from itself: its own rows (param_gt_calibration)
+        combos = [{**c, "gt_calibration": "calibrate-gt"} for c in combos]
     for s in sessions:     # a missing one may exist on the cluster's workers: its rows will say; a FIFO never
         if os.path.lexists(s):
             check_input(s, "session")
@@ -160,7 +162,7 @@ def run_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike, tra
                          progress, on_start)
 
 
-def _spread(values: list[float]) -> tuple[float | None, float | None]:
+def _spread(values: list[float | None]) -> tuple[float | None, float | None]:
     vals = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
     if not vals:
         return None, None
@@ -179,7 +181,8 @@ def summarize(rows: list[dict]) -> list[dict]:
     out = []
     for (params, tracker), rs in sorted(groups.items(), key=lambda kv: sort_key(kv[1][0])[1:]):
         ok = [r for r in rs if r.get("status") == "ok"]
-        entry = {"tracker": tracker, "params": params_label(json.loads(params), varying) if several else None, "ok": len(ok), "errors": len(rs) - len(ok)}
+        entry: dict[str, Any] = {"tracker": tracker, "params": params_label(json.loads(params), varying) if several else None,
+                                 "ok": len(ok), "errors": len(rs) - len(ok)}
         for col, _, _ in SUMMARY_METRICS:
             entry[col] = _spread([r.get(col) for r in ok])
         out.append(entry)

@@ -98,7 +98,7 @@ def param_combinations(sweep: dict[str, list]) -> list[dict]:
     axes = [sweep.get(k, [spec.default]) for k, spec in PARAMS.items()]
     combos = []
     for values in itertools.product(*axes):
-        combo = dict(zip(PARAMS, values))
+        combo = dict(zip(PARAMS, values, strict=True))
         s, e = combo["start_s"], combo["end_s"]
         if s is not None and e is not None and e <= s:
             raise ConfigError(f"--param end_s ({e}) must be after start_s ({s})")

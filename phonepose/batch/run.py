@@ -98,12 +98,13 @@ def time_budget(budget_s: float | None) -> Iterator[Callable[[int, int], None]]:
     deadline = None if budget_s is None else time.monotonic() + budget_s
 
     def check(done: int, total: int) -> None:
-        if deadline is not None and time.monotonic() > deadline:
+        if deadline is not None and budget_s is not None and time.monotonic() > deadline:   # (both or neither)
             raise UnitTimeout(budget_s)
 
     alarm = budget_s is not None and threading.current_thread() is threading.main_thread() \
         and hasattr(signal, "setitimer")
     if alarm:
+        assert budget_s is not None   # alarm implies it
         def on_alarm(signum, frame):
             raise UnitTimeout(budget_s)
         old = signal.signal(signal.SIGALRM, on_alarm)
@@ -133,10 +134,14 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
     sig = session_signature(unit.path)
     try:
         with time_budget(budget_s) as check_budget:
+            calibration = None
+            if params.get("gt_calibration") == "calibrate-gt":
+                from phonepose.calibration.calibrate_gt import calibrate_gt_session
+                calibration = calibrate_gt_session(unit.path)
             result = run_playback(
                 unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
-                end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
+                end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
     except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
         return error_rows(unit, exc, time.perf_counter() - t0)

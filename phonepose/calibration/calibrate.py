@@ -88,7 +88,8 @@ class BoardFinder:
             return None
         if self.board.checkCharucoCornersCollinear(ids):
             return None
-        obj, img = self.board.matchImagePoints(corners, ids)
+        # OpenCV's stubs type detectedCorners as a list of arrays; a ChArUco board takes the one array detectBoard gives
+        obj, img = self.board.matchImagePoints(corners, ids)  # type: ignore[call-overload]
         return View(name, ids.reshape(-1).astype(int), obj.reshape(-1, 3).astype(np.float32),
                     img.reshape(-1, 2).astype(np.float32))
 
@@ -187,7 +188,7 @@ def _open_device(index: int, size: tuple[int, int] | None = None) -> cv2.VideoCa
     with _quiet_opencv():
         cap = cv2.VideoCapture(int(index))
         if cap.isOpened():
-            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*"MJPG"))
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*"MJPG"))
             if size is not None:
                 cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[0])
                 cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[1])
@@ -281,7 +282,8 @@ def calibrate_views(views: list[View], image_size: tuple[int, int], board: Board
     obj = [v.object_points for v in views]
     img = [v.image_points for v in views]
     try:
-        rms, K, D, _, _, std_in, _, per_view = cv2.calibrateCameraExtended(
+        # OpenCV's stubs do not mark cameraMatrix/distCoeffs optional; None asks it to estimate them
+        rms, K, D, _, _, std_in, _, per_view = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
             obj, img, tuple(int(s) for s in image_size), None, None, flags=flags,
             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
     except cv2.error as exc:
@@ -316,6 +318,7 @@ def calibrate_camera(*, images: "str | Path | None" = None, video: "str | Path |
     elif video is not None:
         got, what = views_from_video(video, finder, max_views, progress), f"{video}: of {{n}} frames examined"
     else:
+        assert device is not None   # exactly one source was given
         got = views_from_device(int(device), finder, max_views, device_interval_s, device_seconds, device_size,
                                 progress)
         what = f"camera device {device}: of {{n}} frames examined"
@@ -328,6 +331,7 @@ def calibrate_camera(*, images: "str | Path | None" = None, video: "str | Path |
                                   f"({len(got.views)} distinct views); need at least {min_views} "
                                   f"(better {RECOMMENDED_VIEWS}-40, from different angles and distances)")
     views = spread(got.views, max_views)
+    assert got.size is not None   # set by the first view found
     result = calibrate_views(views, got.size, board)
     result.frames_examined, result.frames_with_board, result.skipped = got.examined, got.with_board, got.skipped
     return result

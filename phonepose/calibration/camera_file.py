@@ -88,7 +88,7 @@ def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
     return fs
 
 
-def load_calibration(path: "str | Path") -> CameraCalibrationFile:
+def load_calibration(path: "str | os.PathLike") -> CameraCalibrationFile:
     """Read a calibration file; a missing or malformed one is an InputFileError (one line, exit 2)."""
     path = Path(path)
     fs = open_yaml(path, "calibration")

@@ -34,6 +34,7 @@ def demo(
     folder = plan.dir(out, "--out", command="demo")
     with plan:
         work = folder.tmp
+        assert work is not None   # the plan's block made it
         session = work / "TRI2_01.mcap"
         with console.status("recording a simulated session (exp2, path TRI2, trial 1)..."):
             rec = record_sim(session, scenario="exp2", path="TRI2", trial=1, seed=seed)

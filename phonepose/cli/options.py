@@ -13,7 +13,7 @@ that both list the same values.
 from __future__ import annotations
 
 from enum import Enum
-from typing import Callable
+from typing import Any, Callable
 
 from phonepose.numbers import SECONDS_MAX, SEED_MAX, check_number
 
@@ -34,8 +34,8 @@ def number(lo=None, hi=None, *, lo_open: bool = False, hi_open: bool = False, in
 
 
 # the options most commands share
-SEED = dict(callback=number(0, SEED_MAX, integer=True))
-SECONDS = dict(callback=number(0, SECONDS_MAX, unit="s"))
+SEED: dict[str, Any] = dict(callback=number(0, SEED_MAX, integer=True))
+SECONDS: dict[str, Any] = dict(callback=number(0, SECONDS_MAX, unit="s"))
 
 
 # ----------------------------------------------------------------------------- choices

@@ -16,7 +16,7 @@ def statistics(errors: np.ndarray, *, sse: bool = False) -> dict:
     e = np.asarray(errors, dtype=float).ravel()
     n = int(e.size)
     if n == 0:
-        out = {k: None for k in STAT_KEYS}
+        out: dict[str, float | None] = {k: None for k in STAT_KEYS}
         out["num_samples"] = 0
         if sse:
             out["sse"] = None

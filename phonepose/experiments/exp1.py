@@ -76,7 +76,7 @@ def target_errors(seq: dict, targets: list[dict], radius: float) -> list[dict]:
 
 
 def summarise(rows: list[dict]) -> dict:
-    out = {}
+    out: dict[str, dict] = {}
     for name in paper.REPORTED:
         out[name] = {}
         for scope, flag in (("inside", True), ("outside", False)):
@@ -139,6 +139,7 @@ def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, corr
     folder = plan.dir(out_dir, "--out", command="experiment exp1")
     with plan:
         out = folder.tmp
+        assert out is not None   # the plan's block made it
         job = SequenceJob(name="exp1", scenario="exp1", path=None, trial=1, seed=sequence_seed(seed, None, 1),
                           out_dir=str(out), config=config, correction_math=correction_math, final_dir=str(folder.path))
         seq = run_sequence(job, record_progress, playback_progress)

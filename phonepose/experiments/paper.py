@@ -33,7 +33,7 @@ TABLE5_AVERAGE = _expand({
 })
 
 # Table 6: TRI2 + REC2, "Average" columns (within the FoV, outside the FoV, total).
-TABLE6_AVERAGE = {
+TABLE6_AVERAGE: dict[str, dict[str, tuple[float | str, ...]]] = {   # str: NO_VALUE, for ours below
     "T1": {"inside": (7.1, 12.0, 2.7), "outside": (11.6, 18.8, 4.6), "total": (8.5, 14.1, 3.9)},
     "T2": {"inside": (5.4, 12.0, 2.7), "outside": (8.9, 13.2, 4.6), "total": (6.4, 12.3, 3.9)},
     "T3": {"inside": (3.3, 11.1, 2.7), "outside": (7.7, 11.2, 4.6), "total": (4.8, 11.1, 3.9)},

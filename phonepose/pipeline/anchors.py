@@ -42,4 +42,6 @@ class AnchorMap:
         if cached is None or cached[0] is not T_dvio_anchor or cached[1] is not T_cvio_anchor:
             self._anchors = (T_dvio_anchor, T_cvio_anchor)
             self._T_dvio_cvio = T_dvio_anchor @ T_cvio_anchor.inv()
-        return self._T_dvio_cvio @ T_cvio_controller
+        T_dvio_cvio = self._T_dvio_cvio
+        assert T_dvio_cvio is not None   # composed with the anchors above
+        return T_dvio_cvio @ T_cvio_controller

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, compose_rotations
 
 
 def _parse_choice(cls, value, what: str):
@@ -78,33 +78,43 @@ class Correction:
 
     Both maths share the rotation ``q_CM = q_ref * q_vio^-1``; they differ in the translation
     (``x_ref - x_vio`` vs ``x_ref - R_CM x_vio``) and in whether applying it rotates the position.
+    The offset is kept as a single Pose, so that the per-tick products run geometry's scalar code
+    (the same numbers as scipy's Rotation, without its per-call cost).
     """
 
     math: CorrectionMath
-    rotation: Rotation        # q_CM
-    translation: np.ndarray   # x_CM (paper) or t_CM (se3)
+    offset: Pose              # rotation q_CM, translation x_CM (paper) or t_CM (se3)
+
+    @property
+    def rotation(self) -> Rotation:
+        """q_CM."""
+        return self.offset.rotation
+
+    @property
+    def translation(self) -> np.ndarray:
+        """x_CM (paper) or t_CM (se3)."""
+        return self.offset.translation
 
     @classmethod
     def between(cls, ref: Pose, vio: Pose, math: "CorrectionMath | str" = CorrectionMath.PAPER) -> "Correction":
         """The offset that maps ``vio`` onto ``ref`` (eqs. 1-4, or T_ref · T_vio^-1)."""
         math = CorrectionMath.parse(math)
-        rotation = ref.rotation * vio.rotation.inv()
+        rotation = compose_rotations(ref, vio, None, invert_second=True)
         if math is CorrectionMath.PAPER:
             translation = ref.translation - vio.translation
         else:
-            translation = ref.translation - rotation.apply(vio.translation)
-        return cls(math, rotation, np.asarray(translation, dtype=float))
+            translation = ref.translation - rotation.rotate(vio.translation)
+        return cls(math, rotation.with_translation(np.asarray(translation, dtype=float)))
 
     def apply(self, vio_now: Pose) -> Pose:
         """The corrected pose (eqs. 5-6, or T_CM · T_now)."""
-        rotation = self.rotation * vio_now.rotation
         if self.math is CorrectionMath.PAPER:
-            return Pose(rotation, self.translation + vio_now.translation)
-        return Pose(rotation, self.rotation.apply(vio_now.translation) + self.translation)
+            return compose_rotations(self.offset, vio_now, self.offset.translation + vio_now.translation)
+        return self.offset @ vio_now
 
     def as_pose(self) -> Pose:
         """The offset as a Pose (for logging); for SE3 this is T_CM itself."""
-        return Pose(self.rotation, self.translation)
+        return self.offset
 
 
 def cm1_correction(pose_fix_vio: Pose, pose_align_vio: Pose, math: "CorrectionMath | str" = CorrectionMath.PAPER,

@@ -43,13 +43,30 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import Pose, interpolate, is_finite
+from phonepose.geometry import (Pose, Quat, is_finite, quat_as_rotvec, quat_from_rotvec, quat_inv, quat_matrix,
+                                quat_mul, quat_normalised)
 from phonepose.pipeline.types import Observation
+
+# Per tick, T8 works on single poses as (quaternion tuple, translation array) pairs with the closed-form
+# math of phonepose.geometry: scipy's Rotation costs tens of microseconds per single-rotation operation
+# (its array-API layer), which made T8 cost 1.3 ms per tick; scipy stays for what is not per tick
+# (initialise). The numbers agree with the scipy version to rounding (docs/performance.md, "T8").
+RawPose = tuple[Quat, np.ndarray]
+
+
+def _raw(pose: Pose) -> RawPose | None:
+    """A single Pose as (quaternion, translation), or None if anything in it is not finite."""
+    q = pose.rotation.as_quat()
+    t = np.asarray(pose.translation, dtype=float)
+    if not (np.isfinite(q).all() and np.isfinite(t).all()):
+        return None
+    return tuple(q.tolist()), t
 
 _NS = 1e-9
 
@@ -101,7 +118,7 @@ class FusionConfig:
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(f"unknown T8 parameter(s) {', '.join(unknown)}; valid: {', '.join(known)}")
-        out = {}
+        out: dict[str, Any] = {}
         for k, v in values.items():
             try:
                 out[k] = int(v) if known[k] in ("int", int) else float(v)
@@ -113,7 +130,7 @@ class FusionConfig:
 def _polyfit(t: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
     """Least-squares polynomial coefficients (constant first) of ``values`` over ``t``, one column per
     axis: the normal equations directly (np.polynomial.polyfit costs more than the rest of a tick)."""
-    A = np.vander(t, degree + 1, increasing=True)
+    A = t[:, None] ** np.arange(degree + 1)
     return np.linalg.solve(A.T @ A, A.T @ values)
 
 
@@ -124,7 +141,8 @@ def _skew(v: np.ndarray) -> np.ndarray:
 class CorrectionFilter:
     """Error-state Kalman filter of the correction C = (R_C, t_C) and the VIO time offset d.
 
-    Nominal state: ``R_C`` (scipy Rotation), ``t_C`` (3,), ``d`` (s; true capture time = VIO stamp + d).
+    Nominal state: ``R_C`` (unit quaternion ``q``, and its matrix), ``t_C`` (3,), ``d`` (s; true
+    capture time = VIO stamp + d).
     Error state (7): ``δθ`` (left-multiplied: R_C ← exp(δθ) R_C), ``δt``, ``δd``.
     A marker sighting at image time t measures the controller pose M; the model is
     ``M = C · V(t - d)`` with V the anchor-mapped VIO interpolated at stamp time ``t - d``.
@@ -135,7 +153,8 @@ class CorrectionFilter:
         self.reset()
 
     def reset(self) -> None:
-        self.R = None                       # None: not initialised (no sighting yet)
+        self.q: Quat | None = None          # None: not initialised (no sighting yet)
+        self._Rm = np.eye(3)
         self.t = np.zeros(3)
         self.d = 0.0
         self.P = np.zeros((7, 7))
@@ -146,11 +165,21 @@ class CorrectionFilter:
 
     @property
     def ready(self) -> bool:
-        return self.R is not None
+        return self.q is not None
 
-    def initialise(self, M: Pose, V: Pose, d: float = 0.0) -> None:
+    @property
+    def R(self) -> Rotation | None:
+        """The correction's rotation as a scipy Rotation (for inspection; the filter keeps ``q``)."""
+        return None if self.q is None else Rotation.from_quat(self.q)
+
+    def _set_rotation(self, q: Quat) -> None:
+        self.q = q
+        self._Rm = np.array(quat_matrix(q))        # numpy products below: cheaper per call
+
+    def initialise(self, M: RawPose, V: RawPose, d: float = 0.0) -> None:
+        """Once per (re-)initialisation, not per tick: scipy for the heading/tilt split."""
         c = self.cfg
-        R = M.rotation * V.rotation.inv()
+        R = Rotation.from_quat(M[0]) * Rotation.from_quat(V[0]).inv()
         if c.tilt_deg < c.marker_rotation_deg:
             # both VIO worlds are gravity aligned (z up): C is a heading change and a tilt of at most
             # ~tilt_deg; the sighting's tilt beyond that is its noise, clipped here
@@ -160,8 +189,8 @@ class CorrectionFilter:
             if np.linalg.norm(tilt) > limit:
                 tilt = tilt * (limit / np.linalg.norm(tilt))
             R = Rotation.from_rotvec(tilt) * heading
-        self.R = R
-        self.t = M.translation - self.R.apply(V.translation)
+        self._set_rotation(tuple(R.as_quat().tolist()))
+        self.t = M[1] - self._Rm @ V[1]
         self.d = d
         self.since_init = 0
         # after one sighting the correction is as uncertain as one sighting (plus what the caller guessed of d)
@@ -184,26 +213,16 @@ class CorrectionFilter:
         q_d = c.time_offset_walk_s_per_sqrt_s ** 2 * dt_s
         self.P[np.diag_indices(7)] += np.array([q_tilt, q_tilt, q_rot] + [q_pos] * 3 + [q_d])
 
-    @property
-    def R(self) -> Rotation | None:
-        return self._R
+    def apply(self, V: RawPose) -> RawPose:
+        return quat_mul(self.q, V[0]), self._Rm @ V[1] + self.t
 
-    @R.setter
-    def R(self, value: Rotation | None) -> None:
-        self._R = value
-        self._Rm = None if value is None else value.as_matrix()   # numpy products below: cheaper per call
-
-    def apply(self, V: Pose) -> Pose:
-        return Pose(self._R * V.rotation, self._Rm @ V.translation + self.t)
-
-    def update(self, M: Pose, V: Pose, v_vio: np.ndarray, w_vio: np.ndarray, R_meas: np.ndarray) -> bool:
+    def update(self, M: RawPose, V: RawPose, v_vio: np.ndarray, w_vio: np.ndarray, R_meas: np.ndarray) -> bool:
         """One sighting: M (marker, display_vio), V = VIO at stamp ``t - d``, its velocity and
         angular rate (world frame, per second). Returns False if the gate rejected it."""
         Rm = self._Rm
-        pred_rm = Rm @ V.rotation.as_matrix()
-        p_world = Rm @ V.translation
-        r_rot = Rotation.from_matrix(M.rotation.as_matrix() @ pred_rm.T).as_rotvec()
-        r_pos = M.translation - (p_world + self.t)
+        p_world = Rm @ V[1]
+        r_rot = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(quat_mul(self.q, V[0])))))
+        r_pos = M[1] - (p_world + self.t)
         y = np.concatenate([r_rot, r_pos])
         H = np.zeros((6, 7))
         H[0:3, 0:3] = np.eye(3)
@@ -216,8 +235,9 @@ class CorrectionFilter:
         with np.errstate(over="ignore", invalid="ignore"):   # absurd inputs give inf/NaN: gated below
             S = H @ self.P @ H.T + R_meas
             try:
-                K_T = np.linalg.solve(S, H @ self.P)       # (P H^T S^-1)^T, S symmetric
-                m2 = float(y @ np.linalg.solve(S, y))
+                # one factorisation for both: (P H^T S^-1)^T (S symmetric) and S^-1 y
+                both = np.linalg.solve(S, np.column_stack([H @ self.P, y]))
+                K_T, m2 = both[:, :7], float(y @ both[:, 7])
             except np.linalg.LinAlgError:
                 return False
         if not math.isfinite(m2) or m2 > self.cfg.gate_chi2:
@@ -225,7 +245,7 @@ class CorrectionFilter:
             self.rejected += 1
             return False
         dx = K_T.T @ y
-        self.R = Rotation.from_rotvec(dx[0:3]) * self.R
+        self._set_rotation(quat_normalised(quat_mul(quat_from_rotvec(dx[0:3]), self.q)))
         self.t = self.t + dx[3:6]
         self.d = self.d + dx[6]
         I_KH = np.eye(7) - K_T.T @ H
@@ -242,34 +262,73 @@ class CorrectionFilter:
         return True
 
 
-class _Stream:
-    """Recent samples of one controller stream on its own stamps (seconds), ascending."""
+class _Ring:
+    """Recent samples of one controller stream on its own stamps (seconds, ascending), one row of
+    ``width`` floats each, in preallocated numpy arrays: appending and dropping the oldest cost no
+    array rebuild per tick (``t`` and ``v`` are views, valid until the next ``add``)."""
 
-    def __init__(self) -> None:
-        self.t: deque[float] = deque()
-        self.v: deque = deque()
-        self._arrays: tuple[np.ndarray, np.ndarray] | None = None
+    def __init__(self, width: int, capacity: int = 256) -> None:
+        self._t = np.empty(capacity)
+        self._v = np.empty((capacity, width))
+        self._lo = self._hi = 0
+        self.last_t = -math.inf              # the newest stamp (a Python float: read every tick)
 
     def add(self, t: float, value) -> None:
-        if not self.t or t > self.t[-1]:
-            self.t.append(t)
-            self.v.append(value)
-            self._arrays = None
+        if t <= self.last_t:
+            return
+        if self._hi == len(self._t):
+            self._make_room()
+        self._t[self._hi] = t
+        self._v[self._hi] = value
+        self._hi += 1
+        self.last_t = t
+
+    def add_many(self, t: np.ndarray, values: np.ndarray) -> None:
+        """``add`` for each row in order: a row is kept if its stamp is newer than every earlier one."""
+        keep = t > np.maximum.accumulate(np.concatenate([[self.last_t], t[:-1]]))
+        t, values = t[keep], values[keep]
+        while self._hi + len(t) > len(self._t):
+            self._make_room()
+        self._t[self._hi:self._hi + len(t)] = t
+        self._v[self._hi:self._hi + len(t)] = values
+        self._hi += len(t)
+        if len(t):
+            self.last_t = float(t[-1])
+
+    def _make_room(self) -> None:
+        n = self._hi - self._lo
+        if 2 * n >= len(self._t):   # half full or more: grow (amortised), else slide to the front
+            t, v = np.empty(2 * len(self._t)), np.empty((2 * len(self._t), self._v.shape[1]))
+        else:
+            t, v = self._t, self._v
+        t[:n] = self._t[self._lo:self._hi].copy()
+        v[:n] = self._v[self._lo:self._hi].copy()
+        self._t, self._v, self._lo, self._hi = t, v, 0, n
 
     def prune(self, horizon: float) -> None:
-        while len(self.t) > 2 and self.t[1] < horizon:
-            self.t.popleft()
-            self.v.popleft()
-            self._arrays = None
+        """Drop the oldest samples while the second oldest is older than ``horizon`` (at least 2 stay)."""
+        older = int(np.searchsorted(self._t[self._lo:self._hi], horizon, side="left"))
+        self._lo += max(0, min(older - 1, self._hi - self._lo - 2))
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps, values) as arrays, rebuilt only after the stream changed."""
-        if self._arrays is None:
-            self._arrays = (np.fromiter(self.t, float, len(self.t)), np.array(self.v, dtype=float))
-        return self._arrays
+    @property
+    def t(self) -> np.ndarray:
+        return self._t[self._lo:self._hi]
+
+    @property
+    def v(self) -> np.ndarray:
+        return self._v[self._lo:self._hi]
 
     def __len__(self) -> int:
-        return len(self.t)
+        return self._hi - self._lo
+
+
+def _interpolate(t0: float, s0: list, t1: float, s1: list, t: float) -> RawPose:
+    """As geometry.interpolate on raw rows (qx, qy, qz, qw, x, y, z): linear translation, slerp."""
+    a = (t - t0) / (t1 - t0)
+    q0, q1 = tuple(s0[:4]), tuple(s1[:4])
+    r = quat_as_rotvec(quat_mul(quat_inv(q0), q1))
+    q = quat_mul(q0, quat_from_rotvec((a * r[0], a * r[1], a * r[2])))
+    return q, (1.0 - a) * np.array(s0[4:]) + a * np.array(s1[4:])
 
 
 class FusedTracker:
@@ -286,22 +345,21 @@ class FusedTracker:
     def reset(self) -> None:
         self.filter.reset()
         self._t0_ns: int | None = None             # time origin (ns) for float seconds
-        self._vio = _Stream()                      # (stamp s) -> Pose in display_vio (anchor-mapped)
-        self._gyro = _Stream()                     # (stamp s) -> gyro rad/s, body frame
-        self._pending: deque = deque()             # (image s, marker Pose, R_meas)
+        self._vio = _Ring(7)                       # (stamp s) -> qx qy qz qw x y z in display_vio (anchor-mapped)
+        self._gyro = _Ring(3)                      # (stamp s) -> gyro rad/s, body frame
+        self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_image_ns: int | None = None
         self._last_filter_t: float | None = None
-        self._last_vio_t_for_path: float | None = None
         self._path_since_predict = 0.0
-        self._velocity_cache = None
+        self._velocity_cache: tuple[tuple, tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
         self._source: str | None = None
-        self._last_out: Pose | None = None
-        self._last_corrected: np.ndarray | None = None
+        self._last_out: np.ndarray | None = None   # the last output's position
         self._last_t: float | None = None
-        self._last_marker: tuple[float, Pose] | None = None   # (image s, marker pose) of the newest sighting
+        self._last_marker: tuple[float, RawPose] | None = None   # (image s, marker pose) of the newest sighting
         self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
         self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
+        self._had_corrected = False                # the last tick had a corrected VIO pose
 
     # ------------------------------------------------------------------ time
     def _s(self, t_ns: int) -> float:
@@ -310,73 +368,80 @@ class FusedTracker:
         return (int(t_ns) - self._t0_ns) * _NS
 
     # ------------------------------------------------------------------ VIO history
-    def _vio_at(self, t: float) -> Pose | None:
+    def _add_vio(self, t: float, pose: RawPose) -> None:
+        q, p = pose
+        if len(self._vio) and t > self._vio.last_t:
+            self._path_since_predict += float(np.linalg.norm(p - self._vio.v[-1, 4:7]))
+        self._vio.add(t, (*q, *p.tolist()))
+
+    def _vio_at(self, t: float) -> RawPose | None:
         """Anchor-mapped VIO at stamp time ``t`` (None outside the kept samples)."""
         ts = self._vio.t
-        if len(ts) < 2 or t < ts[0] or t > ts[-1]:
+        n = len(ts)
+        if n < 2 or t < ts[0] or t > ts[-1]:
             return None
-        i = int(np.searchsorted(np.fromiter(ts, float, len(ts)), t))
-        i = min(max(i, 1), len(ts) - 1)
-        return interpolate(ts[i - 1], self._vio.v[i - 1], ts[i], self._vio.v[i], t)
+        i = int(np.searchsorted(ts, t))
+        i = min(max(i, 1), n - 1)
+        v = self._vio.v
+        return _interpolate(float(ts[i - 1]), v[i - 1].tolist(), float(ts[i]), v[i].tolist(), t)
 
     def _velocity(self, t_end: float | None = None) -> tuple[np.ndarray, np.ndarray, float | None]:
         """(velocity, fitted position at the newest used sample, its stamp) from a least-squares
-        line through the VIO samples of the last ``velocity_window_s`` up to ``t_end``."""
+        fit through the VIO samples of the last ``velocity_window_s`` up to ``t_end``."""
         n = len(self._vio)
         if n == 0:
             return np.zeros(3), np.zeros(3), None
-        key = (n, self._vio.t[-1], self._vio.t[0], t_end)
+        ts = self._vio.t
+        key = (n, ts[-1], ts[0], t_end)
         if self._velocity_cache is not None and self._velocity_cache[0] == key:
             return self._velocity_cache[1]
-        ts = np.fromiter(self._vio.t, float, n)
         hi = n if t_end is None else int(np.searchsorted(ts, t_end, side="right"))
         hi = max(hi, 1)
         lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
         if hi - lo < 2:
-            out = (np.zeros(3), self._vio.v[hi - 1].translation, ts[hi - 1])
+            out = (np.zeros(3), self._vio.v[hi - 1, 4:7].copy(), float(ts[hi - 1]))
         else:
             tt = ts[lo:hi] - ts[hi - 1]
-            pp = np.array([self._vio.v[k].translation for k in range(lo, hi)])
+            pp = self._vio.v[lo:hi, 4:7]
             # quadratic: its slope at the newest sample does not lag behind an acceleration as a line's does
             degree = self.cfg.velocity_fit_degree if hi - lo > self.cfg.velocity_fit_degree + 1 else 1
             c = _polyfit(tt, pp, degree)
-            out = (c[1], c[0], ts[hi - 1])
+            out = (c[1], c[0], float(ts[hi - 1]))
         self._velocity_cache = (key, out)
         return out
 
-    def _vio_predicted(self, t_stamp: float) -> Pose | None:
+    def _vio_predicted(self, t_stamp: float) -> RawPose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
         the fitted velocity, orientation by the gyroscope (the samples received after the VIO
         sample, then their recent mean rate)."""
         if not len(self._vio):
             return None
-        t_last, last = self._vio.t[-1], self._vio.v[-1]
+        t_last = self._vio.last_t
+        q = tuple(self._vio.v[-1, 0:4].tolist())
         velocity, p_fit, _ = self._velocity()
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
-        rot = last.rotation
         position = p_fit + velocity * dt
-        if dt <= 0 or not len(self._gyro):
-            return Pose(rot, position)
-        if self.cfg.use_gyro:
-            tg, gyro = self._gyro.arrays()
-            # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
-            # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
-            after = (tg > t_last) & (tg <= t_last + dt)
-            steps = np.diff(np.concatenate([[t_last], tg[after]]))
-            rotvec = (gyro[after] * steps[:, None]).sum(axis=0)
-            t_prev = tg[after][-1] if after.any() else t_last
-            hold = gyro[tg >= tg[-1] - self.cfg.gyro_window_s].mean(axis=0)   # the recent mean rate
-            rot = rot * Rotation.from_rotvec(rotvec + hold * (t_last + dt - t_prev))
-        return Pose(rot, position)
+        if dt <= 0 or not len(self._gyro) or not self.cfg.use_gyro:
+            return q, position
+        tg, gyro = self._gyro.t, self._gyro.v
+        # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
+        # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
+        a, b = int(np.searchsorted(tg, t_last, side="right")), int(np.searchsorted(tg, t_last + dt, side="right"))
+        steps = np.diff(np.concatenate([[t_last], tg[a:b]]))
+        rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
+        t_prev = tg[b - 1] if b > a else t_last
+        recent = int(np.searchsorted(tg, tg[-1] - self.cfg.gyro_window_s, side="left"))
+        hold = gyro[recent:].mean(axis=0)   # the recent mean rate
+        return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev))), position
 
     # ------------------------------------------------------------------ measurements
-    def _measurement_noise(self, marker: Pose, camera_position: np.ndarray | None) -> np.ndarray:
+    def _measurement_noise(self, marker_position: np.ndarray, camera_position: np.ndarray | None) -> np.ndarray:
         c = self.cfg
         R_meas = np.zeros((6, 6))
         R_meas[0:3, 0:3] = np.eye(3) * math.radians(c.marker_rotation_deg) ** 2
         cov = np.eye(3) * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
         if camera_position is not None:
-            u = marker.translation - camera_position
+            u = marker_position - camera_position
             n = np.linalg.norm(u)
             if n > 1e-6:
                 u = u / n
@@ -387,32 +452,36 @@ class FusedTracker:
     def _ingest(self, obs: Observation) -> None:
         tick = obs.tick
         for capture_ns, pose in obs.controller_vio_samples_dvio:
-            if is_finite(pose):
-                t = self._s(capture_ns)
-                if len(self._vio) and t > self._vio.t[-1]:
-                    self._path_since_predict += float(np.linalg.norm(pose.translation - self._vio.v[-1].translation))
-                self._vio.add(t, pose)
+            raw = _raw(pose)
+            if raw is not None:
+                self._add_vio(self._s(capture_ns), raw)
         imu = tick.imu
         if imu is not None and len(imu):
-            for row in imu:
-                if np.isfinite(row).all():
-                    self._gyro.add(self._s(int(round(row[0] * 1e9))), np.asarray(row[1:4], dtype=float))
+            rows = np.asarray(imu, dtype=float)
+            rows = rows[np.isfinite(rows).all(axis=1)]
+            if len(rows):
+                stamps_ns = np.rint(rows[:, 0] * 1e9).astype(np.int64)   # as round(): half to even
+                self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
+                self._gyro.add_many((stamps_ns - self._t0_ns) * _NS, rows[:, 1:4])
         if len(self._vio):
-            horizon = self._vio.t[-1] - self.cfg.history_s
+            horizon = self._vio.last_t - self.cfg.history_s
             self._vio.prune(horizon)
             self._gyro.prune(horizon)
         m = obs.marker
-        if m is not None and is_finite(m.T_dvio_controller):
+        raw = _raw(m.T_dvio_controller) if m is not None and m.T_dvio_controller is not None else None
+        if raw is not None:
             image_ns = tick.image_t_ns if tick.image_t_ns is not None else tick.t_ns
             if image_ns != self._last_image_ns:
                 self._last_image_ns = image_ns
                 cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
-                t_img = self._s(image_ns)
-                self._pending.append((t_img, m.T_dvio_controller, self._measurement_noise(m.T_dvio_controller, cam)))
-                self._last_marker = (t_img, m.T_dvio_controller)
-                self._sightings.append((t_img, m.T_dvio_controller.translation))
-                while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
-                    self._sightings.popleft()
+                self._add_sighting(self._s(image_ns), raw, cam)
+
+    def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None) -> None:
+        self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position)))
+        self._last_marker = (t_img, marker)
+        self._sightings.append((t_img, marker[1]))
+        while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
+            self._sightings.popleft()
 
     def _update_filter(self) -> None:
         """Pair every pending sighting whose image time the VIO stamps now cover, oldest first."""
@@ -420,7 +489,7 @@ class FusedTracker:
         while self._pending and len(self._vio):
             t_img, M, R_meas = self._pending[0]
             t_stamp = t_img - f.d
-            if t_stamp > self._vio.t[-1]:
+            if t_stamp > self._vio.last_t:
                 break   # the VIO of that moment has not arrived yet (latency): wait
             self._pending.popleft()
             V = self._vio_at(t_stamp)
@@ -451,12 +520,13 @@ class FusedTracker:
         ts = self._vio.t
         if len(ts) < 2:
             return np.zeros(3)
-        i = int(np.searchsorted(np.fromiter(ts, float, len(ts)), t_stamp))
+        i = int(np.searchsorted(ts, t_stamp))
         i = min(max(i, 1), len(ts) - 1)
         dt = ts[i] - ts[i - 1]
         if dt <= 0:
             return np.zeros(3)
-        return (self._vio.v[i].rotation * self._vio.v[i - 1].rotation.inv()).as_rotvec() / dt
+        v = self._vio.v
+        return np.array(quat_as_rotvec(quat_mul(tuple(v[i, 0:4].tolist()), quat_inv(tuple(v[i - 1, 0:4].tolist()))))) / dt
 
     # ------------------------------------------------------------------ output
     def step(self, obs: Observation) -> Pose | None:
@@ -465,10 +535,10 @@ class FusedTracker:
         self._ingest(obs)
         self._update_filter()
         vio_now = self._vio_predicted(t - f.d)
-        if vio_now is None and is_finite(obs.T_dvio_controller_vio):
-            vio_now = obs.T_dvio_controller_vio      # no stamped samples: the received pose
+        if vio_now is None and obs.T_dvio_controller_vio is not None:
+            vio_now = _raw(obs.T_dvio_controller_vio)      # no stamped samples: the received pose
         corrected = f.apply(vio_now) if (vio_now is not None and f.ready) else vio_now
-        velocity = f.R.apply(self._velocity()[0]) if f.ready else self._velocity()[0]
+        velocity = f._Rm @ self._velocity()[0] if f.ready else self._velocity()[0]
 
         # the marker source: the newest sighting (at its image time, as T4-T7 report it)
         marker_now = None
@@ -476,13 +546,33 @@ class FusedTracker:
             t_img, M = self._last_marker
             age = t - t_img
             if 0 <= age <= self.cfg.max_prediction_s:
-                marker_now = M.translation
+                marker_now = M[1]
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
-            if obs.in_view and is_finite(obs.marker.T_dvio_controller):
+            if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):   # in view
                 return obs.marker.T_dvio_controller
             return None
-        position = corrected.translation if source == "vio" else marker_now
+        position = self._position(source, corrected, marker_now, velocity, t)
+        if corrected is not None:
+            rotation = corrected[0]
+        else:
+            assert self._last_marker is not None   # the source is the marker: marker_now is its sighting
+            rotation = self._last_marker[1][0]
+        if source == "marker" and corrected is not None:
+            rotation = self._pulled_by_sighting(rotation)
+        self._carry_offset(source, corrected, position, velocity, t)
+        self._source = source
+        self._last_t = t
+        out = position + self._offset
+        if not (np.isfinite(out).all() and all(map(math.isfinite, rotation))):
+            return None
+        self._last_out = out
+        return Pose(Rotation.from_quat(rotation), out)
+
+    def _position(self, source: str, corrected: RawPose | None, marker_now: np.ndarray | None, velocity: np.ndarray,
+                  t: float) -> np.ndarray:
+        position = corrected[1] if source == "vio" and corrected is not None else marker_now
+        assert position is not None   # each source is chosen only with its pose
         if source == "marker" and self.cfg.marker_gain < 1:
             # inside: a complementary filter — the newest sightings, moved by the VIO velocity, average the marker's noise
             if self._source == "marker" and self._inside is not None and self._last_t is not None:
@@ -491,15 +581,15 @@ class FusedTracker:
             self._inside = position
         else:
             self._inside = None
-        rotation = corrected.rotation if corrected is not None else self._last_marker[1].rotation
-        if source == "marker" and corrected is not None:
-            rotation = self._pulled_by_sighting(rotation)
+        return position
 
-        # continuity: carry the difference across a switch, then let it decay
+    def _carry_offset(self, source: str, corrected: RawPose | None, position: np.ndarray, velocity: np.ndarray,
+                      t: float) -> None:
+        """Continuity: carry the difference across a switch, then let it decay."""
         if self._last_t is not None:
             self._offset = self._offset * math.exp(-max(t - self._last_t, 0.0) / self.cfg.blend_time_s)
         if self._source is not None and source != self._source and self._last_out is not None \
-                and corrected is not None and self._last_corrected is not None:
+                and corrected is not None and self._had_corrected:
             # a switch: this tick's output = the last output moved by the estimated motion over the
             # tick, and the difference to the new source is carried and decays
             motion = velocity
@@ -508,18 +598,12 @@ class FusedTracker:
                 marker_velocity = self._marker_velocity(t)
                 if marker_velocity is not None:
                     motion = marker_velocity
-            target = self._last_out.translation + motion * (t - self._last_t)
+            assert self._last_t is not None   # set with _last_out
+            target = self._last_out + motion * (t - self._last_t)
             self._offset = target - position
-        self._source = source
-        self._last_corrected = None if corrected is None else corrected.translation
-        self._last_t = t
-        out = Pose(rotation, position + self._offset)
-        if not is_finite(out):
-            return None
-        self._last_out = out
-        return out
+        self._had_corrected = corrected is not None
 
-    def _pulled_by_sighting(self, rotation: Rotation) -> Rotation:
+    def _pulled_by_sighting(self, rotation: Quat) -> Quat:
         """Inside the view: the predicted orientation corrected by the newest sighting.
 
         The sighting is compared with the corrected VIO at its own image time (against the tick's,
@@ -528,21 +612,22 @@ class FusedTracker:
         prediction (the controller's streams arrive ~0.15 s late), small when it has data there.
         """
         c, f = self.cfg, self.filter
+        assert self._last_marker is not None   # called with the marker as the source
         t_img, M = self._last_marker
         at_img = self._vio_at(t_img - f.d)
         if at_img is None:                  # the image is newer than the newest VIO sample (usual)
             at_img = self._vio_predicted(t_img - f.d)
         if at_img is None:
             return rotation
-        pull = (M.rotation * (f.apply(at_img) if f.ready else at_img).rotation.inv()).as_rotvec()
+        q_at = (f.apply(at_img) if f.ready else at_img)[0]
+        pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
         if np.linalg.norm(pull) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull
             return rotation
-        t_data = max(self._vio.t[-1], self._gyro.t[-1] if len(self._gyro) else -math.inf)   # where measurements end
+        t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
         P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * h) ** 2
         gain = P / (P + c.pull_marker_rotation_deg ** 2)
-        return Rotation.from_rotvec(gain * pull) * rotation
+        return quat_mul(quat_from_rotvec(gain * pull), rotation)
 
     def __repr__(self) -> str:
         return f"{self.name}(fused: ESKF correction + time offset, gyro prediction, continuous output)"
-

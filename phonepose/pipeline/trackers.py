@@ -171,6 +171,7 @@ class CompositeTracker:
         self.correction.update(obs)
         method = self.spec.inside if obs.in_view else self.spec.outside
         if method is Method.MARKER:
+            assert obs.marker is not None   # Table 1 uses the marker only inside the view (in_view: recognised)
             est = obs.marker.T_dvio_controller
         else:
             vio = obs.T_dvio_controller_vio
@@ -311,7 +312,7 @@ class LatencyAwareCM3Tracker:
         older = [s for s in self._vio[:-1] if tn - s[0] >= self.velocity_window_ns]
         to, po = older[-1] if older else self._vio[0]
         velocity = (pn.translation - po.translation) / (tn - to)
-        return Pose(pn.rotation, pn.translation + velocity * dt)
+        return pn.with_translation(pn.translation + velocity * dt)
 
     def step(self, obs: Observation) -> Pose | None:
         tick = obs.tick
@@ -338,7 +339,7 @@ class LatencyAwareCM3Tracker:
             else:
                 keep.append((image_ns, marker))
         self._pending = keep
-        if obs.in_view:   # a non-finite marker pose gives no estimate, as for T1-T7
+        if obs.marker is not None:   # in view; a non-finite marker pose gives no estimate, as for T1-T7
             return obs.marker.T_dvio_controller if is_finite(obs.marker.T_dvio_controller) else None
         vio = self._predict(tick.t_ns)
         if vio is None:

@@ -17,12 +17,16 @@ import signal
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from phonepose.errors import SessionContentError
 from phonepose.record.source import Record, Source
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionWriter
 from phonepose.viewer.frames import FrameTree
+
+if TYPE_CHECKING:
+    from phonepose.record.rerun_log import RecordRerunLogger
 
 ProgressCallback = Callable[[int, int | None], None]   # (log time done since start, duration) in ns
 
@@ -46,7 +50,7 @@ class Recorder:
         self.progress_every_ns = progress_every_ns
         self.rerun_path = os.fspath(rerun_path) if rerun_path is not None else None
         self.spawn = spawn
-        self.rerun = None          # opened in run(): its recording id is made from the static part
+        self.rerun: RecordRerunLogger | None = None   # opened in run(): its recording id is made from the static part
         self.frames = FrameTree()
         self._stop = False
         self.stop_on_signals = stop_on_signals   # False: Ctrl-C / SIGTERM stop the caller (an experiment), not just this
@@ -85,7 +89,8 @@ class Recorder:
         duration = self.source.duration_ns
         last_per_topic: dict[str, int] = {}
         frames = 0
-        first = last = None
+        first: int | None = None
+        last: int | None = None
         next_progress = start
         with SessionWriter(self.out) as writer:
             for rec in static:
@@ -106,7 +111,7 @@ class Recorder:
             count = writer.message_count
         if self.progress is not None and not interrupted and duration is not None:
             self.progress(duration, duration)
-        return RecordResult(self.out, count, (last - first) if first is not None else 0, interrupted, frames)
+        return RecordResult(self.out, count, (last - first) if first is not None and last is not None else 0, interrupted, frames)
 
     def _write(self, writer: SessionWriter, rec: Record, last_per_topic: dict[str, int]) -> None:
         prev = last_per_topic.get(rec.topic)

@@ -45,7 +45,7 @@ def record_recording_id(out: str | os.PathLike, static: list[Record]) -> str:
     for r in static:
         h.update(r.topic.encode())
         h.update(r.log_time_ns.to_bytes(8, "little", signed=True))
-        h.update(r.message.SerializeToString(deterministic=True))  # type: ignore[attr-defined]
+        h.update(r.message.SerializeToString(deterministic=True))
     stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(out).stem)[:60]
     return f"record-{stem}-{h.hexdigest()[:16]}"
 

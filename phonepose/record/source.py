@@ -12,12 +12,12 @@ The recorder knows nothing else about where the data comes from.
 
 from __future__ import annotations
 
-from typing import Iterator, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Iterator, NamedTuple, Protocol, runtime_checkable
 
 
 class Record(NamedTuple):
     topic: str
-    message: object          # a protobuf message of the topic's type (phonepose.schemas.topics)
+    message: Any             # a protobuf message of the topic's type (phonepose.schemas.topics)
     log_time_ns: int         # capture time on the display's clock (receipt time for controller streams)
     publish_time_ns: int     # arrival time at the recorder
 
@@ -25,7 +25,11 @@ class Record(NamedTuple):
 @runtime_checkable
 class Source(Protocol):
     start_ns: int                    # log time of the session start
-    duration_ns: int | None          # None for open-ended live sources
+
+    @property
+    def duration_ns(self) -> int | None:
+        """None for open-ended live sources (read-only here, so a source may declare it ``int``)."""
+        ...
 
     def static(self) -> list[Record]:
         """Messages written once, before everything else."""

@@ -13,6 +13,7 @@ from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from google.protobuf.message import Message
 
 from phonepose.schemas import phonepose_pb2 as pb
 
@@ -68,7 +69,7 @@ def tracker_pose_topic(name: str) -> str:
 
 
 # Message type of every fixed topic. Tracker pose topics are PoseInFrame.
-TOPIC_TYPES: dict[str, type] = {
+TOPIC_TYPES: dict[str, type[Message]] = {
     Topic.CAMERA_IMAGE: CompressedImage,
     Topic.CAMERA_CALIBRATION: CameraCalibration,
     Topic.CAMERA_EXTRINSICS: FrameTransform,
@@ -97,7 +98,7 @@ TOPIC_TYPES: dict[str, type] = {
 }
 
 
-def message_type_for(topic: str) -> type:
+def message_type_for(topic: str) -> type[Message]:
     if topic in TOPIC_TYPES:
         return TOPIC_TYPES[topic]
     if topic.startswith("/trackers/") and topic.endswith("/pose"):

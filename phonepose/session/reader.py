@@ -6,29 +6,19 @@ loads the whole file), optionally filtered by topic and by a log-time range.
 
 from __future__ import annotations
 
+import heapq
 import os
-import struct
-import zlib
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
 from google.protobuf.message import DecodeError
-from mcap.data_stream import ReadDataStream
-from mcap.reader import SeekingReader, make_reader
-from mcap.records import Chunk
+from mcap.records import ChunkIndex
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import breakup_chunk
-
-try:
-    import zstandard
-except ImportError:  # pragma: no cover - mcap's zstd support is optional too
-    zstandard = None
 from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
+from phonepose.session.index import MCAP_MAGIC, SessionIndex, damaged, message_index_times, read_chunk, read_index
 
 # protobuf schema name -> generated class, for every type a phonepose session uses
 _KNOWN_TYPES = {cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}
@@ -38,48 +28,6 @@ def _order_key(m) -> tuple[int, int, int]:
     return m.log_time, m.channel_id, m.sequence
 
 
-_RECORD_HEAD = struct.Struct("<BQ")       # opcode, record length
-_MESSAGE_HEAD = struct.Struct("<HIQQ")    # channel id, sequence, log time, publish time
-_OP_MESSAGE = 0x05
-
-
-def _chunk_messages(chunk: Chunk, wanted: set[int] | None, start_ns: int | None, end_ns: int | None) -> list:
-    """The Message records of one chunk that pass the filters, in file order (CRC checked).
-
-    What ``mcap.stream_reader.breakup_chunk`` does, with one ``struct`` call per record instead
-    of a stream read per field, and no record built for the messages filtered out.
-    """
-    if chunk.compression == "zstd" and zstandard is not None:
-        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
-    elif chunk.compression == "":
-        data = chunk.data
-    else:  # lz4 or anything else: the mcap library's path
-        return [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, McapMessage)
-                and (wanted is None or r.channel_id in wanted)
-                and (start_ns is None or r.log_time >= start_ns) and (end_ns is None or r.log_time < end_ns)]
-    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise ValueError("chunk CRC mismatch")
-    out = []
-    pos, n = 0, len(data)
-    head, msg_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
-    while pos < n:
-        op, length = head(data, pos)
-        pos += 9
-        end = pos + length
-        if end > n:
-            raise ValueError("record runs past the end of its chunk")
-        if op == _OP_MESSAGE:
-            if length < 22:
-                raise ValueError("message record too short")
-            cid, seq, log_time, publish_time = msg_head(data, pos)
-            if ((wanted is None or cid in wanted) and (start_ns is None or log_time >= start_ns)
-                    and (end_ns is None or log_time < end_ns)):
-                out.append(McapMessage(channel_id=cid, sequence=seq, log_time=log_time, publish_time=publish_time,
-                                       data=data[pos + 22:end]))
-        pos = end
-    return out
-
-
 @dataclass(frozen=True)
 class Message:
     topic: str
@@ -87,7 +35,7 @@ class Message:
     publish_time_ns: int
     channel_id: int
     sequence: int
-    msg: object  # the decoded protobuf message
+    msg: Any  # the decoded protobuf message, of the topic's type (docs/format.md)
 
 
 @dataclass
@@ -134,34 +82,35 @@ def check_mcap_file(path: str | os.PathLike) -> str:
 
 
 class SessionReader:
-    """Open a session for reading. Raises InputFileError / DamagedFileError with one clear line."""
+    """Open a session for reading. Raises InputFileError / DamagedFileError with one clear line.
+
+    Where the messages are comes from :func:`phonepose.session.index.read_index`: the summary
+    section when it passes its CRC and cross-checks, else the data section (one warning line).
+    """
 
     def __init__(self, path: str | os.PathLike):
         self.path = check_mcap_file(path)
         self._file = open(self.path, "rb")
         try:
-            self._reader: SeekingReader = make_reader(self._file, validate_crcs=True)  # flipped bits in a chunk: error, not garbage
-            self._summary_record = self._reader.get_summary()
+            self.index: SessionIndex = read_index(self._file, self.path)
+        except PhoneposeError:
+            self._file.close()
+            raise
         except Exception as exc:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
             self._file.close()
-            raise DamagedFileError(
-                f"{self.path}: damaged MCAP file ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
-            ) from None
-        if self._summary_record is None:
-            self._file.close()
-            raise DamagedFileError(f"{self.path}: MCAP file has no summary (truncated?); run `phonepose recover`")
-        self._decoders: dict[int, object] = {}
+            raise damaged(self.path, f"its summary and index do not parse: {type(exc).__name__}") from None
+        self._decoders: dict[int, Callable[[bytes], Any]] = {}
         self._file_order_chunks: list | None | bool = False  # False: not checked yet
         self._fallback = DecoderFactory()
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> SessionSummary:
-        s = self._summary_record
-        stats = s.statistics
+        ix = self.index
+        stats = ix.statistics
         counts = dict(stats.channel_message_counts) if stats else {}
         channels = []
-        for cid, ch in sorted(s.channels.items()):
-            schema = s.schemas.get(ch.schema_id)
+        for cid, ch in sorted(ix.channels.items()):
+            schema = ix.schemas.get(ch.schema_id)
             channels.append(ChannelSummary(ch.topic, schema.name if schema else "", ch.message_encoding,
                                            counts.get(cid, 0)))
         return SessionSummary(
@@ -172,29 +121,44 @@ class SessionReader:
         )
 
     def verify(self, deep: bool = False) -> int:
-        """Check the chunks the index lists; DamagedFileError (pointing to recover) if one is not intact.
+        """Check the chunks; DamagedFileError (pointing to recover) if one is not intact.
 
-        Shallow (cheap, a few bytes per chunk): every chunk record is where the index says, with
-        the length it says. ``deep``: also decompress every chunk and check its CRC. Returns the
-        number of chunks checked.
+        Opening already checked that every chunk is where the index says, with the header it says
+        (or read every chunk, when the summary could not be used). ``deep``: also decompress every
+        chunk and check its CRC. Returns the number of chunks checked.
         """
-        chunks = sorted(self._summary_record.chunk_indexes, key=lambda c: c.chunk_start_offset)
-        size = os.fstat(self._file.fileno()).st_size
-        for ci in chunks:
-            self._file.seek(ci.chunk_start_offset)
-            head = self._file.read(9)
-            ok = (len(head) == 9 and head[0] == 0x06 and ci.chunk_start_offset + ci.chunk_length <= size
-                  and int.from_bytes(head[1:9], "little") == ci.chunk_length - 9)
-            if not ok:
-                raise DamagedFileError(f"{self.path}: damaged MCAP file (chunk at byte {ci.chunk_start_offset} is not "
-                                       f"where the index says); run `phonepose recover {self.path} --out FIXED.mcap`")
         if deep:
-            for _ in self.raw_messages():
-                pass
-        return len(chunks)
+            for ci in self.index.chunks:
+                self._chunk_messages(ci, None, None, None)
+        return len(self.index.chunks)
+
+    def log_times(self) -> dict[str, list[int]]:
+        """The log time of every message, per topic: from the message index records when every chunk
+        has them (a few bytes a message), else from the chunks themselves."""
+        ix = self.index
+        by_channel: dict[int, list[int]] = {}
+        if ix.times is not None:
+            by_channel = ix.times
+        else:
+            for ci in ix.chunks:
+                got = message_index_times(self._file, ci)
+                if got is None:
+                    got = {}
+                    for m in self._chunk_messages(ci, None, None, None):
+                        got.setdefault(m.channel_id, []).append(m.log_time)
+                for cid, ts in got.items():
+                    by_channel.setdefault(cid, []).extend(ts)
+            for m in ix.loose:
+                by_channel.setdefault(m.channel_id, []).append(m.log_time)
+        out: dict[str, list[int]] = {}
+        for cid, ts in by_channel.items():
+            ch = ix.channels.get(cid)
+            if ch is not None:
+                out.setdefault(ch.topic, []).extend(ts)
+        return out
 
     def topics(self) -> set[str]:
-        return {ch.topic for ch in self._summary_record.channels.values()}
+        return {ch.topic for ch in self.index.channels.values()}
 
     # ------------------------------------------------------------------ messages
     def _decode(self, schema, channel, data: bytes):
@@ -228,26 +192,35 @@ class SessionReader:
         except DecodeError:
             raise SessionContentError(f"{self.path}: undecodable {schema.name} message on {channel.topic}") from None
 
-    def _chunks_in_order(self, topics: list[str] | None, start_ns: int | None, end_ns: int | None):
-        """The chunks to read, in file order, if their log-time ranges do not overlap (else None).
-
-        SessionWriter writes in log-time order, so its chunks follow each other in time: then
-        sorting each chunk's messages on its own gives the global order, one chunk in memory at
-        a time, without the mcap reader's per-message heap (its ``log_time_order=True`` path).
-        """
-        s = self._summary_record
-        if self._file_order_chunks is False:
-            chunks = sorted(s.chunk_indexes, key=lambda c: c.chunk_start_offset)
-            if chunks and all(b.message_start_time >= a.message_end_time for a, b in zip(chunks, chunks[1:])):
-                self._file_order_chunks = chunks
-            else:
-                self._file_order_chunks = None
-        chunks = self._file_order_chunks
-        if chunks is None:
-            return None
-        wanted = None if topics is None else {cid for cid, ch in s.channels.items() if ch.topic in topics}
+    def _chunk_messages(self, ci: ChunkIndex, wanted: set[int] | None, start_ns: int | None,
+                        end_ns: int | None) -> list[McapMessage]:
+        """The Message records of one chunk that pass the filters, in file order (CRC checked). A
+        Channel record in the chunk that the index defines differently is damage (a summary without
+        a CRC can only be checked here)."""
+        channels = self.index.channels
         out = []
-        for ci in chunks:
+        t0 = self.index.statistics.message_start_time if self.index.statistics else None
+        for r in read_chunk(self._file, self.path, ci, t0):
+            if isinstance(r, McapMessage):
+                if ((wanted is None or r.channel_id in wanted) and (start_ns is None or r.log_time >= start_ns)
+                        and (end_ns is None or r.log_time < end_ns)):
+                    if r.channel_id not in channels:
+                        raise damaged(self.path, f"the chunk at byte {ci.chunk_start_offset} holds messages of "
+                                                 f"channel {r.channel_id}, which the file does not define")
+                    out.append(r)
+            elif getattr(r, "topic", None) is not None:     # a Channel record
+                known = channels.get(r.id)
+                if known is not None and (known.topic, known.schema_id) != (r.topic, r.schema_id):
+                    raise damaged(self.path, f"the summary's channel {r.id} ({known.topic}) is {r.topic} in the "
+                                             f"chunk at byte {ci.chunk_start_offset}")
+        return out
+
+    def _chunks(self, topics: list[str] | None, start_ns: int | None, end_ns: int | None):
+        """The chunks that may hold wanted messages, in file order, and the wanted channel ids."""
+        ix = self.index
+        wanted = None if topics is None else {cid for cid, ch in ix.channels.items() if ch.topic in topics}
+        out = []
+        for ci in ix.chunks:
             if start_ns is not None and ci.message_end_time < start_ns:
                 continue
             if end_ns is not None and ci.message_start_time >= end_ns:
@@ -257,46 +230,65 @@ class SessionReader:
             out.append(ci)
         return out, wanted
 
-    def _iter_chunked(self, chunks, wanted, start_ns, end_ns) -> Iterator[tuple]:
-        s = self._summary_record
-        channels, schemas = s.channels, s.schemas
-        for ci in chunks:
-            self._file.seek(ci.chunk_start_offset + 1 + 8)
-            chunk = Chunk.read(ReadDataStream(self._file))
-            msgs = _chunk_messages(chunk, wanted, start_ns, end_ns)
-            msgs.sort(key=_order_key)
-            for r in msgs:
-                channel = channels[r.channel_id]
-                yield (schemas[channel.schema_id] if channel.schema_id else None), channel, r
+    def _in_file_order(self) -> bool:
+        """Whether the chunks follow each other in log time (SessionWriter writes so) and no message
+        lies outside a chunk. Then sorting each chunk's messages on its own gives the global order,
+        one chunk in memory at a time, with no per-message heap."""
+        if self._file_order_chunks is False:
+            c = self.index.chunks
+            self._file_order_chunks = not self.index.loose and all(
+                b.message_start_time >= a.message_end_time for a, b in zip(c, c[1:], strict=False))
+        return bool(self._file_order_chunks)
+
+    def _iter_sorted(self, chunks, wanted, start_ns, end_ns) -> Iterator[McapMessage]:
+        if self._in_file_order():
+            carry: list[McapMessage] = []    # the last log time of a chunk: the next one may start at it
+            for ci in chunks:
+                msgs = self._chunk_messages(ci, wanted, start_ns, end_ns)
+                if not msgs:
+                    continue
+                msgs.sort(key=_order_key)
+                if carry and msgs[0].log_time == carry[0].log_time:
+                    msgs = sorted(carry + msgs, key=_order_key)
+                else:
+                    yield from carry
+                k = len(msgs)
+                while k and msgs[k - 1].log_time == msgs[-1].log_time:
+                    k -= 1
+                yield from msgs[:k]
+                carry = msgs[k:]
+            yield from carry
+            return
+        # chunks overlap in time (another writer): merge them, opening each chunk when its first log
+        # time comes up (what the mcap reader's log_time_order does)
+        heap: list = [(ci.message_start_time, 0, i, 0, ci) for i, ci in enumerate(chunks)]
+        heap += [(m.log_time, 1, m.channel_id, m.sequence, m) for m in self.index.loose
+                 if (wanted is None or m.channel_id in wanted) and (start_ns is None or m.log_time >= start_ns)
+                 and (end_ns is None or m.log_time < end_ns)]
+        heapq.heapify(heap)
+        while heap:
+            _, kind, _, _, item = heapq.heappop(heap)
+            if kind == 0:
+                for m in self._chunk_messages(item, wanted, start_ns, end_ns):
+                    heapq.heappush(heap, (m.log_time, 1, m.channel_id, m.sequence, m))
+            else:
+                yield item
 
     def raw_messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                      end_ns: int | None = None) -> Iterator[tuple]:
         """(schema, channel, mcap message) tuples in (log_time, channel id, sequence) order."""
         topics = list(topics) if topics is not None else None
-        pending: list[tuple] = []
+        ix = self.index
+        channels, schemas = ix.channels, ix.schemas
         try:
-            plan = self._chunks_in_order(topics, start_ns, end_ns)
-            if plan is not None:
-                it = self._iter_chunked(*plan, start_ns, end_ns)
-            else:  # chunks overlap in time (not written by SessionWriter): the mcap reader's merge
-                it = self._reader.iter_messages(topics=topics, starting_at=start_ns, ending_before=end_ns,
-                                                log_time_order=True)
-            for item in it:
-                if pending and item[2].log_time != pending[0][2].log_time:
-                    if len(pending) > 1:
-                        pending.sort(key=lambda x: (x[1].id, x[2].sequence))
-                    yield from pending
-                    pending.clear()
-                pending.append(item)
+            chunks, wanted = self._chunks(topics, start_ns, end_ns)
+            for m in self._iter_sorted(chunks, wanted, start_ns, end_ns):
+                channel = channels[m.channel_id]
+                yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, m
         except PhoneposeError:
             raise
         except Exception as exc:  # noqa: BLE001 - anything the mcap/zstd/lz4 layers raise on damaged bytes
-            raise DamagedFileError(
-                f"{self.path}: damaged MCAP data ({type(exc).__name__}); run `phonepose recover {self.path} --out FIXED.mcap`"
-            ) from None
-        if len(pending) > 1:
-            pending.sort(key=lambda x: (x[1].id, x[2].sequence))
-        yield from pending
+            raise damaged(self.path, f"its data does not parse: {type(exc).__name__}") from None
 
     def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[Message]:

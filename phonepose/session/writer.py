@@ -8,7 +8,7 @@ manager it always finishes the file (summary, index, footer), also on exceptions
 from __future__ import annotations
 
 import os
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
 from google.protobuf.message import Message as PbMessage
 from mcap.writer import CompressionType, Writer
@@ -38,7 +38,7 @@ class SessionWriter:
     def __init__(self, path: str | os.PathLike | BinaryIO, *, flush_every_ns: int = FLUSH_EVERY_NS,
                  chunk_size: int = CHUNK_SIZE, compression: CompressionType = CompressionType.ZSTD):
         if hasattr(path, "write"):
-            self._file = path
+            self._file = cast(BinaryIO, path)   # an open binary file (hasattr does not narrow the union)
             self._owns_file = False
             self.path = getattr(path, "name", None)
         else:

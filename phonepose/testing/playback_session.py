@@ -13,6 +13,7 @@ import os
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from google.protobuf.message import Message
 from scipy.spatial.transform import Rotation
 
 from phonepose.geometry import Pose
@@ -53,7 +54,7 @@ def write_test_session(path: str | os.PathLike, *, duration_s: float = 3.0, came
     def ctrl_true(t_s: float) -> Pose:
         return T_dvio_display @ T_display_camera @ T_camera_marker_at(t_s, in_view_until) @ MARKER.T_body_marker.inv()
 
-    msgs: list[tuple[int, str, object]] = []
+    msgs: list[tuple[int, str, Message]] = []
 
     def ns(t_s: float) -> int:
         return t0_ns + int(round(t_s * 1e9))

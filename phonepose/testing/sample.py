@@ -15,6 +15,7 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+from google.protobuf.message import Message
 
 from phonepose.geometry import Pose
 from phonepose.schemas import phonepose_pb2 as pb
@@ -29,7 +30,7 @@ def _stamp(msg, t_ns: int) -> None:
     msg.timestamp.FromNanoseconds(t_ns)
 
 
-def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, object, int]]:
+def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, Message, int]]:
     """(topic, message, log_time_ns) for every topic type of a session."""
     p = Pose.from_xyzw([0.1, -0.2, 0.3], [0.0, 0.0, np.sin(0.25), np.cos(0.25)])
     img = np.full((48, 64), 200, np.uint8)
@@ -102,7 +103,7 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, object, int]]:
     _stamp(ann, t0_ns)
     loop = ann.points.add(type=PointsAnnotation.LINE_LOOP, thickness=2.0)
     _stamp(loop, t0_ns)
-    for x, y in zip(det.detections[0].corners_px[0::2], det.detections[0].corners_px[1::2]):
+    for x, y in zip(det.detections[0].corners_px[0::2], det.detections[0].corners_px[1::2], strict=True):
         loop.points.add(x=x, y=y)
     out.append((Topic.PIPELINE_MARKER_ANNOTATIONS, ann, t0_ns))
     return out

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from google.protobuf.message import Message
 
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import codec
@@ -87,14 +88,14 @@ class FrameTree:
     def __init__(self) -> None:
         self._anchors: dict = {}
 
-    def derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, object]]:
+    def derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, Message]]:
         """The frame-tree messages for this record; none for a broken pose (codec.BrokenPose)."""
         try:
             return self._derive(topic, msg, log_time_ns)
         except codec.BrokenPose:
             return []
 
-    def _derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, object]]:
+    def _derive(self, topic: str, msg, log_time_ns: int) -> list[tuple[str, Message]]:
         if topic == Topic.DISPLAY_VIO_POSE:
             return [(Topic.TF_DISPLAY, frame_transform(codec.pose_of(msg.pose), Frame.DISPLAY_VIO, Frame.DISPLAY,
                                                        codec.stamp_ns(msg, log_time_ns)))]
@@ -112,8 +113,9 @@ class FrameTree:
             return [(Topic.CAMERA_FRUSTUM, camera_frustum(msg.K, msg.width, msg.height, codec.stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CONTROLLER_MARKER:
             t = codec.stamp_ns(msg, log_time_ns)
-            out: list[tuple[str, object]] = [
-                (Topic.TF_MARKER, frame_transform(codec.pose_of(msg.pose_in_body, required=False), Frame.CONTROLLER, Frame.MARKER, t))]
+            out: list[tuple[str, Message]] = [
+                (Topic.TF_MARKER, frame_transform(codec.pose_of(msg.pose_in_body, required=False), Frame.CONTROLLER,
+                                                  Frame.MARKER, t))]
             if msg.size_m > 0:
                 out.append((Topic.CONTROLLER_MARKER_OUTLINE, marker_outline(float(msg.size_m), t)))
             return out

@@ -78,7 +78,7 @@ class Camera:
                 cap = cv2.VideoCapture(int(self.spec))
             if not cap.isOpened():
                 raise InputFileError(f"camera {self.spec}: cannot open it (no such device, or another program uses it)")
-            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*"MJPG"))
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*"MJPG"))
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
             cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
@@ -159,6 +159,7 @@ class Camera:
                 self._start_ns = self.clock.from_monotonic_ns(now_mono)
             self._last_file_ms = ms
             rel_ns = int(round((ms - self._first_file_ms) * 1e6))
+            assert self._start_ns is not None   # set with _first_file_ms
             t = self._start_ns + rel_ns
         if self._last_t_ns is not None and t <= self._last_t_ns:
             t = self._last_t_ns + 1   # frames are strictly ordered on the recorder clock
@@ -183,6 +184,7 @@ class Camera:
             now = self.clock.now_ns()
             shift = now - self._peek.t_ns
             self._peek.t_ns = now
+            assert self._start_ns is not None   # set with _first_file_ms
             self._start_ns += shift
             self._last_t_ns = now
 

@@ -52,7 +52,7 @@ import threading
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -210,6 +210,7 @@ class LiveRecording:
                 self.log(f"{who}: marker side {detail}")
             self.marker_size_m = size
             return None
+        assert self.marker_size_m is not None   # the spec is written with the size
         if abs(size - self.marker_size_m) <= SIZE_MISMATCH * self.marker_size_m:
             return None
         self.stats["marker size changes ignored"] += 1
@@ -281,6 +282,7 @@ class LiveRecording:
 
     def find_marker(self, t_ns: int):
         """(frame, MarkerObservation) of the frame closest to ``t_ns`` that shows the marker, or (n tried, None)."""
+        assert self.marker_size_m is not None   # resolve_anchor refuses before the size is known
         recognizer = MarkerRecognizer(self.camera, MarkerModel(self.marker_dictionary, self.marker_id,
                                                                self.marker_size_m, T_BODY_MARKER))
         frames = self._frames_near(t_ns)
@@ -384,10 +386,12 @@ class LiveSource:
                               f"(choose another --port)") from None
 
     def _run_loop(self, ready: threading.Event) -> None:
-        asyncio.set_event_loop(self._loop)
-        self._loop.call_soon(ready.set)
-        self._loop.run_forever()
-        self._loop.close()
+        loop = self._loop
+        assert loop is not None   # start() made it
+        asyncio.set_event_loop(loop)
+        loop.call_soon(ready.set)
+        loop.run_forever()
+        loop.close()
 
     def _stop_loop(self) -> None:
         if self._loop is not None and self._server_thread is not None and self._server_thread.is_alive():
@@ -455,7 +459,7 @@ class LiveSource:
             self.stop_reason = reason
             self._stop.set()
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Record]:
         self.camera.restart_clock()
         t_begin = self.clock.now_ns()
         self._camera_thread = threading.Thread(target=self._camera_loop, name="phonepose-live-camera", daemon=True)
@@ -529,6 +533,7 @@ class LiveSource:
         if rec.repeats:
             lines.append("repeated messages ignored: " + ", ".join(f"{k}: {n}" for k, n in rec.repeats.most_common()))
         if rec.stats["marker size changes ignored"]:
+            assert rec.marker_size_m is not None   # counted only once the size was fixed
             lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "
                          f"the session's size ({rec.marker_size_m * 1000:.1f} mm) was fixed")
         if rec.stats["refused"]:
@@ -560,6 +565,8 @@ class LiveSource:
 
 class LiveRecorder(Recorder):
     """The :class:`Recorder` whose SIGINT/SIGTERM stop the live source, which then drains into the file."""
+
+    source: LiveSource
 
     def stop(self) -> None:
         self.source.interrupted = True

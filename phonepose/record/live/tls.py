@@ -41,8 +41,9 @@ def default_tls_dir() -> Path:
     return Path(base) / "phonepose" / "tls"
 
 
-def _split(hosts) -> tuple[list[str], list[ipaddress._BaseAddress]]:
-    names, ips = [], []
+def _split(hosts) -> tuple[list[str], list[ipaddress.IPv4Address | ipaddress.IPv6Address]]:
+    names: list[str] = []
+    ips: list[ipaddress.IPv4Address | ipaddress.IPv6Address] = []
     for h in hosts:
         try:
             ips.append(ipaddress.ip_address(h))
@@ -94,7 +95,8 @@ def ensure_certificate(tls_dir: "str | os.PathLike | None", hosts) -> Certificat
     key = ec.generate_private_key(ec.SECP256R1())
     now = dt.datetime.now(dt.timezone.utc)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "phonepose record live (self-signed)")])
-    san = [x509.DNSName(n) for n in names] + [x509.IPAddress(ip) for ip in ips]
+    san: list[x509.GeneralName] = [x509.DNSName(n) for n in names]
+    san += [x509.IPAddress(ip) for ip in ips]
     cert = (x509.CertificateBuilder()
             .subject_name(subject).issuer_name(subject)
             .public_key(key.public_key())

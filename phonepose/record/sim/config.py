@@ -27,6 +27,11 @@ def _choice(*values: str) -> Any:
     return field(metadata={"choices": values})
 
 
+def _flag() -> Any:
+    """A true/false field (typed Any like the others, so mypy does not read a default into ``_r``'s fields)."""
+    return field(metadata={})
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     rate_hz: float = _r(1, 120)
@@ -45,7 +50,7 @@ class CameraConfig:
 @dataclass(frozen=True)
 class RenderConfig:
     noise_sigma_dn: float = _r(0, 30)
-    motion_blur: bool = field(metadata={})
+    motion_blur: bool = _flag()
     exposure_s: float = _r(0, 0.05)
     brightness_variation: float = _r(0, 0.5)
     jpeg_quality: int = _r(10, 100)
@@ -123,6 +128,17 @@ class MocapConfig:
     clock_offset_s: float = _r(-1, 1)
     calibration_translation_m: float = _r(0, 0.1)
     calibration_rotation_deg: float = _r(0, 10)
+    exact: bool = _flag()
+
+    # the errors `exact = true` switches off: ground truth = the phone's true pose on the display's clock
+    ERRORS = ("noise_m", "noise_deg", "hand_eye_rotation_deg", "hand_eye_translation_m", "clock_offset_s",
+              "calibration_translation_m", "calibration_rotation_deg")
+
+    def effective(self) -> "MocapConfig":
+        """The configuration the simulator uses: with ``exact``, every mocap error is zero (the random
+        draws still happen, so every other stream of the session is unchanged)."""
+        off: dict[str, Any] = {k: 0.0 for k in self.ERRORS}   # (replace() is typed per field)
+        return dataclasses.replace(self, **off) if self.exact else self
 
 
 @dataclass(frozen=True)
@@ -242,6 +258,7 @@ def _build(data: dict) -> SimConfig:
         if extra:
             raise ConfigError(f"unknown config key {sname}.{sorted(extra)[0]!r}")
         sections[sname] = cls(**values)
+    sections["mocap"] = sections["mocap"].effective()
     extra = set(data) - set(_SECTION_TYPES)
     if extra:
         raise ConfigError(f"unknown config section [{sorted(extra)[0]}]")
@@ -257,7 +274,7 @@ def _check(key: str, f: dataclasses.Field, value: Any) -> Any:
     if kind == "str":
         choices = f.metadata.get("choices")
         if not isinstance(value, str) or (choices and value not in choices):
-            raise ConfigError(f"config key {key!r} must be one of {', '.join(choices)}, got {value!r}")
+            raise ConfigError(f"config key {key!r} must be one of {', '.join(choices or ())}, got {value!r}")
         return value
     lo, hi = f.metadata["range"]
     if isinstance(value, bool) or not isinstance(value, (int, float)):

@@ -188,7 +188,7 @@ class Renderer:
         frame[y0:y1, x0:x1] = roi
         self.work[cy0:cy1, cx0:cx1] = self.bg_canvas[cy0:cy1, cx0:cx1]
 
-    def _draw_marker(self, patch2: np.ndarray, T: Pose, z: float, local2) -> None:
+    def _draw_marker(self, patch2: np.ndarray, T: tuple[np.ndarray, np.ndarray], z: float, local2) -> None:
         """Warp the marker texture (exact texel-to-metre mapping) into the 2x patch."""
         c = MARKER_CENTER_IN_BODY[:2]
         q = self.quiet_half_m
@@ -250,7 +250,7 @@ def _dlt(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Exact 4-point homography in float64 (getPerspectiveTransform works in float32)."""
     A = []
     b = []
-    for (x, y), (u, v) in zip(src, dst):
+    for (x, y), (u, v) in zip(src, dst, strict=True):
         A.append([x, y, 1, 0, 0, 0, -u * x, -u * y])
         A.append([0, 0, 0, x, y, 1, -v * x, -v * y])
         b += [u, v]

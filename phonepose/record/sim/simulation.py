@@ -12,7 +12,7 @@ import heapq
 import zlib
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from typing import Iterator
+from typing import Iterator, overload
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
@@ -28,7 +28,7 @@ from phonepose.record.sim.imu import simulate_imu
 from phonepose.record.sim.motion import Trajectory, make_oscillations
 from phonepose.record.sim.render import Renderer
 from phonepose.record.sim.scenarios import Plan, build_plan
-from phonepose.record.sim.vio import GRID_HZ, VioErrorModel, VioErrorParams, arrival_times
+from phonepose.record.sim.vio import VioErrorModel, VioErrorParams, arrival_times
 from phonepose.record.sim.world import (HEIGHT, T_DISPLAY_CAMERA, WIDTH, World, build_world,
                                         marker_corners_in_marker, marker_in_view)
 from phonepose.record.source import Record
@@ -40,7 +40,11 @@ T0_NS = 1_700_000_000_000_000_000   # session start on the display's clock (fixe
 IMAGE_LOOKAHEAD = 2                 # frames rendered ahead while earlier ones are JPEG-encoded
 
 
-def ns(t_s) -> np.ndarray | int:
+@overload
+def ns(t_s: float) -> int: ...
+@overload
+def ns(t_s: np.ndarray) -> np.ndarray: ...
+def ns(t_s: float | np.ndarray) -> np.ndarray | int:
     """Seconds from the session start -> absolute display-clock nanoseconds."""
     if np.ndim(t_s) == 0:
         return T0_NS + int(round(float(t_s) * 1e9))
@@ -62,12 +66,14 @@ class SimSession:
     """All streams of one simulated session, precomputed except the images (rendered on demand)."""
 
     def __init__(self, scenario: str = "exp2", path: str | None = "TRI1", trial: int = 1, seed: int = 0,
-                 config: SimConfig | None = None):
+                 config: SimConfig | None = None, motion=None):
         self.cfg = cfg = config if config is not None else default_config()
         self.scenario, self.path, self.trial, self.seed = scenario, (path or "") if scenario == "exp2" else "", trial, seed
         rng_for = self.rng_for = rng_factory(seed)
         self.world: World = build_world(cfg, rng_for)
-        self.plan: Plan = build_plan(self.world, cfg, scenario, path, trial, rng_for)
+        self.plan: Plan = build_plan(self.world, cfg, scenario, path, trial, rng_for, motion)
+        if motion is not None:
+            self.path = self.plan.path
         w, plan = self.world, self.plan
         h = cfg.human
         self.oscillations = make_oscillations(rng_for(f"tremor_trial{trial}"), h.tremor_m, h.tremor_deg, h.sway_m, h.sway_deg)
@@ -85,7 +91,7 @@ class SimSession:
             end, rng_for("controller_vio"))
         white_c = rng_for("controller_vio_white").normal(size=(len(self.t_cvio), 6))
         self.T_map = w.T_dvio_anchor_resolved @ w.T_cvio_anchor_resolved.inv()   # cvio -> dvio via the anchors
-        traj0 = Trajectory(plan.keys, *self.oscillations)
+        traj0 = self._trajectory()
         self.cvio_model.set_path(self._cvio_base_on_grid(traj0))
         j_fix = int(np.argmin(np.abs(self.t_cvio - plan.t_fix)))
         fix_mapped = self.T_map @ self._cvio_estimate(traj0, self.t_cvio[j_fix:j_fix + 1], white_c[j_fix:j_fix + 1])[0]
@@ -97,7 +103,7 @@ class SimSession:
         for k in (plan.cm1_key_index, plan.cm1_key_index + 1):
             plan.keys[k].position = T_world_aligned.translation.copy()
             plan.keys[k].rotation = T_world_aligned.rotation
-        self.traj = traj = Trajectory(plan.keys, *self.oscillations)
+        self.traj = traj = self._trajectory()
         self.cvio_model.set_path(self._cvio_base_on_grid(traj))
         self.T_cvio_ctrl = self._cvio_estimate(traj, self.t_cvio, white_c)
         self.j_fix = j_fix
@@ -140,9 +146,12 @@ class SimSession:
         rn = rng_for("mocap_noise")
         T_world_ctrl = traj(self.t_gt)
         m = len(self.t_gt)
-        noise_c = Pose(Rotation.from_rotvec(rn.normal(size=(m, 3)) * np.deg2rad(mc.noise_deg)), rn.normal(size=(m, 3)) * mc.noise_m)
-        self.gt_ctrl = T_world_ctrl @ Pose(Rotation.concatenate([w.hand_eye.rotation] * m), np.tile(w.hand_eye.translation, (m, 1))) @ noise_c
-        noise_d = Pose(Rotation.from_rotvec(rn.normal(size=(m, 3)) * np.deg2rad(mc.noise_deg)), rn.normal(size=(m, 3)) * mc.noise_m)
+        noise_c = Pose(Rotation.from_rotvec(rn.normal(size=(m, 3)) * np.deg2rad(mc.noise_deg)),
+                       rn.normal(size=(m, 3)) * mc.noise_m)
+        self.gt_ctrl = T_world_ctrl @ Pose(Rotation.concatenate([w.hand_eye.rotation] * m),
+                                           np.tile(w.hand_eye.translation, (m, 1))) @ noise_c
+        noise_d = Pose(Rotation.from_rotvec(rn.normal(size=(m, 3)) * np.deg2rad(mc.noise_deg)),
+                       rn.normal(size=(m, 3)) * mc.noise_m)
         self.gt_display = Pose(Rotation.concatenate([w.T_world_display.rotation] * m),
                                np.tile(w.T_world_display.translation, (m, 1))) @ noise_d
         self.log_gt = self.t_gt + off
@@ -175,6 +184,15 @@ class SimSession:
         self._R_cam_ctrl: np.ndarray | None = None
 
     # ------------------------------------------------------------------ helpers
+    def _trajectory(self):
+        """The simulated hand (key poses, tremor, sway), or it until the task and then a recorded window."""
+        keyed = Trajectory(self.plan.keys, *self.oscillations)
+        if self.plan.recorded is None:
+            return keyed
+        from phonepose.record.sim.recorded import MotionTrajectory
+        window, facing, centre = self.plan.recorded
+        return MotionTrajectory(keyed, self.plan.task_start, window, facing, centre, self.plan.end)
+
     def _cvio_base_on_grid(self, traj: Trajectory) -> np.ndarray:
         grid = self.cvio_model.grid
         return (self.world.T_world_cvio.inv() @ traj.base(np.clip(grid, traj.start, traj.end))).translation
@@ -280,8 +298,8 @@ class SimSource:
                                                s.T_dvio_display),
                    self._constant(Topic.DISPLAY_ANCHOR, Frame.DISPLAY_VIO, s.t_anchor, s.t_anchor,
                                   s.world.T_dvio_anchor_resolved),
-                   self._poses(Topic.CONTROLLER_VIO_POSE, Frame.CONTROLLER_VIO, s.t_cvio + s.cfg.network.controller_clock_offset_s,
-                               s.arrive_cvio, s.T_cvio_ctrl),
+                   self._poses(Topic.CONTROLLER_VIO_POSE, Frame.CONTROLLER_VIO,
+                               s.t_cvio + s.cfg.network.controller_clock_offset_s, s.arrive_cvio, s.T_cvio_ctrl),
                    self._constant(Topic.CONTROLLER_ANCHOR, Frame.CONTROLLER_VIO,
                                   s.t_canchor + s.cfg.network.controller_clock_offset_s, s.arrive_canchor,
                                   s.world.T_cvio_anchor_resolved),
@@ -330,7 +348,7 @@ class SimSource:
             yield Record(topic, msg, int(logs[i]), int(logs[i]))
 
     def _constant(self, topic: str, frame: str, stamp_s, log_s, pose: Pose) -> Iterator[Record]:
-        for st, lg in zip(ns(stamp_s), ns(log_s)):
+        for st, lg in zip(ns(stamp_s), ns(log_s), strict=True):
             yield Record(topic, pose_in_frame(pose, frame, int(st)), int(lg), int(lg))
 
     def _imu(self) -> Iterator[Record]:

@@ -90,7 +90,10 @@ def error_pose(rng: np.random.Generator, translation_m: float, yaw_deg: float, t
     return Pose(Rotation.from_euler("xyz", angles, degrees=True), t)
 
 
-def look_at_rotation(position: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> Rotation:
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+def look_at_rotation(position: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP) -> Rotation:
     """Orientation of a phone body at ``position`` whose screen (+z) faces ``target``, upright (+y ~ up)."""
     z = target - position
     z = z / np.linalg.norm(z)
