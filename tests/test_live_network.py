@@ -15,11 +15,14 @@ import ssl
 
 import aiohttp
 import numpy as np
-import pytest
+import test_record_live
+from conftest import DEADLINE_S, wait_until, wait_until_async
+from test_record_live import Phone, _finish, _messages, _start, _wait_video_start
 
 from phonepose.schemas.topics import Topic
-from conftest import DEADLINE_S, wait_until, wait_until_async
-from test_record_live import Phone, _finish, _messages, _start, _wait_video_start, long_media, media  # noqa: F401
+
+media = test_record_live.media              # the same fixtures: a video of the marker and its calibration
+long_media = test_record_live.long_media
 
 
 class SlowPhone(Phone):

@@ -19,12 +19,13 @@ import asyncio
 import ssl
 from collections import OrderedDict
 from collections.abc import Callable
+from typing import cast
 
 
 class ConnectionGate:
     """Protocol factory for ``loop.create_server``; ``handlers`` makes aiohttp's protocol."""
 
-    def __init__(self, handlers: Callable[[], asyncio.Protocol], ssl_context: ssl.SSLContext | None, *,
+    def __init__(self, handlers: Callable[[], asyncio.BaseProtocol], ssl_context: ssl.SSLContext | None, *,
                  limit: int, handshake_timeout_s: float, first_request_s: float) -> None:
         self.handlers = handlers
         self.ssl_context = ssl_context
@@ -64,7 +65,7 @@ class _Gated(asyncio.Protocol):
 
     def __init__(self, gate: ConnectionGate) -> None:
         self.gate = gate
-        self.raw: asyncio.BaseTransport | None = None
+        self.raw: asyncio.Transport | None = None
         self.handler: asyncio.Protocol | None = None
         self.counted = False
         self.spoke = False
@@ -73,20 +74,21 @@ class _Gated(asyncio.Protocol):
 
     # ------------------------------------------------------------------ raw connection
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.raw = transport
+        self.raw = raw = cast(asyncio.Transport, transport)   # a TCP server's transports are Transports
         if not self.gate.admit(self):
-            transport.abort()
+            raw.abort()
             return
         self.counted = True
         loop = asyncio.get_running_loop()
         self._timer = loop.call_later(self.gate.first_request_s, self._silent_too_long)
         if self.gate.ssl_context is None:
-            self._attach(transport)
+            self._attach(raw)
         else:
-            asyncio.ensure_future(self._start_tls(transport))
+            asyncio.ensure_future(self._start_tls(raw))
 
-    async def _start_tls(self, raw: asyncio.BaseTransport) -> None:
+    async def _start_tls(self, raw: asyncio.Transport) -> None:
         loop = asyncio.get_running_loop()
+        assert self.gate.ssl_context is not None
         if raw.is_closing():
             # dropped before this task ran: a TLS start on it now would arm a handshake timer that
             # keeps the protocol and its 256 KiB buffer alive for the whole timeout (measured: 300 of
@@ -94,9 +96,9 @@ class _Gated(asyncio.Protocol):
             self.connection_lost(None)
             return
         try:
-            tls = await loop.start_tls(raw, self, self.gate.ssl_context, server_side=True,   # type: ignore[arg-type]
+            tls = await loop.start_tls(raw, self, self.gate.ssl_context, server_side=True,
                                        ssl_handshake_timeout=self.gate.handshake_timeout_s)
-        except (OSError, ssl.SSLError, asyncio.TimeoutError, ConnectionError, RuntimeError):
+        except (TimeoutError, OSError, ssl.SSLError, ConnectionError, RuntimeError):
             tls = None
         if tls is None or raw.is_closing():   # start_tls returns None when the peer left mid-handshake
             raw.abort()   # asyncio tells the app protocol nothing of a failed handshake: release here
@@ -105,7 +107,7 @@ class _Gated(asyncio.Protocol):
         self._attach(tls)
 
     def _attach(self, transport: asyncio.BaseTransport) -> None:
-        self.handler = self.gate.handlers()
+        self.handler = cast(asyncio.Protocol, self.gate.handlers())   # aiohttp's RequestHandler
         self.handler.connection_made(transport)
         early, self._early = self._early, []
         for data in early:

@@ -24,13 +24,14 @@ that never answers). Each later pong refines the offset (the fastest exchange of
 from __future__ import annotations
 
 import asyncio
+import inspect
 import json
 import logging
 import math
 import secrets
 import statistics
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from aiohttp import WSMessage, WSMsgType, web
 
@@ -141,6 +142,10 @@ def parse_message(text: str) -> dict:
     raise Malformed("unknown message type", repr(kind)[:40])
 
 
+# aiohttp >= 3.13 can hand text over undecoded; older versions close on invalid UTF-8 (1007) themselves
+_RAW_TEXT: dict[str, Any] = {"decode_text": False} if "decode_text" in inspect.signature(web.WebSocketResponse).parameters else {}
+
+
 @web.middleware
 async def _no_traceback(request: web.Request, handler):
     """A path the file system cannot look up (e.g. 3000 levels deep: "File name too long") is a 404,
@@ -155,7 +160,7 @@ class _RequestErrors(logging.Handler):
     """aiohttp's request-handling log (bad request lines, oversized headers, handler errors) as one
     line per kind on the terminal and ``/log`` and a count, instead of a traceback per request."""
 
-    def __init__(self, recording: "LiveRecording") -> None:
+    def __init__(self, recording: LiveRecording) -> None:
         super().__init__(level=logging.WARNING)
         self.recording = recording
         self.logger = logging.getLogger(f"phonepose.live.http.{id(self)}")
@@ -171,7 +176,7 @@ class _RequestErrors(logging.Handler):
 class Connection:
     """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
 
-    def __init__(self, server: "LiveServer", sock: PageSocket, peer: str, number: int):
+    def __init__(self, server: LiveServer, sock: PageSocket, peer: str, number: int):
         self.server = server
         self.rec = server.recording
         self.sock = sock
@@ -381,7 +386,7 @@ class Connection:
 class LiveServer:
     """The aiohttp application; :meth:`start` binds it (``port`` 0: any free port)."""
 
-    def __init__(self, recording: "LiveRecording", token: str, *, host: str = "0.0.0.0", port: int = 8443,
+    def __init__(self, recording: LiveRecording, token: str, *, host: str = "0.0.0.0", port: int = 8443,
                  ssl_context=None, marker_png: bytes = b"", static_dir: Path = STATIC_DIR):
         self.recording = recording
         self.token = token
@@ -441,7 +446,7 @@ class LiveServer:
         # decode_text=False: text arrives as bytes, so invalid UTF-8 is ignored here (as the protocol
         # says) instead of aiohttp closing the connection with 1007
         ws = web.WebSocketResponse(max_msg_size=MAX_FRAME_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S,
-                                   decode_text=False)
+                                   **_RAW_TEXT)
         await ws.prepare(request)
         self.connections += 1
         conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
@@ -491,11 +496,12 @@ class LiveServer:
                                      keepalive_timeout=KEEPALIVE_S, logger=_RequestErrors(self.recording).logger)
         await self._runner.setup()
         # aiohttp's protocol factory behind the gate (connection cap, TLS and first-request deadlines)
+        assert self._runner.server is not None   # made by setup()
         self.gate = ConnectionGate(self._runner.server, self.ssl_context, limit=MAX_CONNECTIONS,
                                    handshake_timeout_s=HANDSHAKE_TIMEOUT_S, first_request_s=FIRST_REQUEST_S)
         loop = asyncio.get_running_loop()
         self._listener = await loop.create_server(self.gate, self.host, self.port, reuse_address=True)
-        sockets = self._listener.sockets or []
+        sockets = list(self._listener.sockets or [])
         if sockets:
             self.port = sockets[0].getsockname()[1]
         return self.port

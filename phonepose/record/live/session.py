@@ -50,9 +50,9 @@ import secrets
 import socket
 import threading
 from collections import Counter, deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -585,8 +585,8 @@ class LiveResult:
 class LiveSession:
     """One live recording: ``start()`` (binds the server, gives the URL), ``run()`` (blocks), ``stop()``."""
 
-    def __init__(self, out: "str | os.PathLike", camera: "str | int", calibration: "str | os.PathLike", *,
-                 host: str = "0.0.0.0", port: int = 8443, tls_dir: "str | os.PathLike | None" = None,
+    def __init__(self, out: str | os.PathLike, camera: str | int, calibration: str | os.PathLike, *,
+                 host: str = "0.0.0.0", port: int = 8443, tls_dir: str | os.PathLike | None = None,
                  dictionary: str = "DICT_4X4_50", marker_id: int = 7, marker_size_m: float | None = None,
                  duration_s: float | None = None, pace: bool = True, rerun_path=None, spawn: bool = False,
                  echo: Callable[[str], None] = print, static_dir: Path | None = None):
