@@ -31,17 +31,15 @@ import math
 import secrets
 import statistics
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from aiohttp import WSMessage, WSMsgType, web
 
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
 from phonepose.record.live.gate import ConnectionGate
+from phonepose.record.live.recording import LiveRecording
 from phonepose.record.live.websocket import PageSocket
-
-if TYPE_CHECKING:   # pragma: no cover
-    from phonepose.record.live.session import LiveRecording
 
 STATIC_DIR = Path(__file__).parent / "static"
 PING_AT_CONNECT = 5
