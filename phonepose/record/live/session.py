@@ -75,7 +75,11 @@ from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
 from phonepose.session.codec import encode_pose, frame_transform
 
-HOLD_NS = 1_000_000_000              # reorder buffer (> the server's 0.5 s wait for a first pong)
+# A SIGKILL loses what waits in the reorder buffer plus what the writer has not flushed yet: at most
+# HOLD_NS + FLUSH_NS = 1 s (issue 20; it was 1 s + 1 s, measured 1.2-1.7 s). Samples held longer
+# than HOLD_NS (waiting for a first pong) are still written, their log time raised to keep the order.
+HOLD_NS = 500_000_000                # reorder buffer across the camera thread and the server
+FLUSH_NS = 500_000_000               # the session writer's flush interval (log time)
 MARKER_PNG_SIDE_PX = 480
 
 def _marker_png(dictionary: str, marker_id: int) -> bytes:
@@ -415,7 +419,8 @@ class LiveSession:
 
     def run(self) -> LiveResult:
         try:
-            recorder = LiveRecorder(self.source, self.out, rerun_path=self.rerun_path, spawn=self.spawn)
+            recorder = LiveRecorder(self.source, self.out, rerun_path=self.rerun_path, spawn=self.spawn,
+                                    flush_every_ns=FLUSH_NS)
         except BaseException:
             self.source.close()
             raise
