@@ -9,14 +9,20 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import socket
+import ssl
 
 import aiohttp
 import numpy as np
-import pytest
+import test_record_live
+from conftest import DEADLINE_S, wait_until, wait_until_async
+from test_record_live import Phone, _finish, _messages, _start, _wait_video_start
 
 from phonepose.schemas.topics import Topic
-from conftest import wait_until_async
-from test_record_live import Phone, _finish, _messages, _start, _wait_video_start, long_media, media  # noqa: F401
+
+media = test_record_live.media              # the same fixtures: a video of the marker and its calibration
+long_media = test_record_live.long_media
 
 
 class SlowPhone(Phone):
@@ -164,3 +170,67 @@ def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_onc
     assert sum("hello messages after the first" in t for t in logs) == 2
     assert any("repeated messages ignored: hello messages after the first on a connection: 2999" in t for t in logs)
     assert sum(m.topic == Topic.CONTROLLER_IMU for m in msgs) == 20
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_media, tmp_path):
+    """2000 TCP connections that never start TLS (anyone on the network can open them), then the
+    phone: the gate (phonepose/record/live/gate.py) keeps at most MAX_CONNECTIONS, dropping the
+    oldest silent one for each newcomer, so the phone is served and memory stays flat."""
+    from phonepose.record.live.server import MAX_CONNECTIONS
+
+    s, out, th, lines = _start(long_media, tmp_path)
+    _wait_video_start(s)
+    before = _rss_mb()
+    idle = []
+    try:
+        for _ in range(2000):
+            idle.append(socket.create_connection(("127.0.0.1", s.port), timeout=DEADLINE_S))
+        gate = s.source.server.gate
+        wait_until(lambda: gate.dropped >= 2000 - MAX_CONNECTIONS, what="the gate to drop the oldest idle connections")
+        assert gate.open <= MAX_CONNECTIONS
+        grown = _rss_mb() - before
+        phone = Phone(s, s.port, s.token)
+
+        async def script():
+            async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+                ws, reader = await phone.connect(http)
+                await _imu(phone, ws, 20)
+                await wait_until_async(lambda: s.source.recording.stats["imu"] >= 20, what="the phone's samples")
+                await ws.close()
+                reader.cancel()
+
+        asyncio.run(script())
+    finally:
+        for sock in idle:
+            sock.close()
+    s.stop("test done")
+    _finish(th)
+    assert grown < 80, f"{grown:.0f} MB for 2000 idle connections"     # ~590 MB before the gate, 35 MB in a bare server
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in _messages(tmp_path / "s.mcap")) == 20
+    assert any("connections closed while idle" in line for line in lines)
+
+
+def test_deep_static_paths_and_oversized_request_lines_are_one_line_not_a_traceback(long_media, tmp_path, capfd):
+    s, out, th, lines = _start(long_media, tmp_path)
+    ctx = ssl.create_default_context()
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+
+    def status(request: bytes) -> bytes:
+        with ctx.wrap_socket(socket.create_connection(("127.0.0.1", s.port), timeout=DEADLINE_S)) as c:
+            c.sendall(request)
+            return c.recv(64).split(b"\r\n")[0]
+
+    for _ in range(3):
+        assert status(b"GET /static/" + b"a/" * 3000 + b"x HTTP/1.1\r\nHost: x\r\n\r\n") == b"HTTP/1.1 404 Not Found"
+        assert status(b"GET /" + b"a" * 20000 + b" HTTP/1.1\r\nHost: x\r\n\r\n") == b"HTTP/1.0 400 Bad Request"
+    s.stop("test done")
+    _finish(th)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "File name too long" not in err
+    assert sum("bad HTTP requests (LineTooLong)" in line for line in lines) == 1
+    assert s.source.recording.repeats["bad HTTP requests (LineTooLong)"] == 3

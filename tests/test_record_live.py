@@ -32,7 +32,7 @@ from phonepose.playback.engine import run_playback
 from phonepose.record.live import LiveSession
 from phonepose.record.live.clock import OffsetEstimator
 from phonepose.record.live.server import Malformed, parse_message
-from phonepose.record.live.session import T_DISPLAY_CAMERA
+from phonepose.record.live.recording import T_DISPLAY_CAMERA
 from phonepose.record.live.tls import ensure_certificate
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader

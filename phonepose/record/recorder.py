@@ -43,8 +43,10 @@ class RecordResult:
 class Recorder:
     def __init__(self, source: Source, out: str | os.PathLike, *, progress: ProgressCallback | None = None,
                  rerun_path: str | os.PathLike | None = None, spawn: bool = False,
-                 progress_every_ns: int = 100_000_000, stop_on_signals: bool = True):
+                 progress_every_ns: int = 100_000_000, stop_on_signals: bool = True,
+                 flush_every_ns: int | None = None):
         self.source = source
+        self.flush_every_ns = flush_every_ns   # None: the writer's default (about once a second of log time)
         self.out = os.fspath(out)
         self.progress = progress
         self.progress_every_ns = progress_every_ns
@@ -92,7 +94,8 @@ class Recorder:
         first: int | None = None
         last: int | None = None
         next_progress = start
-        with SessionWriter(self.out) as writer:
+        flush = {} if self.flush_every_ns is None else {"flush_every_ns": self.flush_every_ns}
+        with SessionWriter(self.out, **flush) as writer:
             for rec in static:
                 self._write(writer, rec, last_per_topic)
             iterator = iter(self.source)

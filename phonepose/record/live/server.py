@@ -24,21 +24,22 @@ that never answers). Each later pong refines the offset (the fastest exchange of
 from __future__ import annotations
 
 import asyncio
+import inspect
 import json
+import logging
 import math
 import secrets
 import statistics
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 from aiohttp import WSMessage, WSMsgType, web
 
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
+from phonepose.record.live.gate import ConnectionGate
+from phonepose.record.live.recording import LiveRecording
 from phonepose.record.live.websocket import PageSocket
-
-if TYPE_CHECKING:   # pragma: no cover
-    from phonepose.record.live.session import LiveRecording
 
 STATIC_DIR = Path(__file__).parent / "static"
 PING_AT_CONNECT = 5
@@ -52,6 +53,10 @@ MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from 
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
+MAX_CONNECTIONS = 64                  # open TCP connections at a time (a phone page uses a few); see gate.py
+HANDSHAKE_TIMEOUT_S = 10.0            # TLS handshake deadline
+FIRST_REQUEST_S = 15.0                # a connection silent this long after it opened is closed
+KEEPALIVE_S = 15.0                    # an idle HTTP keep-alive connection is closed after this
 CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
 
 
@@ -135,10 +140,41 @@ def parse_message(text: str) -> dict:
     raise Malformed("unknown message type", repr(kind)[:40])
 
 
+# aiohttp >= 3.13 can hand text over undecoded; older versions close on invalid UTF-8 (1007) themselves
+_RAW_TEXT: dict[str, Any] = {"decode_text": False} if "decode_text" in inspect.signature(web.WebSocketResponse).parameters else {}
+
+
+@web.middleware
+async def _no_traceback(request: web.Request, handler):
+    """A path the file system cannot look up (e.g. 3000 levels deep: "File name too long") is a 404,
+    not a traceback on the recorder's terminal."""
+    try:
+        return await handler(request)
+    except OSError:
+        raise web.HTTPNotFound() from None
+
+
+class _RequestErrors(logging.Handler):
+    """aiohttp's request-handling log (bad request lines, oversized headers, handler errors) as one
+    line per kind on the terminal and ``/log`` and a count, instead of a traceback per request."""
+
+    def __init__(self, recording: LiveRecording) -> None:
+        super().__init__(level=logging.WARNING)
+        self.recording = recording
+        self.logger = logging.getLogger(f"phonepose.live.http.{id(self)}")
+        self.logger.propagate = False
+        self.logger.addHandler(self)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        exc = record.exc_info[1] if record.exc_info else None
+        kind = type(exc).__name__ if exc is not None else record.getMessage()[:60]
+        self.recording.repeated(f"bad HTTP requests ({kind})", "http")
+
+
 class Connection:
     """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
 
-    def __init__(self, server: "LiveServer", sock: PageSocket, peer: str, number: int):
+    def __init__(self, server: LiveServer, sock: PageSocket, peer: str, number: int):
         self.server = server
         self.rec = server.recording
         self.sock = sock
@@ -348,7 +384,7 @@ class Connection:
 class LiveServer:
     """The aiohttp application; :meth:`start` binds it (``port`` 0: any free port)."""
 
-    def __init__(self, recording: "LiveRecording", token: str, *, host: str = "0.0.0.0", port: int = 8443,
+    def __init__(self, recording: LiveRecording, token: str, *, host: str = "0.0.0.0", port: int = 8443,
                  ssl_context=None, marker_png: bytes = b"", static_dir: Path = STATIC_DIR):
         self.recording = recording
         self.token = token
@@ -359,11 +395,13 @@ class LiveServer:
         self.current: Connection | None = None
         self.connections = 0
         self._runner: web.AppRunner | None = None
+        self._listener: asyncio.AbstractServer | None = None
+        self.gate: ConnectionGate | None = None
         self.app = self._make_app()
 
     # ------------------------------------------------------------------ HTTP
     def _make_app(self) -> web.Application:
-        app = web.Application(client_max_size=MAX_MESSAGE_BYTES)
+        app = web.Application(client_max_size=MAX_MESSAGE_BYTES, middlewares=[_no_traceback])
         app.router.add_get("/", self._index)
         app.router.add_get("/marker.png", self._marker)
         app.router.add_get("/config", self._config)
@@ -406,7 +444,7 @@ class LiveServer:
         # decode_text=False: text arrives as bytes, so invalid UTF-8 is ignored here (as the protocol
         # says) instead of aiohttp closing the connection with 1007
         ws = web.WebSocketResponse(max_msg_size=MAX_FRAME_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S,
-                                   decode_text=False)
+                                   **_RAW_TEXT)
         await ws.prepare(request)
         self.connections += 1
         conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
@@ -452,11 +490,16 @@ class LiveServer:
 
     # ------------------------------------------------------------------ lifetime
     async def start(self) -> int:
-        self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0)
+        self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0,
+                                     keepalive_timeout=KEEPALIVE_S, logger=_RequestErrors(self.recording).logger)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context, reuse_address=True)
-        await site.start()
-        sockets = getattr(site._server, "sockets", None) or []
+        # aiohttp's protocol factory behind the gate (connection cap, TLS and first-request deadlines)
+        assert self._runner.server is not None   # made by setup()
+        self.gate = ConnectionGate(self._runner.server, self.ssl_context, limit=MAX_CONNECTIONS,
+                                   handshake_timeout_s=HANDSHAKE_TIMEOUT_S, first_request_s=FIRST_REQUEST_S)
+        loop = asyncio.get_running_loop()
+        self._listener = await loop.create_server(self.gate, self.host, self.port, reuse_address=True)
+        sockets = list(self._listener.sockets or [])
         if sockets:
             self.port = sockets[0].getsockname()[1]
         return self.port
@@ -478,6 +521,12 @@ class LiveServer:
             if conn.pending or not conn.settled:
                 conn.settle()
             await conn.sock.close(message=b"recording finished")
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        if self.gate is not None and (self.gate.dropped or self.gate.refused):
+            self.recording.log(f"connections closed while idle: {self.gate.dropped}, refused (all "
+                               f"{MAX_CONNECTIONS} busy): {self.gate.refused}", level="warning")
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None

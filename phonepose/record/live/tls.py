@@ -67,7 +67,7 @@ def _reusable(cert_path: Path, key_path: Path, hosts) -> object | None:
         san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     except (OSError, ValueError, x509.ExtensionNotFound):
         return None
-    if cert.not_valid_after_utc < dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=1):
+    if cert.not_valid_after_utc < dt.datetime.now(dt.UTC) + dt.timedelta(days=1):
         return None
     names, ips = _split(hosts)
     have_names = set(san.get_values_for_type(x509.DNSName))
@@ -77,7 +77,7 @@ def _reusable(cert_path: Path, key_path: Path, hosts) -> object | None:
     return cert
 
 
-def ensure_certificate(tls_dir: "str | os.PathLike | None", hosts) -> Certificate:
+def ensure_certificate(tls_dir: str | os.PathLike | None, hosts) -> Certificate:
     """The certificate in ``tls_dir`` (default :func:`default_tls_dir`), made if missing, expiring or
     not covering ``hosts`` (host names and IP addresses)."""
     from cryptography import x509
@@ -93,7 +93,7 @@ def ensure_certificate(tls_dir: "str | os.PathLike | None", hosts) -> Certificat
         return Certificate(cert_path, key_path, _fingerprint(cert), created=False)
     names, ips = _split(hosts)
     key = ec.generate_private_key(ec.SECP256R1())
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "phonepose record live (self-signed)")])
     san: list[x509.GeneralName] = [x509.DNSName(n) for n in names]
     san += [x509.IPAddress(ip) for ip in ips]

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
+from typing import Any
 
 from aiohttp import WSMessage, web
 
@@ -42,7 +43,8 @@ class PageSocket:
         returns False, or :meth:`close` is asked; in the last case close with its code here."""
         reader = asyncio.ensure_future(self._read(handle))
         try:
-            await asyncio.wait({reader, self._close_asked}, return_when=asyncio.FIRST_COMPLETED)
+            waits: set[asyncio.Future[Any]] = {reader, self._close_asked}
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
         finally:
             if not reader.done():
                 reader.cancel()
