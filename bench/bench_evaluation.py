@@ -1,4 +1,13 @@
-"""Our trajectory evaluation against evo's Python API on the same long trajectory (TUM fr2/desk: ORB-SLAM
+"""Our trajectory evaluation against evo's Python API, on every input format (issue 23), then in depth on TUM.
+
+Part 1, per format: TUM fr2/desk (ORB estimate, association by stamps), EuRoC V1_02 (csv GT with a
+TUM estimate, association) and KITTI (index-matched: the fr2/desk associated pairs written as two
+KITTI 3x4 files, since no KITTI sequence is among the fixtures; 2174 poses). The work on both sides:
+association (TUM, EuRoC), SE(3) Umeyama, APE translation and RPE translation over 1 m (evo's
+defaults: consecutive pairs on the estimate), after loading; numbers asserted equal (1e-9 relative),
+best of N, ours then evo's. Target: >= 10x on every format.
+
+Part 2: our trajectory evaluation against evo's Python API on the same long trajectory (TUM fr2/desk: ORB-SLAM
 estimate, 2893 poses, against 20957 GT poses → 2174 associated).
 
 Both sides do the same work with the same association (evo's, 0.01 s) and the same SE(3) Umeyama alignment:
@@ -83,7 +92,97 @@ def rpg_pair_search_loop(d, dist, max_dist_diff):
     return comparisons
 
 
+EUROC_GT, EUROC_EST = DATA / "V102_groundtruth.csv", DATA / "V102.txt"
+FORMAT_DELTA_M = 1.0
+
+
+def _kitti_files(tmp: Path) -> tuple[Path, Path]:
+    import numpy as np
+
+    from phonepose.evaluation import load_tum
+    from phonepose.evaluation.evo_metrics import associate
+
+    gt, est = load_tum(GT), load_tum(EST)
+    i_est, i_gt = associate(gt, est, 0.01)
+    out = []
+    for name, poses in (("gt", gt.poses[i_gt]), ("est", est.poses[i_est])):
+        path = tmp / f"{name}_kitti.txt"
+        np.savetxt(path, poses.as_matrix()[:, :3, :].reshape(-1, 12), fmt="%.12e")
+        out.append(path)
+    return out[0], out[1]
+
+
+def _ours_format(gt, est) -> dict:
+    from phonepose.evaluation.evo_metrics import associate, evaluate_ape, evaluate_rpe
+
+    matches = associate(gt, est, 0.01)
+    ape = evaluate_ape(gt, est, "trans", align_method="se3", matches=matches)["ape"]
+    rpe = evaluate_rpe(gt, est, "trans", delta=FORMAT_DELTA_M, delta_unit="m", align_method="se3",
+                       matches=matches)["rpe"]
+    return {"ape": ape, "rpe": rpe}
+
+
+def _evo_format(ref, est) -> dict:
+    from evo.core import metrics, sync
+    from evo.core.trajectory import PoseTrajectory3D
+
+    ref, est = copy.deepcopy(ref), copy.deepcopy(est)
+    if isinstance(ref, PoseTrajectory3D) and isinstance(est, PoseTrajectory3D):
+        ref, est = sync.associate_trajectories(ref, est, max_diff=0.01)
+    est.align(ref, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, FORMAT_DELTA_M, metrics.Unit.meters)
+    rpe.process_data((ref, est))
+    return {"ape": ape.get_all_statistics(), "rpe": rpe.get_all_statistics()}
+
+
+def formats() -> dict:
+    """Part 1: APE + RPE on a TUM, a EuRoC and a KITTI pair, ours against evo's API."""
+    import tempfile
+
+    from evo.tools import file_interface
+
+    from phonepose.evaluation import load_euroc, load_kitti, load_tum
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        kitti_gt, kitti_est = _kitti_files(Path(tmp))
+        cases = {
+            "tum": ((load_tum(GT), load_tum(EST)), (file_interface.read_tum_trajectory_file(str(GT)),
+                                                    file_interface.read_tum_trajectory_file(str(EST)))),
+            "euroc": ((load_euroc(EUROC_GT), load_tum(EUROC_EST)),
+                      (file_interface.read_euroc_csv_trajectory(str(EUROC_GT)),
+                       file_interface.read_tum_trajectory_file(str(EUROC_EST)))),
+            "kitti": ((load_kitti(kitti_gt), load_kitti(kitti_est)),
+                      (file_interface.read_kitti_poses_file(str(kitti_gt)),
+                       file_interface.read_kitti_poses_file(str(kitti_est)))),
+        }
+        for name, ((g, e), (rg, re_)) in cases.items():
+            ours, t_ours = best_of(lambda: _ours_format(g, e))
+            theirs, t_evo = best_of(lambda: _evo_format(rg, re_))
+            worst = 0.0
+            for metric in ("ape", "rpe"):
+                for stat, v in theirs[metric].items():
+                    worst = max(worst, abs(ours[metric][stat] - v) / max(abs(v), 1e-300))
+            assert worst < 1e-9, (name, worst)
+            out[f"{name}_ours_s"], out[f"{name}_evo_s"] = t_ours, t_evo
+            out[f"{name}_speedup"], out[f"{name}_max_rel_diff"] = t_evo / t_ours, worst
+            out[f"{name}_poses"] = int(ours["ape"]["num_samples"])
+            print(f"{name:6s} {out[f'{name}_poses']:5d} matched poses: ours {1e3 * t_ours:7.2f} ms, evo "
+                  f"{1e3 * t_evo:8.2f} ms -> {t_evo / t_ours:5.1f}x (same numbers: max rel. diff {worst:.1e})")
+    out["min_format_speedup"] = min(out[f"{n}_speedup"] for n in cases)
+    return out
+
+
 def main() -> dict:
+    print("part 1: every format, APE + RPE (translation, SE(3) alignment, 1 m), after loading")
+    part1 = formats()
+    print("part 2: TUM fr2/desk in depth")
+    return {**part1, **depth()}
+
+
+def depth() -> dict:
     import evo
     from evo.tools import file_interface
 

@@ -2,8 +2,9 @@
 
 A simulated TRI2 session (trial 1, seed 0) is recorded once; its Observations (decode, marker
 recognition, anchor mapping, stamped VIO samples) are built once by the shared stages, then
-each tracker steps over all of them, three times, best run kept. Target (issue 9): T8 < 2 ms
-per tick on this machine.
+each tracker steps over all of them, three times, best run kept. Reported as ratios to T7 and to the
+shared stages of the same run (a loaded machine scales all of them). Targets: T8 < 2 ms per tick
+(issue 9), <= 0.4 ms (issue 23; docs/performance.md, "T8 per tick without scipy Rotation objects").
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import cv2
 
 def _observations(session: Path) -> tuple[list, float]:
     from phonepose.pipeline.shared import SharedStages
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 

@@ -65,7 +65,7 @@ def _make_session(tmp: Path) -> tuple[Path, str]:
 
 def _new_frames(session: Path) -> list:
     """The camera frames the ticks carry as new (what the shared stages decode), with their tick."""
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 
@@ -124,7 +124,7 @@ def long_session(tmp: Path) -> dict:
     """Part 1: ``--tracker all`` on exp1 against decode + plain detectMarkers of every frame."""
     import statistics
 
-    from phonepose.playback.context import read_context
+    from phonepose.pipeline.context import read_context
     from phonepose.session import SessionReader
 
     session = tmp / "exp1.mcap"

@@ -163,14 +163,15 @@ class Pose:
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None and np.ndim(other.translation) == 1:
             return Pose._of(quat_compose(qa, qb), quat_apply(qa, other.translation) + self.translation)
-        return Pose(self.rotation * other.rotation, self.rotation.apply(other.translation) + self.translation)
+        return Pose(rotation_product(self.rotation, other.rotation),
+                    self.rotation.apply(other.translation) + self.translation)
 
     def inv(self) -> "Pose":
         q = self._q()
         if q is not None and np.ndim(self.translation) == 1:
             q_inv = quat_inv(q)
             return Pose._of(q_inv, -quat_apply(q_inv, self.translation))
-        r_inv = self.rotation.inv()
+        r_inv = rotation_inverse(self.rotation)
         return Pose(r_inv, -r_inv.apply(self.translation))
 
     def rotate(self, vectors) -> np.ndarray:
@@ -196,7 +197,11 @@ class Pose:
         return len(self.rotation)
 
     def __getitem__(self, index) -> "Pose":
-        return Pose(self.rotation[index], self.translation[index])
+        # the stored quaternions indexed directly: scipy's __getitem__ costs ~0.7 ms on 2000 poses
+        q = self.rotation.as_quat()
+        if q.ndim == 1:
+            raise TypeError("Single rotation is not subscriptable.")
+        return Pose(Rotation(q[index], normalize=False, copy=False), self.translation[index])
 
     @property
     def single(self) -> bool:
@@ -207,13 +212,38 @@ class Pose:
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None:
             return np.float64(quat_magnitude(quat_compose(quat_inv(qa), qb)))
-        return (self.rotation.inv() * other.rotation).magnitude()
+        return rotation_product(rotation_inverse(self.rotation), other.rotation).magnitude()
 
     def distance_to(self, other: "Pose") -> np.ndarray:
         return np.linalg.norm(self.translation - other.translation, axis=-1)
 
     def allclose(self, other: "Pose", atol: float = 1e-9) -> bool:
         return bool(np.all(self.distance_to(other) <= atol) and np.all(self.angle_to(other) <= atol))
+
+
+def rotation_product(a: Rotation, b: Rotation) -> Rotation:
+    """``a * b`` of scipy Rotations (single or stacks, broadcast), vectorised in numpy with scipy's
+    arithmetic (so the same bits): scipy's compiled loop allocates per rotation, ~7 µs each."""
+    p, q = a.as_quat(), b.as_quat()
+    if p.ndim > 2 or q.ndim > 2:
+        return a * b
+    p0, p1, p2, p3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    q0, q1, q2, q3 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    r = np.stack([p3 * q0 + q3 * p0 + (p1 * q2 - p2 * q1),
+                  p3 * q1 + q3 * p1 + (p2 * q0 - p0 * q2),
+                  p3 * q2 + q3 * p2 + (p0 * q1 - p1 * q0),
+                  p3 * q3 - p0 * q0 - p1 * q1 - p2 * q2], axis=-1)
+    x, y, z, w = r[..., 0], r[..., 1], r[..., 2], r[..., 3]
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    if not np.all(n > 0):
+        raise ValueError("Found zero norm quaternions in `quat`.")
+    return Rotation(r / n[..., None], normalize=False, copy=False)
+
+
+def rotation_inverse(r: Rotation) -> Rotation:
+    """``r.inv()`` (the vector part negated), without scipy's per-call cost for stacks."""
+    q = r.as_quat()
+    return Rotation(q * np.array([-1.0, -1.0, -1.0, 1.0]), normalize=False, copy=False)
 
 
 def compose_rotations(a: Pose, b: Pose, translation, invert_second: bool = False) -> Pose:

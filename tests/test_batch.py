@@ -350,3 +350,55 @@ def test_a_unit_past_its_time_budget_becomes_error_rows(sessions, where):
     assert {r["status"] for r in rows} == {"error"}
     assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (--unit-timeout)"}
     assert run_unit(unit, budget_s=600)[0]["status"] == "ok"
+
+
+def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
+    """Page CRCs and the rows' SHA-256 in the metadata: a flip anywhere is one line, or changes nothing."""
+    from phonepose.batch.table import CHECKSUM_KEY, read_rows
+    from phonepose.errors import OutputError
+
+    ref, _ = one_worker
+    assert CHECKSUM_KEY in pq.read_metadata(ref).metadata
+    clean = read_rows(ref)
+    data = ref.read_bytes()
+    p = tmp_path / "t.parquet"
+    refused = 0
+    positions = range(4, len(data) - 4, max(1, len(data) // 400))     # ~400 spread over pages, footer, metadata
+    for i in positions:
+        b = bytearray(data)
+        b[i] ^= 1 << (i % 8)
+        p.write_bytes(bytes(b))
+        try:
+            rows = read_rows(p)
+        except OutputError as exc:
+            assert "\n" not in str(exc) and str(exc).startswith(f"--out {p} ")
+            assert str(exc).endswith("; move it away or choose another --out")
+            refused += 1
+        else:
+            assert rows == clean, f"flipping a bit of byte {i} changed the rows"
+    assert refused > len(positions) // 2
+    # a flip in a value that still decodes: the hash finds it
+    table = pq.read_table(ref)
+    meta = table.schema.metadata
+    t = table.set_column(table.column_names.index("n_ticks"), "n_ticks",
+                         pa.array([v + 1 for v in table.column("n_ticks").to_pylist()], pa.int64()))
+    pq.write_table(t.replace_schema_metadata(meta), p)
+    with pytest.raises(OutputError) as err:
+        read_rows(p)
+    assert str(err.value) == (f"--out {p} does not match its checksum: it changed on the disk after phonepose wrote it; "
+                              "move it away or choose another --out")
+
+
+def test_resuming_a_table_with_wrong_column_types_is_one_line(sessions, tmp_path, capsys):
+    from phonepose.cli import main
+
+    out = tmp_path / "r.parquet"
+    pq.write_table(pa.table({"session": pa.array([1, 2]), "params": ["{}", "{}"], "tracker": ["T1", "T2"],
+                             "status": ["ok", "ok"]}), out)
+    before = out.read_bytes()
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", sessions[0], "-t", "T1", "--out", str(out)])
+    assert exc.value.code == 6
+    assert capsys.readouterr().err == (f"phonepose: error: --out {out} is not a phonepose batch table (column session is "
+                                       "int64, not string); move it away or choose another --out\n")
+    assert out.read_bytes() == before

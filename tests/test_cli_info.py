@@ -55,3 +55,15 @@ def test_info_truncated_file_points_to_recover(tmp_path):
     r = run("info", str(path))
     assert r.returncode == 3
     assert "recover" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_info_shows_the_task_window(tmp_path):
+    """What playback scores, and what --start/--end must overlap (seconds after the session start)."""
+    from phonepose.testing.playback_session import write_test_session
+
+    path = tmp_path / "s.mcap"
+    write_test_session(path, duration_s=2.0, camera=False)
+    r = run("info", str(path))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[1] == "task window 0.30-1.80 s (seconds after the start)"
+    assert json.loads(run("info", str(path), "--json").stdout)["task_window_s"] == [0.3, 1.8]

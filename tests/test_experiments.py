@@ -130,7 +130,7 @@ def test_exp2_hand_eye_sequence_scores_in_the_phone_frame(tmp_path):
     seq = run_sequence(jobs[0])
     assert (tmp_path / "hand_eye" / "TRI1_01.yaml").is_file()
     note = seq["metrics"]["ground_truth"]
-    assert abs(note["hand_eye_rotation_deg"] - 11.0) < 0.3 and abs(note["time_offset_s"] - 0.03) <= 0.002
+    assert abs(note["body_rotation_deg"] - 11.0) < 0.3 and abs(note["time_offset_s"] - 0.03) <= 0.002
     on_disk = json.loads((tmp_path / "playback" / "TRI1_01" / "metrics.json").read_text())
     assert on_disk["ground_truth"] == note
     # inside the view the marker trackers' r_ATE is their own (~1-2 deg), not the 11 deg rigid-body offset

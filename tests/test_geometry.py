@@ -7,8 +7,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation, Slerp
 
-from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_as_rotvec, quat_inv, quat_matrix,
-                                quat_from_rotvec, quat_mul, quat_normalised, quat_rotate, quat_slerp, raw_compose,
+from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_as_rotvec, quat_from_rotvec, quat_inv,
+                                quat_matrix, quat_mul, quat_normalised, quat_rotate, quat_slerp, raw_compose,
+                                rotation_inverse, rotation_product,
                                 raw_interpolate)
 
 finite = st.floats(-10, 10, allow_nan=False)
@@ -245,3 +246,17 @@ def test_quat_matrix_and_inverse_are_scipys(a, b):
     composed = quat_mul(tuple(a), quat_inv(tuple(b)))
     assert _angle(composed, (Rotation.from_quat(a) * Rotation.from_quat(b).inv()).as_quat()) < 1e-9
     assert quat_normalised((2 * a[0], 2 * a[1], 2 * a[2], 2 * a[3])) == pytest.approx(tuple(a), abs=1e-15)
+
+
+
+@given(st.lists(any_quat, min_size=1, max_size=20), st.lists(any_quat, min_size=1, max_size=20), st.booleans())
+def test_stack_products_are_scipys(qa, qb, single_first):
+    a = Rotation.from_quat(qa[0]) if single_first else Rotation.from_quat(np.array(qa))
+    b = Rotation.from_quat(np.array(qb))
+    if not single_first and len(a) != len(b) and len(a) > 1:
+        a = a[:1]
+    got = rotation_product(a, b)
+    assert _same(got.as_quat(), (a * b).as_quat()) and got.single == (a * b).single
+    assert _same(rotation_inverse(b).as_quat(), b.inv().as_quat())
+    stack = Pose(b, np.arange(3.0 * len(b)).reshape(-1, 3))
+    assert _same(stack[::2].quat_xyzw, b[::2].as_quat()) and _same(stack[-1].quat_xyzw, b[-1].as_quat())

@@ -26,6 +26,7 @@ from aiohttp import WSMsgType, web
 from playwright.sync_api import sync_playwright
 
 from conftest import DEADLINE_S, wait_until
+from phonepose.record.live.websocket import PageSocket
 
 # Debian's chromium when installed (tools/install-test-browser.sh), else Playwright's own build
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -69,7 +70,7 @@ class LaptopSide:
         self.messages: list[dict] = []  # every page->server message, in arrival order
         self.connections: list[list[dict]] = []  # the messages of each WebSocket, in the order they opened
         self.pings: dict[int, int] = {}  # id -> server_ns sent
-        self.sockets: list[web.WebSocketResponse] = []
+        self.sockets: list[PageSocket] = []
         self.rejected_ws = 0
         self.loop = asyncio.new_event_loop()
         self.png = _marker_png()
@@ -101,25 +102,36 @@ class LaptopSide:
             raise web.HTTPForbidden()
         ws = web.WebSocketResponse()
         await ws.prepare(request)
-        self.sockets.append(ws)
+        # closed by close_all() from another task with the closing handshake, as the real server does
+        # (phonepose/record/live/websocket.py says why a plain ws.close() can reach the page as 1006)
+        sock = PageSocket(ws)
+        self.sockets.append(sock)
         mine: list[dict] = []
         self.connections.append(mine)
-        pinger = asyncio.ensure_future(self._ping(ws))
+
+        def handle(msg) -> bool:
+            if msg.type == WSMsgType.TEXT:
+                self.messages.append(json.loads(msg.data))
+                mine.append(self.messages[-1])
+            return True
+
+        pinger = asyncio.ensure_future(self._ping(sock))
         try:
-            async for msg in ws:
-                if msg.type == WSMsgType.TEXT:
-                    self.messages.append(json.loads(msg.data))
-                    mine.append(self.messages[-1])
+            await sock.serve(handle)
         finally:
             pinger.cancel()
+            await asyncio.gather(pinger, return_exceptions=True)
         return ws
 
-    async def _ping(self, ws: web.WebSocketResponse) -> None:
-        while not ws.closed:
+    async def _ping(self, sock: PageSocket) -> None:
+        while not sock.closed:
             ping_id = len(self.pings) + 1
             server_ns = time.time_ns()  # > 2**53: the page must echo it digit for digit
             self.pings[ping_id] = server_ns
-            await ws.send_str(json.dumps({"type": "ping", "id": ping_id, "server_ns": server_ns}))
+            try:
+                await sock.ws.send_str(json.dumps({"type": "ping", "id": ping_id, "server_ns": server_ns}))
+            except ConnectionError:   # closing: the page is going away
+                return
             await asyncio.sleep(0.1)
 
     # -- life cycle
@@ -151,17 +163,17 @@ class LaptopSide:
 
     def send_all(self, obj: dict) -> None:
         async def go() -> None:
-            for ws in self.sockets:
-                if not ws.closed:
-                    await ws.send_str(json.dumps(obj))
+            for sock in self.sockets:
+                if not sock.closed:
+                    await sock.ws.send_str(json.dumps(obj))
 
         asyncio.run_coroutine_threadsafe(go(), self.loop).result(DEADLINE_S)
 
     def close_all(self, code: int, message: bytes = b"") -> None:
         async def go() -> None:
-            for ws in self.sockets:
-                if not ws.closed:
-                    await ws.close(code=code, message=message)
+            for sock in self.sockets:
+                if not sock.closed:
+                    await sock.close(code=code, message=message)
 
         asyncio.run_coroutine_threadsafe(go(), self.loop).result(DEADLINE_S)
 

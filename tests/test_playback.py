@@ -53,7 +53,11 @@ def test_outputs_and_metrics_layout(session, tmp_path):
         for scope in ("inside", "outside"):
             assert list(m[scope]) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m"]
         assert list(m["total"]) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m",
-                                    "boundary_jumps", "boundary_jump_max_m", "boundary_jump_rms_m"]
+                                    "boundary_jumps", "boundary_jump_max_m", "boundary_jump_rms_m",
+                                    "lag_s", "lag_resolution_s", "jitter_m", "jitter_deg", "still_ticks",
+                                    "availability"]
+        assert 0 < m["total"]["availability"] <= 1 and m["total"]["lag_resolution_s"] == 0.005
+        assert -0.5 <= m["total"]["lag_s"] <= 0.5
         assert m["total"]["boundary_jumps"] >= 1 and m["total"]["boundary_jump_max_m"] >= m["total"]["boundary_jump_rms_m"] > 0
         assert m["inside"]["frames"] > 5 and m["outside"]["frames"] > 5
         assert m["inside"]["frames"] + m["outside"]["frames"] == m["total"]["frames"]

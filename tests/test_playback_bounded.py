@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from phonepose.cli import main
-from phonepose.playback.context import read_context
+from phonepose.pipeline.context import read_context
 from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader

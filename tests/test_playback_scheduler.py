@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
-from phonepose.playback.context import read_context
+from phonepose.pipeline.context import read_context
 from phonepose.playback.scheduler import PoseStream, TickScheduler
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic

@@ -140,6 +140,26 @@ def _size0(m):
     m.size_m = 0.0
 
 
+def _size_huge(m):
+    m.size_m = 1e200
+
+
+def _extreme_imu():
+    """Finite but impossible IMU values (gyro 1e200 rad/s, accel -1e300 m/s^2) in every other sample:
+    these overflowed T8's integration (`zero norm quaternions`)."""
+    k = itertools.count()
+
+    def fn(topic, msg, t):
+        if topic == Topic.CONTROLLER_IMU:
+            i = next(k)
+            if i % 4 == 1:
+                msg.gyro_x = 1e200
+            elif i % 4 == 3:
+                msg.accel_y = -1e300
+        return [(topic, msg, t)]
+    return fn
+
+
 def _garbage_image(m):
     m.data = b"this is not a jpeg"
 
@@ -310,6 +330,17 @@ CASES = [
          lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size0))),
                        "-q", "--out", str(d / "o")],
          4, r"ms\.mcap: marker size 0 m: expected a positive size$"),
+    Case("static-marker-size-huge", "marker size 1e200 m (overflowed T8)",
+         lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size_huge))),
+                       "-q", "--out", str(d / "o")],
+         4, r"ms\.mcap: marker size 1e\+200 m: expected at most 10 m \(the side of a printed or displayed marker\)$"),
+    Case("start-end-miss-task", "`--start/--end` outside the task window (0.30-1.80 s)",
+         lambda g, d: ["playback", str(g), "-q", "--start", "1.9", "--end", "2", "--out", str(d / "o")], 5,
+         r"--start 1\.9 --end 2 selects 1\.90-2\.00 s, which misses the task window 0\.30-1\.80 s \(where "
+         r"trajectories and metrics are computed\): choose a range that overlaps it$"),
+    Case("evaluate-no-match", "`evaluate` with trajectories whose stamps never meet",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(_write(d / "late.txt", LATE_ROWS))],
+         4, r"no matching stamps between .*gt\.txt and .*late\.txt \(\|dt\| < 0\.02 s\)$"),
     Case("unknown-tracker", "unknown tracker name",
          lambda g, d: ["playback", str(g), "-q", "-t", "T99", "--out", str(d / "o")], 5,
          r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
@@ -469,6 +500,7 @@ def _fifo_in(folder: Path, name: str) -> Path:
 
 
 TUM_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (k / 10, k / 100) for k in range(20))
+LATE_ROWS = b"".join(b"%.1f %.2f 0 0 0 0 0 1\n" % (100 + k / 10, k / 100) for k in range(20))   # 100 s later
 
 
 def _mkdir(path: Path) -> Path:
@@ -541,6 +573,9 @@ WARNING_CASES = [
      _bad_quaternions(), r"/controller/vio/pose: 30 sample\(s\) skipped: NaN/inf value or non-unit quaternion"),
     ("foreign-payloads", "controller VIO where every other payload is an IMU message's bytes", _foreign_payloads(),
      r"/controller/vio/pose: 30 sample\(s\) skipped: no pose in the message \(neither position nor orientation set\)"),
+    ("extreme-imu", "controller IMU with gyro 1e200 rad/s or accel -1e300 m/s^2 in every other sample",
+     _extreme_imu(), r"/controller/imu: 100 sample\(s\) skipped: value outside any IMU's range "
+                     r"\(\|gyro\| > 1000 rad/s or \|accel\| > 10000 m/s\^2\)"),
     ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
      r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
 ]
@@ -612,6 +647,35 @@ if __name__ == "__main__":
 
     with tempfile.TemporaryDirectory() as t:
         print(markdown_table(Path(t)))
+
+
+def test_extreme_imu_values_do_not_reach_the_fusion(good, tmp_path):
+    """T8 integrates the IMU: with the impossible samples skipped it runs, and its poses stay finite."""
+    bad = rewrite(good, tmp_path / "imu.mcap", _extreme_imu())
+    r = _subprocess("playback", str(bad), "-q", "-t", "T8", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.startswith("phonepose: warning: /controller/imu: 100 sample(s) skipped: value outside")
+    est = _tum(tmp_path / "o" / "trajectories" / "T8.tum")
+    assert len(est) > 10 and np.isfinite(est).all()
+
+
+def test_evaluate_warns_when_the_matched_poses_cover_a_small_part(clean_run, tmp_path):
+    """Another session's ground truth (all simulated sessions start at the same stamp) still matches some
+    poses: when they cover under half of either trajectory, one warning line says so; the metrics stand."""
+    gt_rows = (clean_run / "groundtruth.tum").read_text().splitlines()
+    header = [r for r in gt_rows if r.startswith("#")]
+    rows = [r for r in gt_rows if not r.startswith("#")]
+    short = tmp_path / "short.tum"
+    short.write_text("\n".join(header + rows[: len(rows) // 4]) + "\n")
+    est = clean_run / "trajectories" / "T1.tum"
+    n_est = sum(1 for r in est.read_text().splitlines() if not r.startswith("#"))
+    r = _subprocess("evaluate", "--gt", str(short), "--est", str(est), "--metric", "ape")
+    assert r.returncode == 0
+    pct = round(100 * (len(rows) // 4) / n_est)
+    assert r.stderr == (f"phonepose: warning: the matched poses cover {pct}% of {est}'s poses and 100% of {short}'s "
+                        "time span: are they from the same session?\n")
+    ok = _subprocess("evaluate", "--gt", str(clean_run / "groundtruth.tum"), "--est", str(est), "--metric", "ape")
+    assert ok.returncode == 0 and ok.stderr == ""
 
 
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):

@@ -70,7 +70,7 @@ class PreparedBatch:
 def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
                   trackers: Sequence[str] | str = ("all",), params: Sequence[str] | dict[str, list] = (),
                   workers: int | None = None, scheduler: str | None = None,
-                  unit_timeout_s: float | None = UNIT_TIMEOUT_S) -> PreparedBatch:
+                  unit_timeout_s: float | None = UNIT_TIMEOUT_S, calibrate_gt: bool = False) -> PreparedBatch:
     """Check every argument and make the plan against what ``out`` holds already; raises ConfigError /
     OutputError (one line) before any playback. ``out`` follows phonepose.files (a .parquet file, never
     a session, in a folder that exists); each version of it is renamed into place whole."""
@@ -87,6 +87,8 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
     combos = param_combinations(sweep)
+    if calibrate_gt:   # each session's ground truth calibrated from itself: its own rows (param_gt_calibration)
+        combos = [{**c, "gt_calibration": "calibrate-gt"} for c in combos]
     for s in sessions:     # a missing one may exist on the cluster's workers: its rows will say; a FIFO never
         if os.path.lexists(s):
             check_input(s, "session")

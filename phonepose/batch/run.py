@@ -134,10 +134,14 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
     sig = session_signature(unit.path)
     try:
         with time_budget(budget_s) as check_budget:
+            calibration = None
+            if params.get("gt_calibration") == "calibrate-gt":
+                from phonepose.calibration.calibrate_gt import calibrate_gt_session
+                calibration = calibrate_gt_session(unit.path)
             result = run_playback(
                 unit.path, trackers=list(unit.trackers), rate_hz=params.get("rate_hz", 20.0),
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
-                end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
+                end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
     except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
         return error_rows(unit, exc, time.perf_counter() - t0)

@@ -5,10 +5,17 @@ the same key. Every write sorts the rows (session, parameters in typed order, tr
 order) and gives each column a fixed type, so the same batch gives the same table however many
 workers ran it and in whichever order units finished. Writing goes to a temporary file next to
 the target, then ``os.replace``: a reader (or a killed batch) only ever sees a complete table.
+
+A table carries two checksums, so a bit flipped on the disk is found when a batch resumes it instead
+of becoming rows: Parquet's own page CRCs (checked by pyarrow on reading), and a SHA-256 of the rows
+in the file's metadata (``phonepose.content_sha256``; it also covers what a page CRC does not, such
+as the footer's statistics and a flip that still decodes). Tables written before it have no hash and
+are read as they are.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -19,6 +26,7 @@ import pyarrow.parquet as pq
 
 from phonepose.batch.plan import PARAMS, params_sort_key, row_key, tracker_sort_key
 from phonepose.errors import OutputError
+from phonepose.evaluation.metrics import flat_columns
 from phonepose.files import OutputFile
 
 # column → arrow type, in table order; metric columns go between "error" and "n_ticks"
@@ -28,7 +36,13 @@ TAIL = {"n_ticks": pa.int64(), "n_task_ticks": pa.int64(), "frames_decoded": pa.
         "session_bytes": pa.int64(), "session_mtime_ns": pa.int64(), "runtime_s": pa.float64(),
         "phonepose_version": pa.string()}
 REQUIRED = ("session", "params", "tracker", "status")
-RUNTIME_COLUMNS = ("runtime_s",)   # the only columns that differ between two runs of the same batch
+RUNTIME_COLUMNS = ("runtime_s",)
+CHECKSUM_KEY = b"phonepose.content_sha256"
+
+
+def content_hash(rows: list[dict]) -> str:
+    """SHA-256 of the rows as JSON (keys sorted; NaN spelled NaN): the same rows, the same hash."""
+    return hashlib.sha256(json.dumps(rows, sort_keys=True, allow_nan=True, default=str).encode()).hexdigest()   # the only columns that differ between two runs of the same batch
 
 
 def _infer(values: list) -> pa.DataType:
@@ -45,6 +59,14 @@ def _infer(values: list) -> pa.DataType:
     return pa.string()
 
 
+def _metric_type(name: str, rows: list[dict]) -> pa.DataType:
+    """A metric's declared type (phonepose.evaluation.metrics); other columns' from their values."""
+    kind = flat_columns().get(name)
+    if kind is not None:
+        return pa.int64() if kind is int else pa.float64()
+    return _infer([r.get(name) for r in rows])
+
+
 def schema_for(rows: list[dict]) -> pa.Schema:
     names: set[str] = set()
     for r in rows:
@@ -59,7 +81,7 @@ def schema_for(rows: list[dict]) -> pa.Schema:
         fields.append(pa.field(n, pa.float64() if spec is not None and spec.arrow_type == "float64" else
                                pa.string() if spec is not None else _infer([r.get(n) for r in rows])))
     fields += [pa.field(n, t) for n, t in STATUS.items()]
-    fields += [pa.field(n, _infer([r.get(n) for r in rows])) for n in metrics]
+    fields += [pa.field(n, _metric_type(n, rows)) for n in metrics]
     fields += [pa.field(n, t) for n, t in TAIL.items()]
     return pa.schema(fields)
 
@@ -92,20 +114,33 @@ def to_arrow(rows: list[dict]) -> pa.Table:
     return pa.Table.from_pylist(_coerce(rows, schema), schema=schema)
 
 
+def _refuse(path: Path, why: str) -> OutputError:
+    return OutputError(f"--out {path} {why}; move it away or choose another --out")
+
+
 def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
-    """The rows of an existing table by key ({} if the file does not exist)."""
+    """The rows of an existing table by key ({} if the file does not exist): checked against its
+    checksums and column types, so a damaged or foreign table is one line, never rows."""
     if not path.exists():
         return {}
     try:
-        table = pq.read_table(path)
-    except (pa.ArrowException, OSError) as exc:
-        raise OutputError(f"--out {path} exists but is not a readable Parquet table ({' '.join(str(exc).split())}); "
-                          "move it away or choose another --out") from None
-    missing = [c for c in REQUIRED if c not in table.column_names]
+        table = pq.read_table(path, page_checksum_verification=True)
+        names = table.column_names   # the footer's schema has no checksum: a flipped bit can leave a name invalid UTF-8
+    except (pa.ArrowException, OSError, UnicodeDecodeError) as exc:
+        raise _refuse(path, f"exists but is not a readable Parquet table ({' '.join(str(exc).split())})") from None
+    missing = [c for c in REQUIRED if c not in names]
     if missing:
-        raise OutputError(f"--out {path} is not a phonepose batch table (no column {', '.join(missing)}); "
-                          "move it away or choose another --out")
-    return {row_key(r["session"], r["params"], r["tracker"]): r for r in table.to_pylist()}
+        raise _refuse(path, f"is not a phonepose batch table (no column {', '.join(missing)})")
+    for name, want in {**HEAD, **STATUS, **TAIL}.items():
+        if name in names:
+            got = table.schema.field(name).type
+            if got != want and not pa.types.is_null(got):
+                raise _refuse(path, f"is not a phonepose batch table (column {name} is {got}, not {want})")
+    rows = table.to_pylist()
+    want_hash = (table.schema.metadata or {}).get(CHECKSUM_KEY)
+    if want_hash is not None and want_hash.decode(errors="replace") != content_hash(rows):
+        raise _refuse(path, "does not match its checksum: it changed on the disk after phonepose wrote it")
+    return {row_key(r["session"], r["params"], r["tracker"]): r for r in rows}
 
 
 class ResultTable:
@@ -133,10 +168,11 @@ class ResultTable:
             return False
         t0 = time.monotonic()
         table = to_arrow(list(self.rows.values()))
+        table = table.replace_schema_metadata({CHECKSUM_KEY: content_hash(table.to_pylist()).encode()})
         assert self.output is not None and self.output.tmp is not None, "write() runs inside the batch's OutputPlan"
         try:
             with open(self.output.tmp, "wb") as f:
-                pq.write_table(table, f)
+                pq.write_table(table, f, write_page_checksum=True)
                 f.flush()
                 os.fsync(f.fileno())
         except OSError as exc:

@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from phonepose.calibration.camera_file import open_yaml
-from phonepose.errors import InputFileError, SessionContentError
+from phonepose.calibration.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
+from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose, interpolate_many
 
 STEP_S = 0.5          # the relative motions span this long (longer: VIO drift enters; shorter: small angles)
@@ -48,6 +48,9 @@ class HandEye:
     pairs: int = 0                # relative motions used
     residual_deg: float = float("nan")   # RMS rotation residual of A X = X B over those motions
     axis_spread: float = float("nan")    # smallest / largest singular value of the motion axes (0: one axis only)
+    sigma_rotation_deg: float = float("nan")     # 1σ of the rotation (block bootstrap over the motions)
+    sigma_time_offset_ms: float = float("nan")   # 1σ of the clock offset (the same resamples)
+    warnings: tuple[str, ...] = ()               # the motion does not determine the result: with numbers
 
     @property
     def rotation_deg(self) -> float:
@@ -55,8 +58,9 @@ class HandEye:
 
 
 def _motions(t: np.ndarray, phone: Pose, t_mocap: np.ndarray, mocap: Pose, delta: float, step_s: float,
-             min_angle_deg: float):
-    """Relative motions A (phone) and B (rigid body, read ``delta`` s later on its clock) over step_s."""
+             min_angle_deg: float, with_times: bool = False):
+    """Relative motions A (phone) and B (rigid body, read ``delta`` s later on its clock) over step_s
+    (and, ``with_times``, each motion's start time)."""
     keep = (t + delta >= t_mocap[0]) & (t + step_s + delta <= t_mocap[-1])
     t, P = t[keep], phone[np.flatnonzero(keep)]
     B_abs = interpolate_many(t_mocap, mocap, t + delta)
@@ -68,6 +72,8 @@ def _motions(t: np.ndarray, phone: Pose, t_mocap: np.ndarray, mocap: Pose, delta
     a, b = A.rotation.as_rotvec(), B.rotation.as_rotvec()
     use = np.flatnonzero((np.linalg.norm(a, axis=1) > np.radians(min_angle_deg))
                          & (np.linalg.norm(b, axis=1) > np.radians(min_angle_deg)))
+    if with_times:
+        return A[use], B[use], a[use], b[use], t[i][use]
     return A[use], B[use], a[use], b[use]
 
 
@@ -77,16 +83,65 @@ def _rotation_fit(a: np.ndarray, b: np.ndarray) -> tuple[Rotation, float]:
     return R_X, float(np.sqrt(np.mean(np.sum((a - R_X.apply(b)) ** 2, axis=1))))
 
 
+BOOTSTRAP = 100
+BLOCK_S = 1.0            # motions overlap (each spans step_s): resampled in blocks of this long
+TOLERANCE_DEG = 0.5      # 1σ above these is warned about
+TOLERANCE_MS = 5.0
+
+
+def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, step_s: float, min_angle_deg: float,
+                 n: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
+    """1σ of the rotation (deg) and of the clock offset (ms): a moving-block bootstrap over the motions,
+    each resample refitting the rotation at every offset of the 1 ms grid around ``delta``."""
+    grid = np.round(np.arange(delta - 0.01, delta + 0.01 + 1e-9, 0.001), 6)
+    sets = []
+    for d in grid:
+        _, _, a, b, tm = _motions(t_phone, phone, t_mocap, mocap, float(d), step_s, min_angle_deg, with_times=True)
+        block_s = min(BLOCK_S, max(t_phone[-1] - t_phone[0], 1e-3) / 5)   # at least 5 blocks
+        sets.append((a, b, np.floor((tm - t_phone[0]) / block_s).astype(int)))
+    n_blocks = int(max(s[2].max(initial=0) for s in sets)) + 1
+    rng = np.random.default_rng(seed)
+    angles, shifts = [], []
+    for _ in range(n):
+        counts = np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks).astype(float)
+        best = (np.inf, R_X, delta)
+        for d, (a, b, blocks) in zip(grid, sets):
+            w = counts[blocks]
+            if np.count_nonzero(w) < 3:
+                continue
+            R, _ = Rotation.align_vectors(a[w > 0], b[w > 0], weights=w[w > 0])
+            cost = float(np.sum(w * np.sum((a - R.apply(b)) ** 2, axis=1)) / np.sum(w))
+            if cost < best[0]:
+                best = (cost, R, float(d))
+        angles.append(np.degrees((best[1].inv() * R_X).magnitude()))
+        shifts.append(1e3 * (best[2] - delta))
+    return float(np.sqrt(np.mean(np.square(angles)))), float(np.sqrt(np.mean(np.square(shifts))))
+
+
+def _warnings(pairs: int, sigma_deg: float, sigma_ms: float, spread: float) -> tuple[str, ...]:
+    over = []
+    if sigma_deg > TOLERANCE_DEG:
+        over.append(f"rotation ±{sigma_deg:.2f} deg")
+    if sigma_ms > TOLERANCE_MS:
+        over.append(f"clock offset ±{sigma_ms:.1f} ms")
+    if not over:
+        return ()
+    return (f"the motion does not determine the hand-eye calibration well: {', '.join(over)} (1σ; meant for "
+            f"{TOLERANCE_DEG:g} deg, {TOLERANCE_MS:g} ms) from {pairs} motions, axis spread {spread:.2f}: record longer, "
+            "turning the phone about every axis",)
+
+
 def estimate_hand_eye(t_phone: np.ndarray, phone: Pose, t_mocap: np.ndarray, mocap: Pose,
                       step_s: float = STEP_S, min_angle_deg: float = MIN_ANGLE_DEG,
-                      max_offset_s: float = MAX_OFFSET_S, translation=(0.0, 0.0, 0.0)) -> HandEye:
+                      max_offset_s: float = MAX_OFFSET_S, translation=(0.0, 0.0, 0.0), bootstrap: int = BOOTSTRAP) -> HandEye:
     """X = T_controller_mocap, and the mocap clock's offset, from the phone's own poses and the rigid body's.
 
     Each stream is in its own world; ``t_phone``/``t_mocap`` are their capture stamps (s);
     ``translation`` is the measured lever arm (m, the body's origin in the phone frame). The clock
     offset (mocap minus phone stamps, within +-max_offset_s) is the one whose motions fit X best:
     a grid of 10 ms, then of 1 ms around the best. Raises SessionContentError when the motion
-    cannot determine X.
+    cannot determine X; the 1σ of the rotation and of the offset come from ``bootstrap`` resamples
+    of the motions, and a 1σ above 0.5 deg or 5 ms is a warning with the numbers.
     """
     t_phone = np.asarray(t_phone, dtype=float)
     t_mocap = np.asarray(t_mocap, dtype=float)
@@ -115,8 +170,12 @@ def estimate_hand_eye(t_phone: np.ndarray, phone: Pose, t_mocap: np.ndarray, moc
     R_X, _ = _rotation_fit(a, b)
     X = Pose(R_X, np.asarray(translation, dtype=float).reshape(3))
     residual = (A.rotation * R_X).inv() * (R_X * B.rotation)      # A X vs X B, rotation part
+    sigma_deg, sigma_ms = (_uncertainty(t_phone, phone, t_mocap, mocap, delta, R_X, step_s, min_angle_deg, bootstrap)
+                           if bootstrap > 0 else (float("nan"), float("nan")))
     return HandEye(T_controller_mocap=X, time_offset_s=round(delta, 6), pairs=len(a),
-                   residual_deg=float(np.sqrt(np.mean(np.degrees(residual.magnitude()) ** 2))), axis_spread=spread)
+                   residual_deg=float(np.sqrt(np.mean(np.degrees(residual.magnitude()) ** 2))), axis_spread=spread,
+                   sigma_rotation_deg=sigma_deg, sigma_time_offset_ms=sigma_ms,
+                   warnings=_warnings(len(a), sigma_deg, sigma_ms, spread))
 
 
 def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
@@ -145,47 +204,41 @@ def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
             else:
                 stamps.append((m.msg.timestamp.ToNanoseconds() or m.log_time_ns) / 1e9)
             poses.append(pose)
+    from phonepose.calibration.ground_truth import unique_ascending
+
     (tp, pp), (tm, pm) = series[Topic.CONTROLLER_VIO_POSE], series[Topic.GT_CONTROLLER_POSE]
-    order_p, order_m = np.argsort(tp, kind="stable"), np.argsort(tm, kind="stable")
     if len(tp) < 2 or len(tm) < 2:
         raise SessionContentError(f"{path}: fewer than 2 finite poses on {Topic.CONTROLLER_VIO_POSE} or "
                                   f"{Topic.GT_CONTROLLER_POSE}")
+    # sorted, and duplicated messages (the same stamp twice) kept once: interpolation needs rising stamps
+    vio = unique_ascending(np.asarray(tp), Pose.concatenate(pp), Topic.CONTROLLER_VIO_POSE)
+    gt = unique_ascending(np.asarray(tm), Pose.concatenate(pm), Topic.GT_CONTROLLER_POSE)
+    if len(vio) < 2 or len(gt) < 2:
+        raise SessionContentError(f"{path}: fewer than 2 distinct stamps on {Topic.CONTROLLER_VIO_POSE} or "
+                                  f"{Topic.GT_CONTROLLER_POSE}")
     try:
-        return estimate_hand_eye(np.asarray(tp)[order_p], Pose.concatenate([pp[k] for k in order_p]),
-                                 np.asarray(tm)[order_m], Pose.concatenate([pm[k] for k in order_m]), **options)
+        return estimate_hand_eye(vio.stamps_s, vio.poses, gt.stamps_s, gt.poses, **options)
     except SessionContentError as exc:
         raise SessionContentError(f"{path}: {exc}") from None
 
 
-def save_hand_eye(path: "str | Path", he: HandEye) -> None:
-    """OpenCV FileStorage YAML, like the camera calibration file (camera_file.py)."""
-    fs = open_yaml(Path(path), "hand-eye", write=True)
-    fs.write("T_controller_mocap", he.T_controller_mocap.as_matrix())
-    fs.write("time_offset_s", float(he.time_offset_s))
-    fs.write("rotation_deg", he.rotation_deg)
-    fs.write("pairs", int(he.pairs))
-    fs.write("residual_deg", he.residual_deg)
-    fs.release()
+def to_gt_calibration(he: HandEye, session: str = "") -> GtCalibration:
+    """The hand-eye result in the common ground-truth calibration format (gt_calibration.py)."""
+    sigma = {k: v for k, v in (("sigma_body_rotation_deg", he.sigma_rotation_deg),
+                               ("sigma_time_offset_ms", he.sigma_time_offset_ms)) if np.isfinite(v)}
+    return GtCalibration(T_controller_gt=he.T_controller_mocap, time_offset_s=he.time_offset_s,
+                         method="calibrate-hand-eye", samples=he.pairs, residual_deg=he.residual_deg, sigma=sigma,
+                         session=session, warnings=he.warnings)
 
 
-def load_hand_eye(path: "str | os.PathLike") -> HandEye:
-    """The calibration ``save_hand_eye`` wrote; a bad file is an InputFileError (one line, exit 2)."""
-    path = Path(path)
-    fs = open_yaml(path, "hand-eye")
-    try:
-        T = fs.getNode("T_controller_mocap").mat()
-        offset_node, pairs_node, residual_node = fs.getNode("time_offset_s"), fs.getNode("pairs"), fs.getNode("residual_deg")
-        offset = offset_node.real() if not offset_node.empty() else 0.0
-        pairs = int(pairs_node.real()) if not pairs_node.empty() else 0
-        residual = residual_node.real() if not residual_node.empty() else float("nan")
-    finally:
-        fs.release()
-    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
-        raise InputFileError(f"{path}: not a hand-eye file (expected a 4x4 matrix T_controller_mocap)")
-    R = T[:3, :3]
-    if abs(np.linalg.det(R) - 1) > 1e-6 or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
-        raise InputFileError(f"{path}: T_controller_mocap's rotation part is not a rotation matrix")
-    if not (np.isfinite(offset) and abs(offset) <= 10):
-        raise InputFileError(f"{path}: time_offset_s {offset!r} is not a clock offset in seconds")
-    return HandEye(T_controller_mocap=Pose.from_matrix(T), time_offset_s=float(offset), pairs=pairs,
-                   residual_deg=float(residual))
+def save_hand_eye(path: "str | Path", he: HandEye, inputs=(), session: str = "") -> None:
+    """The common calibration file (gt_calibration.py), by the output rule (phonepose.files)."""
+    save_gt_calibration(path, to_gt_calibration(he, session), inputs=inputs)
+
+
+def load_hand_eye(path: "str | Path") -> HandEye:
+    """A calibration file's hand-eye part (this format or the older hand-eye one); a bad file is an InputFileError."""
+    cal = load_gt_calibration(path, what="hand-eye")
+    return HandEye(T_controller_mocap=cal.T_controller_gt, time_offset_s=cal.time_offset_s, pairs=cal.samples,
+                   residual_deg=cal.residual_deg, sigma_rotation_deg=cal.sigma.get("sigma_body_rotation_deg", float("nan")),
+                   sigma_time_offset_ms=cal.sigma.get("sigma_time_offset_ms", float("nan")))

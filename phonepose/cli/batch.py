@@ -53,6 +53,8 @@ def batch(
                                        callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
                                        help="Seconds one playback may take; a longer one becomes error rows."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from "
+                                      "itself first (`phonepose calibrate-gt`); its rows have param_gt_calibration."),
 ) -> None:
     """Play back every session x parameter combination with every tracker; one row per run into a Parquet table.
 
@@ -65,7 +67,7 @@ def batch(
     from phonepose.batch.plan import params_label
 
     prepared = prepare_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
-                             scheduler=scheduler, unit_timeout_s=unit_timeout)
+                             scheduler=scheduler, unit_timeout_s=unit_timeout, calibrate_gt=calibrate_gt)
     console = Console(stderr=True)
     with ProgressBar(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("playbacks"),
                      TextColumn("{task.fields[rows]} rows, {task.fields[errors]} errors"), TimeElapsedColumn(),

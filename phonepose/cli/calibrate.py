@@ -168,8 +168,8 @@ def calibrate_camera(
 @app.command("calibrate-hand-eye")
 def calibrate_hand_eye(
     session: Path = typer.Argument(..., help="A session with the controller's VIO and motion-capture ground truth."),
-    out: Path = typer.Option(..., "--out", "-o", help="Hand-eye file to write (OpenCV YAML, read by "
-                             "`playback --hand-eye`)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (YAML, read by "
+                             "`playback --gt-calibration`, alias --hand-eye)."),
     translation: str = typer.Option("0,0,0", "--translation", help="The rigid body's origin in the phone's frame, "
                                     "metres x,y,z, measured (it is not estimated: see docs/evaluation.md)."),
 ) -> None:
@@ -190,12 +190,86 @@ def calibrate_hand_eye(
     except ValueError:
         raise ConfigError(f"--translation {translation!r}: expected x,y,z in metres (each within +-1), "
                           "e.g. 0.01,0,-0.005") from None
+    from phonepose.calibration.gt_calibration import SUFFIXES, WHAT
+
     check_input(session, "session")
-    check_output(out, "--out", inputs=[session], suffixes=(".yaml", ".yml", ".xml", ".json"),
-                 what="an OpenCV FileStorage file (YAML, XML or JSON)")
+    check_output(out, "--out", inputs=[session], suffixes=SUFFIXES, what=WHAT)
     he = hand_eye_from_session(session, translation=lever)
-    save_hand_eye(out, he)
+    save_hand_eye(out, he, inputs=[session], session=session.name)
     rv = he.T_controller_mocap.rotation.as_rotvec(degrees=True)
-    typer.echo(f"{out}: rigid body turned {he.rotation_deg:.2f} deg from the phone's frame "
-               f"(rotation vector {rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f} deg), mocap clock {he.time_offset_s * 1e3:+.0f} ms; "
-               f"{he.pairs} motions, residual {he.residual_deg:.2f} deg RMS")
+    typer.echo(f"{out}: rigid body turned {he.rotation_deg:.2f} ± {he.sigma_rotation_deg:.2f} deg from the phone's frame "
+               f"(rotation vector {rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f} deg), mocap clock {he.time_offset_s * 1e3:+.0f} "
+               f"± {he.sigma_time_offset_ms:.1f} ms (1σ); {he.pairs} motions, residual {he.residual_deg:.2f} deg RMS")
+    for line in he.warnings:
+        typer.echo(f"phonepose: warning: {line}", err=True)
+
+
+def _gt_table(out: Path, cal) -> Table:
+    """What calibrate-gt found, each quantity with its 1σ (docs/calibration.md#reading-the-result)."""
+    import numpy as np
+
+    s = cal.sigma
+    table = Table(title=f"{out}: {cal.samples} marker sightings, residual {cal.residual_mm:.2f} mm / "
+                        f"{cal.residual_deg:.2f} deg RMS", title_justify="left")
+    table.add_column("")
+    table.add_column("value", justify="right")
+    table.add_column("± 1σ", justify="right")
+
+    def sd(key: str, unit: str) -> str:
+        return f"{s[key]:.2f} {unit}" if key in s else ""
+
+    table.add_row("clock offset (gt - recorder)", f"{cal.time_offset_s * 1e3:+.1f} ms", sd("sigma_time_offset_ms", "ms"))
+    for name, pose, rot_key, trans_key in (("world -> camera", cal.T_world_camera, "sigma_world_rotation_deg",
+                                            "sigma_world_translation_mm"),
+                                           ("grip -> body", cal.T_controller_gt, "sigma_body_rotation_deg",
+                                            "sigma_body_translation_mm")):
+        if pose is None:
+            continue
+        rv = pose.rotation.as_rotvec(degrees=True)
+        t = np.asarray(pose.translation) * 1e3
+        table.add_row(f"{name} rotation", f"{np.linalg.norm(rv):.2f} deg ({rv[0]:+.2f} {rv[1]:+.2f} {rv[2]:+.2f})",
+                      sd(rot_key, "deg"))
+        table.add_row(f"{name} translation", f"{np.linalg.norm(t):.1f} mm ({t[0]:+.1f} {t[1]:+.1f} {t[2]:+.1f})",
+                      sd(trans_key, "mm"))
+    return table
+
+
+@app.command("calibrate-gt")
+def calibrate_gt(
+    session: Path = typer.Argument(..., help="A session with camera frames showing the phone's marker and a ground truth."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (YAML, read by "
+                             "`playback --gt-calibration`)."),
+    gt: Optional[Path] = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC "
+                                      ".csv) instead of the session's /gt/controller/pose; its clock may be off."),
+    gt_format: Optional[str] = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
+    max_offset: float = typer.Option(0.5, "--max-offset", callback=number(0, 5, lo_open=True, unit="s"),
+                                     help="Search the ground truth's clock offset within +- this (s)."),
+    bootstrap: int = typer.Option(200, "--bootstrap", callback=number(0, 10_000, integer=True),
+                                  help="Resamples for the uncertainties (0: none)."),
+) -> None:
+    """Estimate the ground truth's clock offset, its world in the display camera and the tracked body on the phone.
+
+    From the session alone: the display camera's sightings of the phone's marker against the ground truth
+    (A X = Z B, closed form then least squares); each quantity with its 1σ (docs/calibration.md).
+
+    Example: [bold]phonepose calibrate-gt s.mcap --out gt.yaml && phonepose playback s.mcap --gt-calibration gt.yaml[/bold]
+    """
+    from phonepose.calibration.calibrate_gt import calibrate_gt_session
+    from phonepose.calibration.ground_truth import gt_format_of
+    from phonepose.calibration.gt_calibration import SUFFIXES, WHAT, save_gt_calibration
+
+    check_input(session, "session")
+    inputs = [session] + ([gt] if gt is not None else [])
+    if gt is not None:
+        check_input(gt, "ground-truth file")
+        gt_format_of(gt, gt_format)
+    elif gt_format is not None:
+        raise ConfigError("--gt-format applies to --gt FILE only")
+    check_output(out, "--out", inputs=inputs, suffixes=SUFFIXES, what=WHAT)
+    t0 = time.perf_counter()
+    cal = calibrate_gt_session(session, gt, gt_format=gt_format, max_offset_s=max_offset, bootstrap=bootstrap)
+    save_gt_calibration(out, cal, inputs=inputs)
+    stdout_console().print(_gt_table(out, cal))
+    for line in cal.warnings:
+        typer.echo(f"phonepose: warning: {line}", err=True)
+    typer.echo(f"{out}: written in {time.perf_counter() - t0:.1f} s")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Optional
 
@@ -71,6 +72,7 @@ def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
     """The paper's metrics as playback computes them, from files: GT, estimate and in-view flags
     associated by timestamp (rpg's greedy association, ``max_diff`` s)."""
     from phonepose.evaluation import associate_rpg, paper_metrics
+    from phonepose.evaluation.controller import controller_metrics
     from phonepose.evaluation.trajectory import load_in_view
     from phonepose.playback.outputs import normalise_metrics
 
@@ -86,8 +88,30 @@ def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
     i_est, i_gt, i_flag = i_est[order], i_gt[order], i_flag[order]
     if i_est.size == 0:
         raise SessionContentError("no estimate, ground-truth and in-view stamps within --max-diff of each other")
-    return normalise_metrics(paper_metrics(est_traj.stamps[i_est], gt_traj.poses[i_gt], est_traj.poses[i_est],
-                                           flags[i_flag]))
+    result = paper_metrics(est_traj.stamps[i_est], gt_traj.poses[i_gt], est_traj.poses[i_est], flags[i_flag])
+    # lag, jitter, availability: the GT file's stamps are the task's ticks (playback writes one per tick)
+    result["total"].update(controller_metrics(gt_traj.stamps, gt_traj.poses, est_traj.stamps, est_traj.poses,
+                                              est_traj.stamps[i_est], i_gt, i_est))
+    return normalise_metrics(result)
+
+
+# Below this, the matched poses are not the two trajectories of one run (a playback's estimate and
+# its ground truth match at every tick of the task window; a SLAM estimate covers most of its sequence).
+MIN_COVERAGE = 0.5
+
+
+def _warn_on_small_overlap(gt: Path, est: Path, gt_traj, est_traj, max_diff: float) -> None:
+    """One warning line when the matched poses cover a small part of either trajectory."""
+    from phonepose.evaluation.association import coverage
+
+    if gt_traj.stamps is None or est_traj.stamps is None:
+        return
+    est_frac, gt_frac = coverage(est_traj.stamps, gt_traj.stamps, max_diff)
+    if est_frac == 0.0 or min(est_frac, gt_frac) >= MIN_COVERAGE:
+        return     # no match at all is an error of its own
+    logging.getLogger("phonepose").warning(
+        "phonepose: warning: the matched poses cover %.0f%% of %s's poses and %.0f%% of %s's time span: are they "
+        "from the same session?", 100 * est_frac, est, 100 * gt_frac, gt)
 
 
 @app.command()
@@ -123,6 +147,10 @@ def evaluate(
     rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
                                     "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
+    gt_calibration: Optional[Path] = typer.Option(None, "--gt-calibration", "--hand-eye",
+                                                  help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
+                                                  "move --gt onto the recorder's clock, the phone's frame and display_vio "
+                                                  "first, as playback does (docs/calibration.md)."),
 ) -> None:
     """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
     from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
@@ -137,8 +165,14 @@ def evaluate(
     for path in (gt, est) + ((in_view,) if in_view is not None else ()):
         check_input(path, "trajectory file")    # a FIFO or device: refused, never opened
     gt_traj = load_trajectory(gt, fmt)
+    if gt_calibration is not None:
+        from phonepose.calibration.gt_calibration import load_gt_calibration
+        from phonepose.evaluation.trajectory import Trajectory
+
+        gt_traj = Trajectory(*load_gt_calibration(gt_calibration).apply(gt_traj.stamps, gt_traj.poses), gt_traj.source)
     est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
     est_traj = load_trajectory(est, est_fmt)
+    _warn_on_small_overlap(gt, est, gt_traj, est_traj, 0.02 if max_diff is None else max_diff)
     if metric == "paper":
         result = _paper(gt_traj, est_traj, in_view, 0.02 if max_diff is None else max_diff)
         if as_json:

@@ -12,6 +12,7 @@ from rich.table import Table
 from phonepose.cli import app
 from phonepose.cli.options import SEED, CorrectionMath, number
 from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.errors import ConfigError
 from phonepose.numbers import WORKERS_MAX
 
 experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.", no_args_is_help=True,
@@ -80,6 +81,8 @@ def exp2(
                                   "offset; docs/evaluation.md)."),
     exact_gt: bool = typer.Option(False, "--exact-gt", help="Simulate with [mocap] exact = true: the same sensor "
                                   "data, scored against the phone's true pose (no mocap error at all)."),
+    calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from itself "
+                                      "(`phonepose calibrate-gt`: clock, world and rigid body; docs/calibration.md)."),
 ) -> None:
     """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
 
@@ -89,6 +92,8 @@ def exp2(
     from phonepose.experiments.exp2 import run_exp2
 
     _check_config(config)
+    if hand_eye and calibrate_gt:
+        raise ConfigError("--hand-eye and --calibrate-gt are exclusive: calibrate-gt estimates the hand-eye too")
     console = stdout_console()
     done = []
 
@@ -99,7 +104,9 @@ def exp2(
     console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
     result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
                       correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye,
-                      exact_gt=exact_gt)
+                      exact_gt=exact_gt, calibrate_gt=calibrate_gt)
+    if calibrate_gt:
+        console.print("ground truth calibrated from each session itself (clock, world, rigid body: calibrate-gt)")
     if exact_gt:
         console.print("exact ground truth: the phone's true pose ([mocap] exact = true)")
     if hand_eye:

@@ -11,7 +11,23 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.output import stdout_console
+from phonepose.errors import SessionContentError
+from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
+
+
+def _task_window(reader: SessionReader, s) -> list[float] | None:
+    """The task window from the session's info message, in seconds after the session start."""
+    if not s.has(Topic.SESSION_INFO):
+        return None
+    try:
+        info = reader.first(Topic.SESSION_INFO)
+    except SessionContentError:     # a broken info message: info still shows the rest
+        return None
+    t0, t1 = info.task_start.ToNanoseconds(), info.task_end.ToNanoseconds()
+    if not (t0 and t1):
+        return None
+    return [round((t0 - s.start_ns) / 1e9, 3), round((t1 - s.start_ns) / 1e9, 3)]
 
 
 @app.command()
@@ -24,17 +40,20 @@ def info(
     with SessionReader(file) as reader:
         s = reader.summary()
         chunks = reader.verify(deep=verify)   # damaged chunks: one error line pointing to `recover`
+        task = _task_window(reader, s)
     start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.timezone.utc).isoformat() if s.message_count else None
     if as_json:
         typer.echo(json.dumps({
             "path": str(file), "messages": s.message_count, "start_ns": s.start_ns, "end_ns": s.end_ns,
-            "start_time": start, "duration_s": s.duration_s,
+            "start_time": start, "duration_s": s.duration_s, "task_window_s": task,
             "channels": [{"topic": c.topic, "schema": c.schema, "encoding": c.encoding, "messages": c.count}
                          for c in s.channels],
         }, indent=2))
         return
     console = stdout_console()     # piped: topic names are never cut to the terminal's 80 columns
     console.print(f"[bold]{file}[/bold]: {s.message_count} messages, {s.duration_s:.2f} s, start {start}")
+    if task is not None:   # what playback scores and --start/--end must overlap
+        console.print(f"task window {task[0]:.2f}-{task[1]:.2f} s (seconds after the start)")
     table = Table("topic", "schema", "encoding", "messages")
     for c in s.channels:
         table.add_row(c.topic, c.schema, c.encoding, str(c.count))

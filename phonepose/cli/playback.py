@@ -28,7 +28,8 @@ def metrics_table(metrics: dict) -> Table:
     table = Table(title=f"{metrics['session']}" + (f" @ {rate} Hz" if rate is not None else ""))
     table.add_column("tracker", style="bold")
     table.add_column("scope")
-    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm"):
+    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm", "lag ms",
+                  "jitter mm / deg", "avail. %"):
         table.add_column(label, justify="right")
     for name, m in metrics["trackers"].items():
         for i, scope in enumerate(("inside", "outside", "total")):
@@ -37,9 +38,17 @@ def metrics_table(metrics: dict) -> Table:
             if scope == "total" and d.get("boundary_jumps"):
                 jump = f"{_fmt(d['boundary_jump_max_m'], 100.0)} / {_fmt(d['boundary_jump_rms_m'], 100.0)}"
             table.add_row(name if i == 0 else "", scope, str(d["frames"]), _fmt(d["p_ate_m"], 100.0),
-                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump,
+                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump, *_controller_cells(d, scope),
                           end_section=(scope == "total"))
     return table
+
+
+def _controller_cells(d: dict, scope: str) -> list[str]:
+    """Lag, jitter and availability (phonepose.evaluation.controller): the total row only."""
+    if scope != "total" or "lag_s" not in d:
+        return ["", "", ""]
+    jitter = "" if d["jitter_m"] is None else f"{_fmt(d['jitter_m'], 1000.0)} / {_fmt(d['jitter_deg'])}"
+    return [_fmt(d["lag_s"], 1000.0, 0), jitter, _fmt(d["availability"], 100.0, 1)]
 
 
 @app.command()
@@ -58,8 +67,13 @@ def playback(
     spawn: bool = typer.Option(False, "--spawn", help="Stream to a new Rerun viewer."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace ticks to real time (demos)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-    hand_eye: Optional[Path] = typer.Option(None, "--hand-eye", help="A file from `phonepose calibrate-hand-eye`: "
-                                            "score against the ground truth in the phone's frame and clock."),
+    gt_calibration: Optional[Path] = typer.Option(None, "--gt-calibration", "--hand-eye",
+                                                  help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
+                                                  "score against the ground truth in the phone's frame, clock and "
+                                                  "display_vio (docs/calibration.md)."),
+    gt: Optional[Path] = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC .csv) "
+                                      "instead of the session's; use with --gt-calibration from `calibrate-gt --gt`."),
+    gt_format: Optional[str] = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
 ) -> None:
     """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
     from phonepose.pipeline.trackers import make_trackers
@@ -82,14 +96,16 @@ def playback(
 
         result = run_playback(session, trackers=tracker, out_dir=out, rate_hz=rate, correction_math=correction_math,
                               rerun_path=rerun, spawn=spawn, start_s=start, end_s=end, realtime=realtime,
-                              progress=progress, hand_eye=hand_eye)
+                              progress=progress, gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
     stdout_console().print(metrics_table(result.metrics))
     if not result.has_gt:
         typer.echo(f"no usable ground truth (needs {Topic.GT_CONTROLLER_POSE} and {Topic.GT_CALIBRATION} within the "
-                   "task window): accuracy metrics are unavailable (null in metrics.json)")
+                   "task window" + (", or with --gt FILE a --gt-calibration from `phonepose calibrate-gt SESSION --gt FILE`"
+                                    if gt is not None else "") + "): accuracy metrics are unavailable (null in metrics.json)")
     gt_note = result.metrics.get("ground_truth")
-    if gt_note is not None and result.has_gt:
-        typer.echo(f"ground truth moved into the phone's frame and clock ({gt_note['hand_eye_file']}: "
-                   f"{gt_note['hand_eye_rotation_deg']:.2f} deg, mocap clock {gt_note['time_offset_s'] * 1e3:+.0f} ms)")
+    if gt_note is not None and result.has_gt and "calibration_file" in gt_note:
+        where = " and display_vio" if gt_note["world_display_vio"] == "calibrated" else ""
+        typer.echo(f"ground truth moved into the phone's frame, clock{where} ({gt_note['calibration_file']}: "
+                   f"{gt_note['body_rotation_deg']:.2f} deg, ground-truth clock {gt_note['time_offset_s'] * 1e3:+.1f} ms)")
     typer.echo(f"{result.n_ticks} ticks in {result.wall_s:.1f} s -> {result.out_dir}"
                + (f", rerun: {result.rerun_path}" if result.rerun_path else ""))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import time
 from pathlib import Path
 from typing import Optional
@@ -10,7 +12,7 @@ import typer
 from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
 from phonepose.cli import app
-from phonepose.cli.options import SEED, Scenario, SimPath, number
+from phonepose.cli.options import SECONDS, SEED, Scenario, SimPath, number
 from phonepose.cli.output import ProgressBar
 from phonepose.errors import ConfigError
 
@@ -41,6 +43,16 @@ def sim(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing file "
                                "is an error and stays untouched)."),
+    motion: Optional[Path] = typer.Option(None, "--motion", help="A recorded 6DoF trajectory (TUM, or EuRoC .csv) "
+                                          "as the task's hand motion, instead of --path (docs/simulation.md)."),
+    motion_start: float = typer.Option(0.0, "--motion-start", **SECONDS, help="--motion window start, s after the "
+                                       "file's first pose."),
+    motion_duration: float = typer.Option(20.0, "--motion-duration", callback=number(1, 600, unit="s"),
+                                          help="--motion window length."),
+    motion_scale: float = typer.Option(1.0, "--motion-scale", callback=number(0, 10, lo_open=True),
+                                       help="--motion: scale the window's displacements (1: as recorded)."),
+    motion_centre: str = typer.Option("0,0.03,0.32", "--motion-centre", help="--motion: where the window's mean "
+                                      "position goes, x,y,z m in the display camera's frame (z: away from it)."),
 ) -> None:
     """Simulate the paper's setup (display phone on a tripod filming the controller phone's
     marker, shared anchor, VIO drift, IMU, motion-capture ground truth) and record it.
@@ -54,6 +66,13 @@ def sim(
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
     cfg = load_config(config)       # a bad config fails before anything is written
+    spec = None
+    if motion is not None:
+        from phonepose.files import check_input
+        from phonepose.record.sim.recorded import MotionSpec, load_window
+        check_input(motion, "trajectory file")
+        spec = MotionSpec(str(motion), motion_start, motion_duration, motion_scale, _centre(motion_centre))
+        load_window(spec)           # a bad file or window fails before anything is written
     t0 = time.perf_counter()
     with ProgressBar(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),
                      TextColumn("{task.fields[seconds]}"), TimeElapsedColumn(), quiet=quiet) as bar:
@@ -66,10 +85,22 @@ def sim(
 
         result = record_sim(out, scenario=scenario.value, path=path.value, trial=trial, seed=seed, config=cfg,
                             config_file=config, progress=progress, rerun_path=rerun, spawn=spawn, force=force,
-                            stop_on_signals=True)
+                            stop_on_signals=True, motion=spec)
     wall = time.perf_counter() - t0
     what = f"exp2 {path.value} trial {trial}" if scenario == Scenario.exp2 else f"exp1 trial {trial}"
+    if spec is not None:
+        what = f"motion {spec.name} {motion_start:g}-{motion_start + motion_duration:g} s"
     status = "interrupted, file is valid" if result.interrupted else "done"
     typer.echo(f"{out}: {what}, seed {seed}: {result.duration_ns / 1e9:.1f} s, {result.frames} frames, "
                f"{result.messages} messages in {wall:.1f} s ({result.duration_ns / 1e9 / max(wall, 1e-9):.1f}x real time), "
                f"{status}")
+
+
+def _centre(text: str) -> tuple[float, float, float]:
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--motion-centre {text!r}: expected x,y,z in metres, e.g. 0,0.03,0.32") from None
+    if not all(map(math.isfinite, (x, y, z))) or not 0.1 <= z <= 3.0:
+        raise ConfigError(f"--motion-centre {text!r}: z (the distance from the camera) must be 0.1..3 m")
+    return (x, y, z)

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, rotation_product
 
 METHODS = ("posyaw", "se3", "sim3", "none")
 
@@ -39,7 +39,7 @@ class Alignment:
     def apply(self, poses: Pose) -> Pose:
         rot = Rotation.from_matrix(self.rotation)
         p = np.atleast_2d(poses.translation)
-        return Pose(rot * poses.rotation, self.scale * (p @ self.rotation.T) + self.translation)
+        return Pose(rotation_product(rot, poses.rotation), self.scale * (p @ self.rotation.T) + self.translation)
 
     def apply_positions(self, positions: np.ndarray) -> np.ndarray:
         return self.scale * (np.asarray(positions, dtype=float) @ self.rotation.T) + self.translation

@@ -138,3 +138,18 @@ def associate_index(n_est: int, n_ref: int):
     """KITTI: pose k with pose k (both files must have the same length, as evo requires)."""
     n = min(n_est, n_ref)
     return np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64)
+
+
+def coverage(est_stamps: np.ndarray, ref_stamps: np.ndarray, max_diff: float) -> tuple[float, float]:
+    """How much of each trajectory the matched poses cover: (the fraction of the estimate's poses that
+    have a match, the fraction of the reference's time span between its first and last matched pose).
+
+    An estimate scored against another session's ground truth (simulated sessions all start at the
+    same stamp) still finds matches, but few, or over a short stretch: the caller warns."""
+    i_est, i_ref = associate_rpg(est_stamps, ref_stamps, max_diff)
+    if i_est.size == 0 or est_stamps.size == 0:
+        return 0.0, 0.0
+    ref_span = float(ref_stamps.max() - ref_stamps.min())
+    matched = ref_stamps[i_ref]
+    ref_frac = 1.0 if ref_span <= 0 else float(matched.max() - matched.min()) / ref_span
+    return i_est.size / est_stamps.size, ref_frac

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, rotation_inverse, rotation_product
 
 
 def translation_errors(gt: Pose, est_aligned: Pose) -> np.ndarray:
@@ -19,7 +19,7 @@ def translation_errors(gt: Pose, est_aligned: Pose) -> np.ndarray:
 
 
 def rotation_errors_deg(gt: Pose, est_aligned: Pose) -> np.ndarray:
-    return np.degrees(np.atleast_1d((est_aligned.rotation * gt.rotation.inv()).magnitude()))
+    return np.degrees(np.atleast_1d(rotation_product(est_aligned.rotation, rotation_inverse(gt.rotation)).magnitude()))
 
 
 def scale_errors_perc(gt_positions: np.ndarray, est_aligned_positions: np.ndarray, rpg_quirk: bool = False):

@@ -20,12 +20,12 @@ from enum import Enum
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, SessionContentError
 from phonepose.evaluation.alignment import Alignment, align, umeyama
 from phonepose.evaluation.association import associate_evo, associate_index
 from phonepose.evaluation.stats import statistics
 from phonepose.evaluation.trajectory import Trajectory
-from phonepose.geometry import Pose
+from phonepose.geometry import Pose, rotation_inverse, rotation_product
 
 
 class PoseRelation(Enum):
@@ -117,27 +117,15 @@ class APE(_PE):
 # ----------------------------------------------------------------------------- pair selection
 def _first_crossings(steps: np.ndarray, delta: float) -> list[int]:
     """evo's consecutive accumulation with reset: ids where the running sum since the last id reaches
-    ``delta``. One cumsum per emitted pair (a window around the guess from the global cumsum), so the
-    float sums are evo's own left-to-right sums."""
-    n = steps.size
+    ``delta``, summed left to right as evo does. A loop over Python floats: ~0.1 µs per step, where a
+    numpy call per emitted pair cost ~10 µs per pair (370 pairs on a KITTI sequence)."""
     ids = [0]
-    glob = np.concatenate(([0.0], np.cumsum(steps)))
-    s = 0
-    while s < n:
-        guess = int(np.searchsorted(glob, glob[s] + delta, side="left"))
-        hi = min(n, max(guess + 16, s + 16))
-        while True:
-            seg = np.cumsum(steps[s:hi])
-            m = int(np.searchsorted(seg, delta, side="left")) if seg.size else 0
-            # cumsum is non-decreasing (steps >= 0): the first m with seg[m] >= delta
-            if m < seg.size or hi == n:
-                break
-            hi = min(n, hi + max(64, hi - s))
-        if m >= seg.size:
-            break
-        i = s + m + 1
-        ids.append(i)
-        s = i
+    acc = 0.0
+    for k, step in enumerate(steps.tolist(), start=1):
+        acc += step
+        if acc >= delta:
+            ids.append(k)
+            acc = 0.0
     return ids
 
 
@@ -203,7 +191,7 @@ def id_pairs_from_delta(poses: Pose, delta: float, delta_unit: Unit, rel_tol: fl
                 chunks.append(np.stack([ii[r], c], axis=1))
             pairs = np.concatenate(chunks) if chunks else np.zeros((0, 2), np.int64)
         else:
-            steps = (rot[:-1].inv() * rot[1:]).magnitude() if n >= 2 else np.zeros(0)
+            steps = rotation_product(rotation_inverse(rot[:-1]), rot[1:]).magnitude() if n >= 2 else np.zeros(0)
             ids = _first_crossings(np.atleast_1d(steps), d_rad)
             pairs = np.stack([np.asarray(ids[:-1]), np.asarray(ids[1:])], axis=1)
     else:  # pragma: no cover
@@ -284,15 +272,22 @@ def associate(gt: Trajectory, est: Trajectory, max_diff: float = 0.01):
         return associate_index(len(est), len(gt))
     i_est, i_gt = associate_evo(est.stamps, gt.stamps, max_diff)
     if i_est.size == 0:
-        raise ConfigError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
+        raise SessionContentError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
                           f"(|dt| <= {max_diff} s)")
     return i_est, i_gt
+
+
+def _matched(poses: Pose, index: np.ndarray) -> Pose:
+    """``poses[index]``, without the copy when the index takes every pose in order (KITTI)."""
+    if index.size == len(poses) and (index.size == 0 or (index[0] == 0 and np.all(np.diff(index) == 1))):
+        return poses
+    return poses[index]
 
 
 def evaluate_ape(gt: Trajectory, est: Trajectory, pose_relation="trans", align_method: str = "none",
                  align_frames: int = -1, max_diff: float = 0.01, matches=None) -> dict:
     i_est, i_gt = associate(gt, est, max_diff) if matches is None else matches
-    ref, e = gt.poses[i_gt], est.poses[i_est]
+    ref, e = _matched(gt.poses, i_gt), _matched(est.poses, i_est)
     al = evo_align(ref, e, align_method, align_frames)
     m = APE(relation(pose_relation))
     m.process_data((ref, al.apply(e)))
@@ -309,7 +304,7 @@ def evaluate_rpe(gt: Trajectory, est: Trajectory, pose_relation="trans", delta: 
     if unit is None:
         raise ConfigError(f"--delta-unit {delta_unit!r}: expected one of {', '.join(UNIT_NAMES)}")
     i_est, i_gt = associate(gt, est, max_diff) if matches is None else matches
-    ref, e = gt.poses[i_gt], est.poses[i_est]
+    ref, e = _matched(gt.poses, i_gt), _matched(est.poses, i_est)
     al = evo_align(ref, e, align_method, align_frames)
     m = RPE(relation(pose_relation), delta, unit, rel_delta_tol, all_pairs, pairs_from_reference)
     m.process_data((ref, al.apply(e)))

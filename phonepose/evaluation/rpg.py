@@ -11,7 +11,7 @@ where ``stats`` is ``{"rmse", "mean", "median", "std", "min", "max", "num_sample
 from __future__ import annotations
 
 
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, SessionContentError
 from phonepose.evaluation.alignment import align
 from phonepose.evaluation.association import associate_index, associate_rpg
 from phonepose.evaluation.ate import absolute_errors, scale_errors_perc
@@ -37,7 +37,7 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
                  scale_quirk: bool = False, details: bool = False) -> dict:
     i_est, i_gt = associate(gt, est, max_diff)
     if i_est.size == 0:
-        raise ConfigError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
+        raise SessionContentError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
                           f"(|dt| < {max_diff} s)")
     g, e = gt.poses[i_gt], est.poses[i_est]
     al = align(g, e, align_method, align_frames)

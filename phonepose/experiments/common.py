@@ -24,6 +24,7 @@ class SequenceJob:
     correction_math: str = "paper"
     rerun: bool = False
     hand_eye: bool = False   # calibrate the session's hand-eye from itself and score in the phone's frame
+    calibrate_gt: bool = False   # calibrate-gt the session from itself: clock, world and grip (docs/calibration.md)
     final_dir: str | None = None   # where out_dir (a temporary) lands when the experiment is complete
     exact_gt: bool = False   # [mocap] exact = true: ground truth = the phone's true pose (docs/simulation.md)
 
@@ -44,7 +45,9 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
     from phonepose.record.sim import record_sim
 
     out = Path(job.out_dir)
-    for sub in ("sessions", "playback") + (("rerun",) if job.rerun else ()) + (("hand_eye",) if job.hand_eye else ()):
+    subs = ("sessions", "playback") + (("rerun",) if job.rerun else ()) + (("hand_eye",) if job.hand_eye else ()) \
+        + (("gt_calibration",) if job.calibrate_gt else ())
+    for sub in subs:
         (out / sub).mkdir(exist_ok=True)
     session = out / "sessions" / f"{job.name}.mcap"
     config = job.config
@@ -60,6 +63,12 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
         hand_eye = out / "hand_eye" / f"{job.name}.yaml"
         hand_eye_name = str(Path(job.final_dir or job.out_dir) / "hand_eye" / hand_eye.name)
         save_hand_eye(hand_eye, hand_eye_from_session(session))
+    if job.calibrate_gt:
+        from phonepose.calibration.calibrate_gt import calibrate_gt_session
+        from phonepose.calibration.gt_calibration import save_gt_calibration
+        hand_eye = out / "gt_calibration" / f"{job.name}.yaml"
+        hand_eye_name = str(Path(job.final_dir or job.out_dir) / "gt_calibration" / hand_eye.name)
+        save_gt_calibration(hand_eye, calibrate_gt_session(session))
     result = run_playback(session, trackers="all", out_dir=out / "playback" / job.name,
                           correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye,
                           hand_eye_name=hand_eye_name, progress=playback_progress)

@@ -31,7 +31,8 @@ import numpy as np
 from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick, Tracker
-from phonepose.playback.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context
+from phonepose.evaluation.controller import controller_metrics
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 
 from phonepose.evaluation.trajectory import write_in_view, write_tum
@@ -225,6 +226,8 @@ class PlaybackEngine:
                 continue
             stamps_s = common / 1e9
             out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+            out[name]["total"].update(controller_metrics(gt_t / 1e9, gt_poses, traj.stamps_ns / 1e9, traj.poses,
+                                                         stamps_s, i_gt, i_est))
         return out
 
 
@@ -234,16 +237,20 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
                  progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
                  stages_factory: Callable[[SessionContext], object] | None = None,
                  tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None,
+                 gt_calibration: str | os.PathLike | None = None, gt_calibration_name: str | None = None,
+                 gt_file: str | os.PathLike | None = None, gt_format: str | None = None,
                  hand_eye: str | os.PathLike | None = None, hand_eye_name: str | None = None) -> PlaybackResult:
     """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
 
     ``progress(done, total)`` is called after every tick. ``rerun_path`` saves a .rrd (with the
     default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
     everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
-    replace the pipeline's SharedStages / make_trackers (tests, experiments). ``hand_eye`` is a file
-    from ``phonepose calibrate-hand-eye``: the ground truth is moved into the phone's frame and clock
-    before any metric (docs/evaluation.md, "The hand-eye offset"); metrics.json names it
-    ``hand_eye_name`` if given (an experiment's file, read from the folder before it is renamed into place).
+    replace the pipeline's SharedStages / make_trackers (tests, experiments). ``gt_calibration`` is a
+    file from ``phonepose calibrate-gt`` or ``calibrate-hand-eye`` (``hand_eye`` is its old name): the
+    ground truth is moved into the phone's frame, clock and display_vio before any metric
+    (docs/calibration.md); metrics.json names it ``gt_calibration_name`` if given (an experiment's file,
+    read from the folder before it is renamed into place). ``gt_file`` (TUM or EuRoC, ``gt_format``)
+    replaces the session's ground truth (phonepose.calibration.ground_truth).
     """
     wall0 = time.perf_counter()
     from phonepose.pipeline.trackers import split_names
@@ -251,24 +258,20 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
     from phonepose.pipeline.corrections import CorrectionMath
     math = CorrectionMath.parse(correction_math).value
     tracker_objs = (tracker_factory or _default_trackers)(names, math)
-    hand_eye_cal, gt_note = None, None
-    if hand_eye is not None:
-        from phonepose.calibration.hand_eye import load_hand_eye
-        hand_eye_cal = load_hand_eye(hand_eye)
-        gt_note = {"hand_eye_file": hand_eye_name or os.fspath(hand_eye), "hand_eye_rotation_deg": round(hand_eye_cal.rotation_deg, 6),
-                   "hand_eye_translation_m": [round(float(v), 6) for v in hand_eye_cal.T_controller_mocap.translation],
-                   "time_offset_s": round(hand_eye_cal.time_offset_s, 6)}
+    from phonepose.calibration.gt_calibration import ground_truth_setup
+    gt_setup = ground_truth_setup(gt_calibration if gt_calibration is not None else hand_eye,
+                                  gt_calibration_name or hand_eye_name, gt_file, gt_format)
+    gt_note = gt_setup.note
     session = os.fspath(session)
     out = None
     if write_outputs:
         out = Path(out_dir) if out_dir is not None else default_out_dir(session)
-        _prepare_out_dir(out)
     files: dict[str, str] = {}
     with SessionReader(session) as reader:
         context = read_context(reader)
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=rate_hz, start_s=start_s, end_s=end_s,
-                                  hand_eye=hand_eye_cal)
+                                  gt_calibration=gt_setup.calibration, gt_series=gt_setup.series)
         stages = (stages_factory or _default_stages)(context)
         if hasattr(stages, "map_vio_samples"):
             stages.map_vio_samples = any(getattr(t, "uses_vio_samples", False) for t in tracker_objs)
@@ -277,12 +280,13 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             from phonepose.playback.rerun_log import PlaybackRerunLogger
             logger = PlaybackRerunLogger(context, [t.name for t in tracker_objs], session=session,
                                          params={"rate_hz": rate_hz, "correction_math": math, "start_s": start_s,
-                                                 "end_s": end_s, "hand_eye": hand_eye},
+                                                 "end_s": end_s, "hand_eye": gt_setup.calibration_path, **gt_setup.rerun_params},
                                          rrd_path=rerun_path, spawn=spawn)
         writer = None
         if out is not None:
             files["trackers.mcap"] = str(out / "trackers.mcap")
             try:
+                _prepare_out_dir(out)   # after every check of the session and options: a refused run creates nothing
                 writer = SessionWriter(out / "trackers.mcap")
             except BaseException:
                 if logger is not None:

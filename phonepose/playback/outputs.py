@@ -8,7 +8,6 @@ cannot be computed, so the same playback gives byte-identical files.
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -18,42 +17,20 @@ import numpy as np
 from phonepose.errors import OutputError
 from phonepose.geometry import Pose
 
-SCOPES = ("inside", "outside", "total")
-METRIC_KEYS = ("p_ate_m", "r_ate_deg", "p_re_m")
-TOTAL_KEYS = ("boundary_jumps", "boundary_jump_max_m", "boundary_jump_rms_m")   # total scope only
-
-
-def _clean(v):
-    if v is None:
-        return None
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    v = float(v)
-    return v if math.isfinite(v) else None
+from phonepose.evaluation.metrics import SCOPES
 
 
 def empty_scope(scope: str = "inside") -> dict:
-    d = {"frames": 0, "p_ate_m": None, "r_ate_deg": None, "p_re_m": None}
-    if scope == "total":
-        d.update({"boundary_jumps": 0, "boundary_jump_max_m": None, "boundary_jump_rms_m": None})
-    return d
+    return normalise_metrics(None)[scope]
 
 
 def normalise_metrics(m: dict | None) -> dict:
-    """The exact ``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` layout;
-    ``total`` also has ``boundary_jumps`` (count), ``boundary_jump_max_m`` and ``boundary_jump_rms_m``."""
-    out = {}
-    for scope in SCOPES:
-        src = (m or {}).get(scope) or {}
-        d = {"frames": int(src.get("frames") or 0)}
-        for k in METRIC_KEYS:
-            d[k] = _clean(src.get(k))
-        if scope == "total":
-            d["boundary_jumps"] = int(src.get("boundary_jumps") or 0)
-            d["boundary_jump_max_m"] = _clean(src.get("boundary_jump_max_m"))
-            d["boundary_jump_rms_m"] = _clean(src.get("boundary_jump_rms_m"))
-        out[scope] = d
-    return out
+    """The exact metrics.json layout of one tracker (phonepose.evaluation.metrics: every metric, its scopes
+    and order): ``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}``; ``total``
+    also has the boundary jumps (count, max, RMS) and the AR-controller metrics (lag, jitter, availability)."""
+    from phonepose.evaluation.metrics import normalise
+
+    return normalise(m)
 
 
 # ----------------------------------------------------------------------------- metrics

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import bisect
 import logging
-import math
 from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Iterator
@@ -150,14 +149,32 @@ _POSE_TOPICS = frozenset((Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Top
                           Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR))
 
 
+def _check_task_overlap(context: SessionContext, start_ns: int, first: int, last: int, start_s: float | None,
+                        end_s: float | None) -> None:
+    """--start/--end that miss the task window score nothing and write empty trajectories: one line
+    naming both ranges (seconds after the session start), before any work."""
+    t0, t1 = context.task_start_ns, context.task_end_ns
+    if t0 is None or t1 is None or (last >= t0 and first <= t1):
+        return
+    from phonepose.errors import ConfigError
+    given = " ".join(f"{name} {v:g}" for name, v in (("--start", start_s), ("--end", end_s)) if v is not None)
+    raise ConfigError(f"{given} selects {(first - start_ns) / 1e9:.2f}-{(last - start_ns) / 1e9:.2f} s, which misses "
+                      f"the task window {(t0 - start_ns) / 1e9:.2f}-{(t1 - start_ns) / 1e9:.2f} s (where trajectories "
+                      "and metrics are computed): choose a range that overlaps it")
+
+
 class TickScheduler:
     """Iterate ``Tick`` objects over one pass of ``reader`` (see the module docstring)."""
 
     def __init__(self, reader: SessionReader, context: SessionContext, *, rate_hz: float = DEFAULT_RATE_HZ,
                  start_s: float | None = None, end_s: float | None = None,
-                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, hand_eye=None):
-        """``hand_eye`` (a calibration.hand_eye.HandEye) re-expresses the ground truth in the phone's
-        frame and on its clock: T_world_mocap · X⁻¹, read ``time_offset_s`` later."""
+                 gt_tolerance_s: float = GT_TOLERANCE_S, max_gap_s: float = MAX_GAP_S, gt_calibration=None,
+                 gt_series=None):
+        """``gt_calibration`` (a calibration.gt_calibration.GtCalibration) re-expresses the ground truth in
+        the phone's frame and on its clock: T_world_grip · X⁻¹, read ``time_offset_s`` later, and in
+        display_vio by its T_world_display_vio when it has one (else the session's /gt/calibration).
+        ``gt_series`` (a calibration.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
+        /gt/controller/pose."""
         if not rate_hz > 0:
             from phonepose.errors import ConfigError
             raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
@@ -169,10 +186,15 @@ class TickScheduler:
         self.max_gap_ns = int(round(max_gap_s * 1e9))
         summary = reader.summary()
         self.has_camera = summary.has(Topic.CAMERA_IMAGE)
-        self.has_gt = summary.has(Topic.GT_CONTROLLER_POSE) and context.T_world_display_vio is not None
-        self._T_dvio_world = context.T_world_display_vio.inv().as_raw() if context.T_world_display_vio is not None else None
-        self._T_mocap_controller = hand_eye.T_controller_mocap.inv().as_raw() if hand_eye is not None else None
-        self._gt_shift_ns = int(round(hand_eye.time_offset_s * 1e9)) if hand_eye is not None else 0
+        cal = gt_calibration
+        T_world_dvio = context.T_world_display_vio
+        if cal is not None and cal.T_world_display_vio is not None:
+            T_world_dvio = cal.T_world_display_vio
+        self._gt_series = gt_series
+        self.has_gt = (gt_series is not None or summary.has(Topic.GT_CONTROLLER_POSE)) and T_world_dvio is not None
+        self._T_dvio_world = T_world_dvio.inv().as_raw() if T_world_dvio is not None else None
+        self._T_mocap_controller = cal.T_controller_gt.inv().as_raw() if cal is not None else None
+        self._gt_shift_ns = int(round(cal.time_offset_s * 1e9)) if cal is not None else 0
         self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
         # (topic, reason) -> samples skipped in the pass; reported as one warning line each
@@ -199,6 +221,8 @@ class TickScheduler:
             from phonepose.errors import ConfigError
             raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
                               f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
+        if start_s is not None or end_s is not None:
+            _check_task_overlap(context, start_ns, first, last, start_s, end_s)
         self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
                                  session_start_ns=start_ns)
         self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
@@ -227,6 +251,9 @@ class TickScheduler:
         display = PoseStream()
         controller = PoseStream()
         gt = PoseStream()
+        if self.has_gt and self._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
+            for t_ns, raw in zip(*self._gt_series.raw_samples()):
+                gt.add(int(t_ns) - self._gt_shift_ns, raw)
         images: deque = deque()            # (log_time, CompressedImage), newest at or before next tick kept
         d_anchor: deque = deque()           # (log_time, Pose)
         c_anchor: deque = deque()
@@ -363,7 +390,7 @@ class TickScheduler:
                 if now > info.first_tick_ns - self.period_ns:   # else before the first tick's interval
                     cvio_samples.append((now, codec.stamp_ns(msg, now), raw))
             elif topic == Topic.GT_CONTROLLER_POSE:
-                if self.has_gt:
+                if self.has_gt and self._gt_series is None:
                     gt.add(now - self._gt_shift_ns, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
                 d_anchor.append((now, Pose.from_raw(raw)))
@@ -373,8 +400,9 @@ class TickScheduler:
                 if now <= info.first_tick_ns - self.period_ns:
                     continue  # before the first tick's interval (--start): nobody will read it
                 row = codec.imu_row(msg, now)
-                if not all(math.isfinite(v) for v in row):
-                    self.skipped[(topic, "NaN/inf value")] += 1
+                problem = codec.imu_problem(row)
+                if problem is not None:
+                    self.skipped[(topic, problem)] += 1
                     continue
                 imu.append((now, row))
             elif topic == Topic.CALIBRATION_EVENTS:

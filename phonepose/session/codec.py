@@ -111,6 +111,23 @@ def stamp_ns(msg, fallback_ns: int) -> int:
     return msg.timestamp.ToNanoseconds() or fallback_ns
 
 
+# No phone IMU measures beyond these (gyroscopes saturate near 35 rad/s, accelerometers near 16 g): a
+# larger finite value is a broken sample, and one like 1e200 overflows the fusion's integration.
+MAX_GYRO_RAD_S = 1000.0
+MAX_ACCEL_M_S2 = 10000.0
+IMU_NOT_FINITE = "NaN/inf value"
+IMU_OUT_OF_RANGE = f"value outside any IMU's range (|gyro| > {MAX_GYRO_RAD_S:g} rad/s or |accel| > {MAX_ACCEL_M_S2:g} m/s^2)"
+
+
+def imu_problem(row: tuple[float, ...]) -> str | None:
+    """Why an :func:`imu_row` cannot be used (the reason playback's warning line names), or None."""
+    if not all(math.isfinite(v) for v in row):
+        return IMU_NOT_FINITE
+    if max(abs(v) for v in row[1:4]) > MAX_GYRO_RAD_S or max(abs(v) for v in row[4:7]) > MAX_ACCEL_M_S2:
+        return IMU_OUT_OF_RANGE
+    return None
+
+
 def imu_row(msg, log_time_ns: int) -> tuple[float, float, float, float, float, float, float]:
     """A ``phonepose.Imu`` as ``(t_s, gx, gy, gz, ax, ay, az)``; ``t_s`` its stamp (or log time)."""
     return (stamp_ns(msg, log_time_ns) / 1e9, msg.gyro_x, msg.gyro_y, msg.gyro_z,

@@ -14,10 +14,11 @@ type, missing or non-finite fields, a non-unit quaternion) is counted, logged on
 connection (terminal, ``/log``, an ``error`` message to the page) and ignored; the connection stays.
 
 Stamping: each connection has its own :class:`~phonepose.record.live.clock.OffsetEstimator`
-(5 pings at connect, then one a second). Samples that arrive before the 5 connect pings are answered wait
-for them (at most :data:`PENDING_TIMEOUT_S`; with no pong at all the offset is then taken from the
-first sample assuming zero network delay, and that is logged). ``capture = t - offset`` goes into the message ``timestamp``;
-the receipt time is the MCAP log time.
+(5 pings at connect, then one a second). Samples wait until the 5 connect pings are answered, or
+:data:`PENDING_TIMEOUT_S` has passed and at least one pong came: nothing is stamped without an
+offset, and nothing well-formed is dropped while waiting (see :meth:`Connection.settle` for a link
+that never answers). Each later pong refines the offset (the fastest exchange of the window wins).
+``capture = t - offset`` goes into the message ``timestamp``; the receipt time is the MCAP log time.
 """
 
 from __future__ import annotations
@@ -26,13 +27,15 @@ import asyncio
 import json
 import math
 import secrets
+import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSMessage, WSMsgType, web
 
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
+from phonepose.record.live.websocket import PageSocket
 
 if TYPE_CHECKING:   # pragma: no cover
     from phonepose.record.live.session import LiveRecording
@@ -42,12 +45,14 @@ PING_AT_CONNECT = 5
 PING_AT_CONNECT_SPACING_S = 0.05
 PING_PERIOD_S = 1.0
 PENDING_TIMEOUT_S = 0.5
-MAX_PENDING = 2000
-MAX_MESSAGE_BYTES = 1 << 16
+MAX_PENDING = 30_000                  # samples waiting for a first pong (~60 s of poses and IMU); then a fallback
+MAX_MESSAGE_BYTES = 1 << 16            # a text message above this is ignored (logged once per kind, counted)
+MAX_FRAME_BYTES = 1 << 22              # above this aiohttp closes the connection (1009): memory bound
 MAX_CAPTURE_SKEW_NS = 5_000_000_000   # a sample stamped further than this from its receipt is rejected
 OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate moves this much
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
+CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
 
 
 class Malformed(ValueError):
@@ -133,20 +138,23 @@ def parse_message(text: str) -> dict:
 class Connection:
     """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
 
-    def __init__(self, server: "LiveServer", ws: web.WebSocketResponse, peer: str, number: int):
+    def __init__(self, server: "LiveServer", sock: PageSocket, peer: str, number: int):
         self.server = server
         self.rec = server.recording
-        self.ws = ws
+        self.sock = sock
+        self.ws = sock.ws
         self.peer = peer
         self.name = f"phone #{number} ({peer})"
         self.clock = OffsetEstimator()
         self.fallback_offset_ns: int | None = None
         self.settled = False                           # stamping has started (see settle())
+        self.connect_wait_over = False                 # PENDING_TIMEOUT_S has passed since the connect pings
         self.pending: list[tuple[dict, int]] = []      # (message, receipt ns) waiting for the offset
         self.malformed_kinds: set[str] = set()
         self.logged_offset_ns: int | None = None
         self.opened_ns = self.rec.clock.now_ns()
         self.received = 0
+        self.hellos = 0
         self.last_receipt_ns = self.opened_ns
         self.tasks: set[asyncio.Task] = set()
 
@@ -171,27 +179,38 @@ class Connection:
         return off if off is not None else self.fallback_offset_ns
 
     def capture_ns(self, t_ms: float) -> int:
-        off = self.offset_ns
-        assert off is not None   # dispatched after settle(): a pong's offset or the first waiting sample's
-        return int(round(t_ms * 1e6)) - off
+        offset = self.offset_ns
+        assert offset is not None, "stamping starts only once an offset exists (settle())"
+        return int(round(t_ms * 1e6)) - offset
 
     def settle(self) -> None:
-        """Start stamping: after the connect pings were answered, or at the timeout with what there is.
+        """Start stamping, once an offset exists: at the first pong after the connect pings were all
+        answered or :data:`PENDING_TIMEOUT_S` passed; before that every sample waits in ``pending``.
 
-        With no pong at all, the offset is taken from the first waiting sample assuming zero network
-        delay (logged), until a pong arrives.
+        With no pong at all (a Wi-Fi link that answers pings late or never) the samples keep waiting;
+        only when :data:`MAX_PENDING` wait, or the connection ends, is an offset taken from them:
+        the median of their ``t - receipt`` (zero network delay assumed; a median, so no single odd
+        sample sets it), logged. A pong later replaces it.
         """
         if self.settled:
             return
-        self.settled = True
-        if self.clock.best() is not None:
+        if self.clock.best() is None:
+            if not self.pending:
+                return
+            self.fallback_offset_ns = int(statistics.median(int(round(m["t"] * 1e6)) - r for m, r in self.pending))
+            self.rec.log(f"{self.name}: no answer to the clock pings; {len(self.pending)} samples stamped assuming zero "
+                         f"network delay (page clock offset {self.fallback_offset_ns / 1e6:+.1f} ms) until one arrives",
+                         level="warning")
+        else:
             self._log_offset(force=True)
-        elif self.pending:
-            msg, receipt = self.pending[0]
-            self.fallback_offset_ns = int(round(msg["t"] * 1e6)) - receipt
-            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s; samples stamped "
-                         f"assuming zero network delay until one arrives", level="warning")
+        self.settled = True
         self.flush_pending()
+
+    def _waiting_note(self) -> None:
+        """At :data:`PENDING_TIMEOUT_S` with no pong: say once that samples wait (none is dropped)."""
+        if not self.settled and self.clock.best() is None:
+            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s (Wi-Fi power "
+                         f"saving?); samples wait for one, none is dropped", level="warning")
 
     def flush_pending(self) -> None:
         pending, self.pending = self.pending, []
@@ -208,10 +227,29 @@ class Connection:
                          f"{best.rtt_ns / 1e6:.1f} ms of {len(self.clock.exchanges)})", echo=force)
 
     # ------------------------------------------------------------------ receiving
-    def handle_text(self, text: str, receipt_ns: int) -> None:
+    def handle_frame(self, data: bytes | str, receipt_ns: int) -> None:
+        """A text message as received (bytes: aiohttp does not decode it, see LiveServer)."""
+        if isinstance(data, str):
+            data = data.encode("utf-8", "surrogatepass")
+        if len(data) > MAX_MESSAGE_BYTES:
+            self._count_received(receipt_ns)
+            self.malformed(Malformed(f"text message over {MAX_MESSAGE_BYTES // 1024} KiB", f"{len(data)} bytes"))
+            return
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            self._count_received(receipt_ns)
+            self.malformed(Malformed("text message that is not valid UTF-8", f"byte {exc.start}"))
+            return
+        self.handle_text(text, receipt_ns)
+
+    def _count_received(self, receipt_ns: int) -> None:
         self.received += 1
         self.last_receipt_ns = receipt_ns
         self.rec.stats["messages"] += 1
+
+    def handle_text(self, text: str, receipt_ns: int) -> None:
+        self._count_received(receipt_ns)
         try:
             msg = parse_message(text)
         except Malformed as exc:
@@ -222,16 +260,16 @@ class Connection:
             if self.clock.pong(msg["id"], msg["t"], receipt_ns) is None:
                 self.rec.stats["pongs rejected"] += 1
                 return
-            if not self.settled and len(self.clock.exchanges) >= PING_AT_CONNECT:
-                self.settle()
-            elif self.settled:
+            if self.settled:
                 self._log_offset()
+            elif len(self.clock.exchanges) >= PING_AT_CONNECT or self.connect_wait_over:
+                self.settle()
             return
         if kind in ("pose", "imu", "anchor") and not self.settled:
-            if len(self.pending) < MAX_PENDING:
-                self.pending.append((msg, receipt_ns))
-                return
-            self.settle()
+            self.pending.append((msg, receipt_ns))
+            if len(self.pending) >= MAX_PENDING:
+                self.settle()
+            return
         self.dispatch(msg, receipt_ns)
 
     def malformed(self, exc: Malformed) -> None:
@@ -247,7 +285,11 @@ class Connection:
         kind = msg["type"]
         try:
             if kind == "hello":
-                self.rec.on_hello(self.name, msg)
+                self.hellos += 1
+                if self.hellos == 1:
+                    self.rec.on_hello(self.name, msg)
+                else:   # a page sends one per connection; more are counted, logged once
+                    self.rec.repeated("hello messages after the first on a connection", self.name)
             elif kind == "marker":
                 error = self.rec.on_marker(self.name, msg)
                 if error:
@@ -285,7 +327,11 @@ class Connection:
         waited = PING_AT_CONNECT * PING_AT_CONNECT_SPACING_S
         if waited < PENDING_TIMEOUT_S and not self.settled:
             await asyncio.sleep(PENDING_TIMEOUT_S - waited)
-        self.settle()
+        self.connect_wait_over = True
+        if self.clock.best() is not None:
+            self.settle()
+        else:
+            self._waiting_note()
         while not self.ws.closed:
             await asyncio.sleep(PING_PERIOD_S)
             await self.send(self.clock.ping(self.rec.clock.now_ns()))
@@ -357,36 +403,22 @@ class LiveServer:
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         if not self._authorised(request):
             raise web.HTTPForbidden(text="wrong token\n")
-        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES, heartbeat=None)
+        # decode_text=False: text arrives as bytes, so invalid UTF-8 is ignored here (as the protocol
+        # says) instead of aiohttp closing the connection with 1007
+        ws = web.WebSocketResponse(max_msg_size=MAX_FRAME_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S,
+                                   decode_text=False)
         await ws.prepare(request)
         self.connections += 1
-        conn = Connection(self, ws, request.remote or "?", self.connections)
+        conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
         previous, self.current = self.current, conn
-        if previous is not None and not previous.ws.closed:
+        if previous is not None and not previous.sock.closed:
             self.recording.log(f"{previous.name}: replaced by {conn.name}", level="warning")
             await previous.send({"type": "error", "message": "another page connected; this one is no longer recorded"})
-            await previous.ws.close()
+            previous.sock.ask_close()   # its own handler closes it; this page is served meanwhile
         self.recording.log(f"{conn.name}: connected")
         pinger = asyncio.ensure_future(conn.pinger())
         try:
-            async for msg in ws:
-                receipt = self.recording.clock.now_ns()
-                if conn is not self.current:
-                    break
-                if msg.type == WSMsgType.TEXT:
-                    try:
-                        conn.handle_text(msg.data, receipt)
-                    except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
-                        self.recording.stats["malformed"] += 1
-                        self.recording.malformed_kinds["could not be handled"] += 1
-                        self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
-                                           f"{str(exc)[:80]}); ignored", level="error")
-                elif msg.type == WSMsgType.BINARY:
-                    conn.received += 1
-                    self.recording.stats["messages"] += 1
-                    conn.malformed(Malformed("binary message (the protocol is JSON text)"))
-                elif msg.type == WSMsgType.ERROR:
-                    break
+            await conn.sock.serve(lambda msg: self._on_message(conn, msg))
         finally:
             pinger.cancel()
             await asyncio.gather(pinger, return_exceptions=True)
@@ -396,6 +428,27 @@ class LiveServer:
             if self.current is conn:
                 self.current = None
         return ws
+
+    def _on_message(self, conn: Connection, msg: WSMessage) -> bool:
+        """One message of ``conn``; False ends its connection (replaced, or a broken frame)."""
+        receipt = self.recording.clock.now_ns()
+        if conn is not self.current:
+            return False
+        if msg.type == WSMsgType.TEXT:
+            try:
+                conn.handle_frame(msg.data, receipt)
+            except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
+                self.recording.stats["malformed"] += 1
+                self.recording.malformed_kinds["could not be handled"] += 1
+                self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
+                                   f"{str(exc)[:80]}); ignored", level="error")
+        elif msg.type == WSMsgType.BINARY:
+            conn.received += 1
+            self.recording.stats["messages"] += 1
+            conn.malformed(Malformed("binary message (the protocol is JSON text)"))
+        elif msg.type == WSMsgType.ERROR:
+            return False
+        return True
 
     # ------------------------------------------------------------------ lifetime
     async def start(self) -> int:
@@ -424,7 +477,7 @@ class LiveServer:
                 await asyncio.sleep(0.02)
             if conn.pending or not conn.settled:
                 conn.settle()
-            await conn.ws.close(message=b"recording finished")
+            await conn.sock.close(message=b"recording finished")
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None

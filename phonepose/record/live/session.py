@@ -136,6 +136,7 @@ class LiveRecording:
         self.echo = echo
         self.stats: Counter = Counter()
         self.malformed_kinds: Counter = Counter()
+        self.repeats: Counter = Counter()            # kind -> harmless repeated messages (see repeated())
         self.backwards: Counter = Counter()          # topic -> samples whose capture time did not increase
         self._last_capture: dict[str, int] = {}
         self.anchor_set = False
@@ -205,8 +206,9 @@ class LiveRecording:
         size = msg["size_m"]
         detail = f"{size * 1000:.1f} mm (ppi {msg['ppi']:g}, device pixel ratio {msg['device_pixel_ratio']:g})"
         if not self.marker_spec_written:      # the size in effect until the anchor fixes it
+            if size != self.marker_size_m:    # logged when it changes, not at every message (a reconnect repeats it)
+                self.log(f"{who}: marker side {detail}")
             self.marker_size_m = size
-            self.log(f"{who}: marker side {detail}")
             return None
         assert self.marker_size_m is not None   # the spec is written with the size
         if abs(size - self.marker_size_m) <= SIZE_MISMATCH * self.marker_size_m:
@@ -257,6 +259,12 @@ class LiveRecording:
                      accel_x=accel[0], accel_y=accel[1], accel_z=accel[2])
         msg.timestamp.FromNanoseconds(capture_ns)
         self.emit(Topic.CONTROLLER_IMU, msg, receipt_ns)
+
+    def repeated(self, kind: str, who: str) -> None:
+        """A harmless message the page should not repeat: logged the first time, counted (closing summary)."""
+        self.repeats[kind] += 1
+        if self.repeats[kind] == 1:
+            self.log(f"{who}: {kind}: ignored; further ones are only counted (closing summary)", level="warning")
 
     def refused(self, remote: str, path: str, had_token: bool) -> None:
         self.stats["refused"] += 1
@@ -522,6 +530,8 @@ class LiveSource:
         if rec.stats["malformed"]:
             lines.append(f"malformed messages ignored: {rec.stats['malformed']} ("
                          + ", ".join(f"{k}: {n}" for k, n in rec.malformed_kinds.most_common()) + ")")
+        if rec.repeats:
+            lines.append("repeated messages ignored: " + ", ".join(f"{k}: {n}" for k, n in rec.repeats.most_common()))
         if rec.stats["marker size changes ignored"]:
             assert rec.marker_size_m is not None   # counted only once the size was fixed
             lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "

@@ -21,11 +21,12 @@ def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | No
                seed: int = 0, config: SimConfig | str | os.PathLike | None = None,
                progress: ProgressCallback | None = None, rerun_path: str | os.PathLike | None = None,
                spawn: bool = False, force: bool = False, config_file: str | os.PathLike | None = None,
-               stop_on_signals: bool = False) -> RecordResult:
+               stop_on_signals: bool = False, motion=None) -> RecordResult:
     """Simulate one session and record it to ``out`` (a new file; an existing one only with ``force``).
 
     ``config``: a :class:`SimConfig`, a TOML file overriding the defaults, or None (defaults);
     ``config_file``: the TOML file a given SimConfig was read from (an input no output may replace).
+    ``motion``: a :class:`phonepose.record.sim.recorded.MotionSpec`: a recorded trajectory is the task.
     ``stop_on_signals``: Ctrl-C and SIGTERM end the recording early and leave a finished file
     (``record sim``); otherwise they stop the caller (an experiment) like anywhere else.
     ``progress(done_ns, total_ns)`` is called about every 0.1 s of session time. ``out`` and
@@ -48,7 +49,7 @@ def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | No
     session_out = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", in_place=True, force=force)
     rrd = plan.file(rerun_path, "--rerun", suffixes=(".rrd",), what="a Rerun recording") \
         if rerun_path is not None else None
-    session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg)
+    session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg, motion=motion)
     with plan:
         assert session_out.tmp is not None   # the plan's block made it
         result = Recorder(SimSource(session), session_out.tmp, progress=progress,

@@ -83,6 +83,7 @@ class Plan:
     targets: list[TargetPlan] = field(default_factory=list)
     waypoints_world: np.ndarray | None = None
     closed: bool = True
+    recorded: object | None = None   # (window, facing, centre_world): record sim --motion (phonepose.record.sim.recorded)
 
 
 def check_choice(scenario: str, path: str | None, trial: int) -> None:
@@ -146,7 +147,8 @@ def _no_osc():
     return make_oscillations(z, 0.0, 0.0, 0.0, 0.0)
 
 
-def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, trial: int, rng_for) -> Plan:
+def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, trial: int, rng_for,
+               motion=None) -> Plan:
     """The timeline: a still start (CM1 fix), the CM1 alignment, the CM2 hold, then the task.
 
     The CM1 aligned pose is a placeholder here: the simulation replaces ``keys[cm1_key_index]``
@@ -178,7 +180,9 @@ def build_plan(world: World, cfg: SimConfig, scenario: str, path: str | None, tr
     keys.append(KeyPose(t, cm2.position, cm2.rotation))
     plan = Plan(scenario=scenario, path=path or "", trial=trial, keys=keys, t_fix=t_fix, t_align=t_align,
                 t_cm2=t_cm2, task_start=0.0, task_end=0.0, end=0.0, cm1_key_index=cm1_index)
-    if scenario == "exp2":
+    if motion is not None:
+        _plan_recorded(plan, pose, t, motion)
+    elif scenario == "exp2":
         assert path is not None   # check_choice above: exp2 names a path
         _plan_exp2(plan, world, cfg, pose, rng, t, path, trial)
     else:
@@ -239,6 +243,25 @@ def _plan_exp2(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: 
     way[push, 0] += PUSH_OUT_M
     plan.waypoints_world = pose.to_world(way)
     plan.closed = True
+
+
+def _plan_recorded(plan: Plan, pose: _Posing, t: float, motion) -> None:
+    """The task is a recorded window (phonepose.record.sim.recorded): move to its first pose, hold, play it."""
+    from phonepose.record.sim.recorded import HOLD_S, MOVE_S, load_window, placed
+
+    window = load_window(motion)
+    centre = pose.to_world(motion.centre)
+    facing = look_at_rotation(centre, pose.T_wc.translation)
+    first = placed(window, facing, centre)[0]
+    plan.keys += [KeyPose(t + MOVE_S, first.translation, first.rotation),
+                  KeyPose(t + MOVE_S + HOLD_S, first.translation, first.rotation)]
+    plan.task_start = t + MOVE_S + HOLD_S
+    plan.task_end = plan.task_start + float(window.t[-1])
+    plan.end = plan.task_end + 0.8
+    plan.keys.append(KeyPose(plan.end, first.translation, first.rotation))   # unused: the window's end is held
+    plan.path = f"motion:{motion.name}"
+    plan.closed = False
+    plan.recorded = (window, facing, centre)
 
 
 def _plan_exp1(plan: Plan, world: World, cfg: SimConfig, pose: _Posing, rng, t: float):

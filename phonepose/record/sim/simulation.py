@@ -66,12 +66,14 @@ class SimSession:
     """All streams of one simulated session, precomputed except the images (rendered on demand)."""
 
     def __init__(self, scenario: str = "exp2", path: str | None = "TRI1", trial: int = 1, seed: int = 0,
-                 config: SimConfig | None = None):
+                 config: SimConfig | None = None, motion=None):
         self.cfg = cfg = config if config is not None else default_config()
         self.scenario, self.path, self.trial, self.seed = scenario, (path or "") if scenario == "exp2" else "", trial, seed
         rng_for = self.rng_for = rng_factory(seed)
         self.world: World = build_world(cfg, rng_for)
-        self.plan: Plan = build_plan(self.world, cfg, scenario, path, trial, rng_for)
+        self.plan: Plan = build_plan(self.world, cfg, scenario, path, trial, rng_for, motion)
+        if motion is not None:
+            self.path = self.plan.path
         w, plan = self.world, self.plan
         h = cfg.human
         self.oscillations = make_oscillations(rng_for(f"tremor_trial{trial}"), h.tremor_m, h.tremor_deg, h.sway_m, h.sway_deg)
@@ -89,7 +91,7 @@ class SimSession:
             end, rng_for("controller_vio"))
         white_c = rng_for("controller_vio_white").normal(size=(len(self.t_cvio), 6))
         self.T_map = w.T_dvio_anchor_resolved @ w.T_cvio_anchor_resolved.inv()   # cvio -> dvio via the anchors
-        traj0 = Trajectory(plan.keys, *self.oscillations)
+        traj0 = self._trajectory()
         self.cvio_model.set_path(self._cvio_base_on_grid(traj0))
         j_fix = int(np.argmin(np.abs(self.t_cvio - plan.t_fix)))
         fix_mapped = self.T_map @ self._cvio_estimate(traj0, self.t_cvio[j_fix:j_fix + 1], white_c[j_fix:j_fix + 1])[0]
@@ -101,7 +103,7 @@ class SimSession:
         for k in (plan.cm1_key_index, plan.cm1_key_index + 1):
             plan.keys[k].position = T_world_aligned.translation.copy()
             plan.keys[k].rotation = T_world_aligned.rotation
-        self.traj = traj = Trajectory(plan.keys, *self.oscillations)
+        self.traj = traj = self._trajectory()
         self.cvio_model.set_path(self._cvio_base_on_grid(traj))
         self.T_cvio_ctrl = self._cvio_estimate(traj, self.t_cvio, white_c)
         self.j_fix = j_fix
@@ -182,6 +184,15 @@ class SimSession:
         self._R_cam_ctrl: np.ndarray | None = None
 
     # ------------------------------------------------------------------ helpers
+    def _trajectory(self):
+        """The simulated hand (key poses, tremor, sway), or it until the task and then a recorded window."""
+        keyed = Trajectory(self.plan.keys, *self.oscillations)
+        if self.plan.recorded is None:
+            return keyed
+        from phonepose.record.sim.recorded import MotionTrajectory
+        window, facing, centre = self.plan.recorded
+        return MotionTrajectory(keyed, self.plan.task_start, window, facing, centre, self.plan.end)
+
     def _cvio_base_on_grid(self, traj: Trajectory) -> np.ndarray:
         grid = self.cvio_model.grid
         return (self.world.T_world_cvio.inv() @ traj.base(np.clip(grid, traj.start, traj.end))).translation

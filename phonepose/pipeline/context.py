@@ -17,6 +17,8 @@ from phonepose.session import SessionReader, codec
 
 # Used when a session has no camera at all (controller VIO only): nothing looks at it.
 _NO_CAMERA = CameraModel(K=np.eye(3), D=np.zeros(5), width=0, height=0, T_display_camera=Pose.identity())
+# A marker is printed or shown on a screen: larger than this is a broken spec (1e200 m overflowed T8).
+MAX_MARKER_SIZE_M = 10.0
 _NO_MARKER = MarkerModel(dictionary="", id=-1, size_m=0.0, T_body_marker=Pose.identity())
 
 
@@ -41,6 +43,9 @@ def _check_camera(path: str, calib) -> None:
 def _marker_model(path: str, spec) -> MarkerModel:
     if not (np.isfinite(spec.size_m) and spec.size_m > 0):
         raise SessionContentError(f"{path}: marker size {spec.size_m:g} m: expected a positive size")
+    if spec.size_m > MAX_MARKER_SIZE_M:
+        raise SessionContentError(f"{path}: marker size {spec.size_m:g} m: expected at most {MAX_MARKER_SIZE_M:g} m "
+                                  "(the side of a printed or displayed marker)")
     T_body_marker = _static_pose(path, f"marker pose on the body ({Topic.CONTROLLER_MARKER})",
                                  lambda pose: codec.pose_of(pose, required=False), spec.pose_in_body)
     return MarkerModel(dictionary=spec.dictionary, id=int(spec.id), size_m=float(spec.size_m),

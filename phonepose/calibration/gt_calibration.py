@@ -1,0 +1,212 @@
+"""The ground-truth calibration file: what ties a ground truth to the display, applied by
+``playback/evaluate/batch/experiment --gt-calibration FILE`` (docs/calibration.md#the-calibration-file).
+
+One format for both calibration commands: OpenCV FileStorage YAML (like the camera calibration
+file), ``format: phonepose-gt-calibration``, ``version: 1``. Keys:
+
+* ``method``: ``calibrate-gt`` or ``calibrate-hand-eye``;
+* ``time_offset_s``: ground-truth stamps minus recorder stamps of the same instant;
+* ``T_controller_gt`` (4x4): the tracked body (mocap rigid body, controller grip) in the phone's
+  body frame (X of A X = Z B);
+* ``T_world_display_vio`` (4x4, calibrate-gt only): display_vio in the ground truth's world; it
+  replaces the session's ``/gt/calibration``. Absent: the session's own is used;
+* ``T_world_camera`` (4x4, informational): the display camera in that world (median display pose);
+* quality, informational: ``sightings``/``motions``, ``residual_mm``, ``residual_deg``,
+  ``sigma_time_offset_ms``, ``sigma_world_rotation_deg``, ``sigma_world_translation_mm``,
+  ``sigma_body_rotation_deg``, ``sigma_body_translation_mm`` (1σ, see docs), ``session``,
+  ``ground_truth`` (``/gt/controller/pose`` or the trajectory file's name).
+
+A hand-eye file of earlier versions (``T_controller_mocap``, no ``format`` key) loads as version 0.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from phonepose.errors import InputFileError
+from phonepose.geometry import Pose
+
+FORMAT = "phonepose-gt-calibration"
+VERSION = 1
+SIGMA_KEYS = ("sigma_time_offset_ms", "sigma_world_rotation_deg", "sigma_world_translation_mm",
+              "sigma_body_rotation_deg", "sigma_body_translation_mm")
+SUFFIXES = (".yaml", ".yml")
+WHAT = "a YAML calibration file"
+
+
+@dataclass(frozen=True)
+class GtCalibration:
+    T_controller_gt: Pose                    # X: the tracked body in the phone's body frame
+    time_offset_s: float                     # ground-truth stamps minus recorder stamps
+    T_world_display_vio: Pose | None = None  # replaces /gt/calibration when given
+    T_world_camera: Pose | None = None       # informational
+    method: str = "calibrate-gt"
+    samples: int = 0                         # sightings (calibrate-gt) or motions (calibrate-hand-eye)
+    residual_mm: float = float("nan")
+    residual_deg: float = float("nan")
+    sigma: dict[str, float] = field(default_factory=dict)   # SIGMA_KEYS that were estimated
+    session: str = ""
+    ground_truth: str = ""
+    warnings: tuple[str, ...] = ()           # not in the file: printed by the command
+    version: int = VERSION
+
+    @property
+    def body_rotation_deg(self) -> float:
+        return float(np.degrees(self.T_controller_gt.rotation.magnitude()))
+
+    def with_(self, **changes) -> "GtCalibration":
+        return replace(self, **changes)
+
+    def apply(self, stamps_s: np.ndarray | None, T_world_grip: Pose) -> tuple[np.ndarray | None, Pose]:
+        """A ground truth re-expressed as playback does it: on the recorder's clock, of the phone's body
+        (T_world_grip · X⁻¹) and, when this calibration has its world, in display_vio."""
+        poses = T_world_grip @ self.T_controller_gt.inv()
+        if self.T_world_display_vio is not None:
+            poses = self.T_world_display_vio.inv() @ poses
+        return (None if stamps_s is None else np.asarray(stamps_s, dtype=float) - self.time_offset_s), poses
+
+    def metrics_note(self, name: str) -> dict:
+        """What metrics.json records under ``ground_truth`` about the calibration applied."""
+        note: dict = {"calibration_file": name, "method": self.method,
+                      "time_offset_s": round(self.time_offset_s, 6),
+                      "body_rotation_deg": round(self.body_rotation_deg, 6),
+                      "body_translation_m": [round(float(v), 6) for v in self.T_controller_gt.translation],
+                      "world_display_vio": "calibrated" if self.T_world_display_vio is not None else "session"}
+        if self.ground_truth:
+            note["ground_truth"] = self.ground_truth
+        return note
+
+
+def _write_pose(fs: cv2.FileStorage, key: str, pose: Pose | None) -> None:
+    if pose is not None:
+        fs.write(key, pose.as_matrix())
+
+
+def calibration_text(cal: GtCalibration) -> str:
+    from phonepose.calibration.camera_file import opencv_text
+
+    def write(fs: cv2.FileStorage) -> None:
+        fs.write("format", FORMAT)
+        fs.write("version", VERSION)
+        fs.write("method", cal.method)
+        fs.write("time_offset_s", float(cal.time_offset_s))
+        _write_pose(fs, "T_controller_gt", cal.T_controller_gt)
+        _write_pose(fs, "T_world_display_vio", cal.T_world_display_vio)
+        _write_pose(fs, "T_world_camera", cal.T_world_camera)
+        fs.write("sightings" if cal.method == "calibrate-gt" else "motions", int(cal.samples))
+        for key, value in (("residual_mm", cal.residual_mm), ("residual_deg", cal.residual_deg),
+                           *((k, cal.sigma[k]) for k in SIGMA_KEYS if k in cal.sigma)):
+            if math.isfinite(value):
+                fs.write(key, float(value))
+        if cal.session:
+            fs.write("session", cal.session)
+        if cal.ground_truth:
+            fs.write("ground_truth", cal.ground_truth)
+    return opencv_text(write, ".yaml")
+
+
+def save_gt_calibration(path: "str | os.PathLike", cal: GtCalibration, option: str = "--out",
+                        inputs: Sequence["str | os.PathLike"] = ()) -> None:
+    """Written by the output rule (phonepose.files: checked, temporary name, atomic rename)."""
+    from phonepose.files import write_text_output
+
+    write_text_output(path, calibration_text(cal), option, inputs=inputs, suffixes=SUFFIXES, what=WHAT)
+
+
+def _real(fs: cv2.FileStorage, key: str, default: float = float("nan")) -> float:
+    node = fs.getNode(key)
+    return node.real() if not node.empty() else default
+
+
+def _text(fs: cv2.FileStorage, key: str) -> str:
+    node = fs.getNode(key)
+    return node.string() if not node.empty() and node.isString() else ""
+
+
+def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | None:
+    node = fs.getNode(key)
+    if node.empty():
+        if required:
+            raise InputFileError(f"{path}: not a ground-truth calibration file (expected a 4x4 matrix {key})")
+        return None
+    T = node.mat()
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise InputFileError(f"{path}: {key} is not a finite 4x4 matrix")
+    R = T[:3, :3]
+    if abs(np.linalg.det(R) - 1) > 1e-6 or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
+        raise InputFileError(f"{path}: {key}'s rotation part is not a rotation matrix")
+    return Pose.from_matrix(T)
+
+
+def load_gt_calibration(path: "str | os.PathLike", what: str = "calibration") -> GtCalibration:
+    """A file of ``save_gt_calibration`` or an older hand-eye file; a bad one is an InputFileError (exit 2)."""
+    from phonepose.calibration.camera_file import open_yaml
+
+    path = Path(path)
+    fs = open_yaml(path, what)
+    try:
+        fmt = _text(fs, "format")
+        version = int(_real(fs, "version", 0)) if fmt else 0
+        if fmt and fmt != FORMAT:
+            raise InputFileError(f"{path}: format {fmt!r}, expected {FORMAT!r}")
+        if version > VERSION:
+            raise InputFileError(f"{path}: version {version} is newer than this phonepose reads ({VERSION})")
+        X = _pose(path, fs, "T_controller_gt" if version else "T_controller_mocap", required=True)
+        offset = _real(fs, "time_offset_s", 0.0)
+        cal = GtCalibration(
+            T_controller_gt=X, time_offset_s=float(offset),    # type: ignore[arg-type]
+            T_world_display_vio=_pose(path, fs, "T_world_display_vio", required=False),
+            T_world_camera=_pose(path, fs, "T_world_camera", required=False),
+            method=_text(fs, "method") or "calibrate-hand-eye",
+            samples=int(_real(fs, "sightings", _real(fs, "motions", _real(fs, "pairs", 0)))),
+            residual_mm=_real(fs, "residual_mm"), residual_deg=_real(fs, "residual_deg"),
+            sigma={k: _real(fs, k) for k in SIGMA_KEYS if not fs.getNode(k).empty()},
+            session=_text(fs, "session"), ground_truth=_text(fs, "ground_truth"), version=version)
+    finally:
+        fs.release()
+    if not (math.isfinite(cal.time_offset_s) and abs(cal.time_offset_s) <= 10):
+        raise InputFileError(f"{path}: time_offset_s {cal.time_offset_s!r} is not a clock offset in seconds")
+    return cal
+
+
+@dataclass(frozen=True)
+class GroundTruthSetup:
+    """What a playback applies to its ground truth (``--gt-calibration FILE``, ``--gt FILE``), read and
+    checked before any work."""
+
+    calibration: GtCalibration | None = None
+    calibration_path: str | None = None
+    series: object | None = None          # a calibration.ground_truth.GroundTruthSeries (--gt FILE)
+    note: dict | None = None              # metrics.json's "ground_truth"
+    rerun_params: dict = field(default_factory=dict)   # what makes the Rerun recording id differ
+
+
+def ground_truth_setup(calibration: "str | os.PathLike | GtCalibration | None", calibration_name: str | None = None,
+                       gt_file: "str | os.PathLike | None" = None, gt_format: str | None = None) -> GroundTruthSetup:
+    """The calibration file and the sidecar ground truth, loaded (one line and exit 2 for a bad file)."""
+    import hashlib
+
+    cal: GtCalibration | None
+    if isinstance(calibration, GtCalibration):      # calibrated in memory (batch --calibrate-gt)
+        cal, name, path = calibration, calibration_name or "calibrate-gt", None
+    elif calibration is not None:
+        cal, name, path = load_gt_calibration(calibration), calibration_name or os.fspath(calibration), os.fspath(calibration)
+    else:
+        cal, name, path = None, "", None
+    series = None
+    note = cal.metrics_note(name) if cal is not None else None
+    params: dict = {}
+    if gt_file is not None:
+        from phonepose.calibration.ground_truth import file_ground_truth
+
+        series = file_ground_truth(gt_file, gt_format)
+        note = {**(note or {}), "ground_truth_file": os.fspath(gt_file)}
+        params["gt_file"] = hashlib.sha256(Path(gt_file).read_bytes()).hexdigest()
+    return GroundTruthSetup(cal, path, series, note, params)

@@ -1,0 +1,115 @@
+"""What an AR input designer reads about a tracker, beside its error: lag, jitter, availability.
+
+Formulas (docs/evaluation.md, "AR-controller metrics"); every input is on the task's ticks, ``gt``
+and ``est`` associated (the same stamps) unless said otherwise:
+
+- **lag** [s]: the time shift ``τ`` that minimises the RMS position error of the estimate moved
+  earlier by ``τ``: ``argmin_τ sqrt(mean_k ‖p_est(t_k + τ) − p_gt(t_k)‖²)``, ``p_est`` linearly
+  interpolated between its stamps, over the ``t_k`` where ``t_k + τ`` lies inside them, ``τ`` on a
+  grid of ``resolution_s`` (5 ms) in ``[−max_shift_s, max_shift_s]``. Positive: the estimate is
+  late. The resolution is the grid step; between the 20 Hz ticks the estimate is a straight line.
+- **jitter** [m, deg]: the high-pass part of the error ``e_k = p_est,k − p_gt,k`` (and of the
+  rotation error ``log(R_est,k R_gt,kᵀ)``) while the phone is held still: the RMS second difference
+  ``sqrt(Σ ‖e_{k+1} − 2e_k + e_{k−1}‖² / (6 n))`` over the ``n`` runs of three consecutive still
+  ticks. Constant and linearly drifting errors give 0; white noise of σ per axis gives ``σ√3``
+  (the RMS length of the 3-D noise vector). Held still: the ground truth moves less than
+  ``still_m`` over ``still_window_s`` centred on the tick (tremor alone stays below it).
+- **availability**: the fraction of the task's ticks (those with ground truth) at which the
+  tracker gave a pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from phonepose.geometry import Pose
+
+LAG_RESOLUTION_S = 0.005     # the lag grid: finer than a tick (50 ms), coarser than the stamps' jitter
+LAG_MAX_SHIFT_S = 0.5        # > any latency of the simulated or real streams (~0.15 s)
+STILL_WINDOW_S = 0.5         # "held still": the truth moves less than STILL_M over this window ...
+STILL_M = 0.01               # ... (hand tremor is ~1 mm; a pointing movement is 10-40 cm)
+_JITTER_NOISE = 6.0          # E‖Δ²e‖² = 6 σ² per axis for white noise of σ
+
+
+def lag(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.ndarray, est_positions: np.ndarray,
+        resolution_s: float = LAG_RESOLUTION_S, max_shift_s: float = LAG_MAX_SHIFT_S) -> float | None:
+    """The shift (s) of the estimate that best matches the truth (None: fewer than 2 estimates)."""
+    t_est = np.asarray(est_stamps_s, dtype=float)
+    p_est = np.asarray(est_positions, dtype=float).reshape(-1, 3)
+    t_gt = np.asarray(stamps_s, dtype=float)
+    p_gt = np.asarray(gt_positions, dtype=float).reshape(-1, 3)
+    if t_est.size < 2 or t_gt.size == 0:
+        return None
+    steps = int(round(max_shift_s / resolution_s))
+    best, best_err = None, np.inf
+    for k in range(-steps, steps + 1):
+        tau = k * resolution_s
+        q = t_gt + tau
+        use = (q >= t_est[0]) & (q <= t_est[-1])
+        if use.sum() < max(2, t_gt.size // 2):      # the shifted window must keep most of the task
+            continue
+        moved = np.column_stack([np.interp(q[use], t_est, p_est[:, i]) for i in range(3)])
+        err = float(np.mean(np.sum((moved - p_gt[use]) ** 2, axis=1)))
+        if err < best_err:                          # ties: the earliest (most negative) shift
+            best, best_err = tau, err
+    return best
+
+
+def still_ticks(stamps_s: np.ndarray, gt_positions: np.ndarray, window_s: float = STILL_WINDOW_S,
+                still_m: float = STILL_M) -> np.ndarray:
+    """Per tick: the truth moves less than ``still_m`` between ``t - window/2`` and ``t + window/2``."""
+    t = np.asarray(stamps_s, dtype=float)
+    p = np.asarray(gt_positions, dtype=float).reshape(-1, 3)
+    if t.size < 2:
+        return np.zeros(t.size, bool)
+    inside = (t - window_s / 2 >= t[0]) & (t + window_s / 2 <= t[-1])
+    a = np.column_stack([np.interp(t - window_s / 2, t, p[:, i]) for i in range(3)])
+    b = np.column_stack([np.interp(t + window_s / 2, t, p[:, i]) for i in range(3)])
+    return inside & (np.linalg.norm(b - a, axis=1) < still_m)
+
+
+def _second_difference_rms(errors: np.ndarray, ok: np.ndarray) -> float | None:
+    triple = ok[:-2] & ok[1:-1] & ok[2:]
+    if not triple.any():
+        return None
+    d2 = errors[2:] - 2 * errors[1:-1] + errors[:-2]
+    return float(np.sqrt(np.sum(d2[triple] ** 2) / (_JITTER_NOISE * triple.sum())))
+
+
+def jitter(stamps_s: np.ndarray, gt: Pose, est: Pose, still: np.ndarray,
+           tick_s: float | None = None) -> tuple[float | None, float | None]:
+    """(position jitter m, rotation jitter deg) over runs of 3 consecutive still ticks (None: no such run).
+
+    ``stamps_s``: the associated stamps; ticks further apart than 1.5 ``tick_s`` (a gap: no
+    estimate in between) do not form a run (``tick_s`` defaults to the median spacing)."""
+    t = np.asarray(stamps_s, dtype=float)
+    if t.size < 3:
+        return None, None
+    dt = np.diff(t)
+    gap = dt > 1.5 * (float(np.median(dt)) if tick_s is None else tick_s)
+    ok = np.asarray(still, dtype=bool).copy()
+    ok[1:-1] &= ~gap[:-1] & ~gap[1:]          # the middle of a triple: both its gaps one tick
+    pos_err = np.atleast_2d(est.translation) - np.atleast_2d(gt.translation)
+    rot_err = np.degrees((est.rotation * gt.rotation.inv()).as_rotvec().reshape(-1, 3))
+    return _second_difference_rms(pos_err, ok), _second_difference_rms(rot_err, ok)
+
+
+def availability(task_ticks: int, ticks_with_estimate: int) -> float | None:
+    """Fraction of the task's ticks at which the tracker gave a pose (None: no task tick)."""
+    return None if task_ticks <= 0 else ticks_with_estimate / task_ticks
+
+
+def controller_metrics(gt_stamps_s: np.ndarray, gt: Pose, est_stamps_s: np.ndarray, est: Pose,
+                       common_s: np.ndarray, i_gt: np.ndarray, i_est: np.ndarray) -> dict:
+    """Lag, jitter and availability of one tracker in the metrics.json layout (``None``: not computable).
+
+    ``gt``/``est`` are the task's ground truth and the tracker's poses at their stamps;
+    ``common_s``, ``i_gt``, ``i_est``: the association (stamps both have, and their indices)."""
+    gt_p = np.atleast_2d(gt.translation)
+    est_p = np.atleast_2d(est.translation)
+    still = still_ticks(gt_stamps_s, gt_p)
+    j_p, j_r = jitter(common_s, gt[i_gt], est[i_est], still[i_gt]) if common_s.size else (None, None)
+    return {"lag_s": lag(gt_stamps_s, gt_p, est_stamps_s, est_p), "lag_resolution_s": LAG_RESOLUTION_S,
+            "jitter_m": j_p, "jitter_deg": j_r, "still_ticks": int(still[i_gt].sum()) if common_s.size else 0,
+            "availability": availability(int(np.asarray(gt_stamps_s).size), int(common_s.size))}
+
