@@ -72,6 +72,7 @@ def file_ground_truth(path: "str | os.PathLike", fmt: str | None = None) -> Grou
 
     check_input(path, "ground-truth file")
     traj = load_trajectory(path, gt_format_of(path, fmt))
+    assert traj.stamps is not None   # TUM and EuRoC files are stamped (only KITTI is not)
     series = unique_ascending(traj.stamps, traj.poses, os.fspath(path))
     if len(series) < 2:
         raise SessionContentError(f"{path}: fewer than 2 poses: not a ground-truth trajectory")

@@ -42,7 +42,8 @@ class PageSocket:
         returns False, or :meth:`close` is asked; in the last case close with its code here."""
         reader = asyncio.ensure_future(self._read(handle))
         try:
-            await asyncio.wait({reader, self._close_asked}, return_when=asyncio.FIRST_COMPLETED)
+            waiting: set[asyncio.Future] = {reader, self._close_asked}   # (a task and a future: no common result type)
+            await asyncio.wait(waiting, return_when=asyncio.FIRST_COMPLETED)
         finally:
             if not reader.done():
                 reader.cancel()
