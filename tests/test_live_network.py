@@ -16,7 +16,10 @@ import pytest
 
 from phonepose.schemas.topics import Topic
 from conftest import wait_until_async
-from test_record_live import Phone, _finish, _messages, _start, _wait_video_start, long_media, media  # noqa: F401
+import test_record_live
+from test_record_live import Phone, _finish, _messages, _start, _wait_video_start
+
+long_media, media = test_record_live.long_media, test_record_live.media   # its fixtures, requested here by name
 
 
 class SlowPhone(Phone):
