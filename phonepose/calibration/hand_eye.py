@@ -23,7 +23,6 @@ not remove it. Measure it with a ruler and pass it in (``--translation``).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
