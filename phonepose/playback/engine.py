@@ -24,7 +24,7 @@ import time
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.codec import pose_in_frame
 from phonepose.viewer.annotations import marker_annotations
+
+if TYPE_CHECKING:
+    from phonepose.calibration.gt_calibration import GtCalibration
 
 
 @dataclass
@@ -118,7 +121,8 @@ def _default_trackers(names: list[str], correction_math: str) -> list[Tracker]:
 def _detections_message(stages, obs: Observation):
     fn = getattr(stages, "detections_message", None)
     if fn is None:
-        from phonepose.pipeline.shared import detections_message as fn
+        from phonepose.pipeline.shared import detections_message
+        fn = detections_message
     return fn(obs)
 
 
@@ -237,7 +241,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
                  progress: Callable[[int, int], None] | None = None, write_outputs: bool = True,
                  stages_factory: Callable[[SessionContext], object] | None = None,
                  tracker_factory: Callable[[list[str], str], list[Tracker]] | None = None,
-                 gt_calibration: str | os.PathLike | None = None, gt_calibration_name: str | None = None,
+                 gt_calibration: str | os.PathLike | GtCalibration | None = None, gt_calibration_name: str | None = None,
                  gt_file: str | os.PathLike | None = None, gt_format: str | None = None,
                  hand_eye: str | os.PathLike | None = None, hand_eye_name: str | None = None) -> PlaybackResult:
     """Play ``session`` back through ``trackers`` and write the outputs into ``out_dir``.
@@ -319,7 +323,7 @@ def run_playback(session: str | os.PathLike, trackers: Iterable[str] | str = ("a
             Topic.CAMERA_IMAGE, undecodable)
     trajs = engine.trajectories()
     for c in engine.collectors.values():
-        c.__init__()   # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
+        _Collector.__init__(c)   # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
     per_tracker = engine.metrics(trajs)
     gt_stamps = engine.gt.stamps()
     gt = engine.gt.poses()

@@ -30,7 +30,7 @@ import bisect
 import logging
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -202,7 +202,7 @@ class TickScheduler:
         start_ns, end_ns = self._span(reader, summary)
         self.span_ns = (start_ns, end_ns)
         t0 = None
-        for schema, channel, m in reader.raw_messages([origin_topic], start_ns=start_ns, end_ns=end_ns + 1):
+        for _schema, _channel, m in reader.raw_messages([origin_topic], start_ns=start_ns, end_ns=end_ns + 1):
             t0 = m.log_time
             break
         if t0 is None:
@@ -252,7 +252,7 @@ class TickScheduler:
         controller = PoseStream()
         gt = PoseStream()
         if self.has_gt and self._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
-            for t_ns, raw in zip(*self._gt_series.raw_samples()):
+            for t_ns, raw in zip(*self._gt_series.raw_samples(), strict=True):
                 gt.add(int(t_ns) - self._gt_shift_ns, raw)
         images: deque = deque()            # (log_time, CompressedImage), newest at or before next tick kept
         d_anchor: deque = deque()           # (log_time, Pose)
@@ -260,7 +260,8 @@ class TickScheduler:
         imu: list = []                      # (log_time, row)
         cvio_samples: list = []             # (log_time, capture_ns, raw): controller VIO with its capture stamp
         events: list = []                   # (log_time, CalibrationEvent)
-        state = {"image": None, "image_t": None, "display_cache": (None, None), "d_anchor": None, "c_anchor": None}
+        state: dict[str, Any] = {"image": None, "image_t": None, "display_cache": (None, None), "d_anchor": None,
+                                 "c_anchor": None}
         next_t = info.first_tick_ns
         index = 0
         # Nothing after this is needed: the last tick plus the look-ahead.
@@ -320,6 +321,7 @@ class TickScheduler:
                 if T_world_ctrl is not None:
                     if self._T_mocap_controller is not None:
                         T_world_ctrl = raw_compose(T_world_ctrl, self._T_mocap_controller)
+                    assert self._T_dvio_world is not None   # has_gt needs it
                     gt_pose = Pose.from_raw(raw_compose(self._T_dvio_world, T_world_ctrl))
             ctx = self.context
             in_task = True
@@ -393,8 +395,10 @@ class TickScheduler:
                 if self.has_gt and self._gt_series is None:
                     gt.add(now - self._gt_shift_ns, raw)
             elif topic == Topic.DISPLAY_ANCHOR:
+                assert raw is not None   # a pose topic: read above
                 d_anchor.append((now, Pose.from_raw(raw)))
             elif topic == Topic.CONTROLLER_ANCHOR:
+                assert raw is not None   # a pose topic: read above
                 c_anchor.append((now, Pose.from_raw(raw)))
             elif topic == Topic.CONTROLLER_IMU:
                 if now <= info.first_tick_ns - self.period_ns:
