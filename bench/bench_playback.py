@@ -120,16 +120,18 @@ def _plain_floor(jpegs: list[bytes], dictionary: str) -> float:
     return time.perf_counter() - t0
 
 
-def long_session(tmp: Path) -> dict:
-    """Part 1: ``--tracker all`` on exp1 against decode + plain detectMarkers of every frame."""
+def long_session(tmp: Path, session: Path | None = None) -> dict:
+    """Part 1: ``--tracker all`` on exp1 against decode + plain detectMarkers of every frame
+    (``session``: an exp1 session recorded before, else one is recorded into ``tmp``)."""
     import statistics
 
     from phonepose.pipeline.context import read_context
     from phonepose.session import SessionReader
 
-    session = tmp / "exp1.mcap"
-    subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", "--scenario", "exp1", "--seed", "0",
-                    "--out", str(session), "-q"], check=True, capture_output=True, timeout=1800)
+    if session is None:
+        session = tmp / "exp1.mcap"
+        subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", "--scenario", "exp1", "--seed", "0",
+                        "--out", str(session), "-q"], check=True, capture_output=True, timeout=1800)
     jpegs = _all_frames(session)
     with SessionReader(session) as r:
         dictionary = read_context(r).marker.dictionary

@@ -119,7 +119,8 @@ class _Output:
         parent = self._parent()
         shown = self.path.parent if str(self.path.parent) not in ("", ".") or self.path.is_absolute() else Path(".")
         if not parent.is_dir():
-            raise OutputError(f"{self.option} {self.path}: directory {shown} does not exist")
+            why = f"{shown} is not a directory" if os.path.lexists(parent) else f"directory {shown} does not exist"
+            raise OutputError(f"{self.option} {self.path}: {why}")
         if not os.access(parent, os.W_OK | os.X_OK):
             try:
                 read_only = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)

@@ -392,7 +392,11 @@ def quat_matrix(q: Quat) -> list[list[float]]:
 
 def quat_apply(q: Quat, v) -> np.ndarray:
     """``Rotation.apply(v)`` of one rotation to one vector (3,)."""
-    return np.matmul(np.array(quat_matrix(q)), np.asarray(v, dtype=float))
+    v = np.asarray(v, dtype=float)
+    m = np.array(quat_matrix(q))
+    # ndarray.dot reaches the same BLAS gemv call as np.matmul at half its overhead; a strided vector
+    # keeps np.matmul, scipy's own call (the kernel for strided input may round differently)
+    return m.dot(v) if v.flags.c_contiguous else np.matmul(m, v)
 
 
 def quat_magnitude(q: Quat) -> float:

@@ -172,6 +172,32 @@ def test_lost_first_chunk_channels_come_from_the_summary(session, tmp_path):
     assert _keys(read_keys(tmp_path / "fixed.mcap")) == _keys(keys) - _chunk_messages(path, c)
 
 
+def test_a_damaged_summary_never_renames_a_recovered_channel(session, tmp_path):
+    """A flipped bit in a topic of the summary's Channel record: the summary fails its CRC; the chunks' own
+    channel definitions win, and topics that only the damaged summary names (their chunk lost) are listed."""
+    from phonepose.cli.recover import report_lines
+
+    path, data, chunks, keys = session
+    at = data.rindex(b"/controller/vio/pose") + 3          # the summary's copy: /cootroller/...
+    assert at > chunks[-1].chunk_start_offset + chunks[-1].chunk_length
+    r = salvage(_write(tmp_path / "t.mcap", _flip(data, [at])), tmp_path / "a.mcap")
+    assert r.summary_damaged and r.channels_from_damaged_summary == []
+    assert read_keys(tmp_path / "a.mcap") == keys          # every channel came from the chunks
+    assert "  the summary section fails its CRC: not used, every channel is defined in the chunks" in report_lines(r)
+    both = _flip(data, [at, chunks[0].chunk_start_offset + 100])
+    r = salvage(_write(tmp_path / "u.mcap", both), tmp_path / "b.mcap")
+    damaged_topic = bytes(_flip(b"/controller/vio/pose", [3])).decode("latin-1")
+    assert r.summary_damaged and damaged_topic in r.channels_from_damaged_summary
+    line = [x for x in report_lines(r) if "fails its CRC" in x][0]
+    assert line.startswith("  the summary section fails its CRC; these topics are named only there (their chunk "
+                           "was lost), check them: ")
+
+
+def _write(p, data: bytes):
+    p.write_bytes(data)
+    return p
+
+
 def test_lost_first_chunk_of_a_truncated_file_is_reported(session, tmp_path):
     """Without a summary the channel definitions die with the first chunk: said so, exit 3 if nothing is left."""
     path, data, chunks, _ = session

@@ -41,6 +41,8 @@ def test_the_task_is_the_recorded_motion_moved_rigidly_into_the_workspace():
 
 
 def test_motion_scale_shrinks_the_displacements():
+    w = load_window(MotionSpec(FR2, start_s=50.0, duration_s=20.0, scale=0.3))   # fr2_desk's duplicate stamp is dropped
+    assert np.all(np.diff(w.t) > 0) and w.t[-1] == pytest.approx(20.0, abs=0.05)
     w1, w2 = load_window(MotionSpec(FR1, duration_s=5.0)), load_window(MotionSpec(FR1, duration_s=5.0, scale=0.5))
     np.testing.assert_allclose(w2.poses.translation, 0.5 * w1.poses.translation, atol=1e-15)
 

@@ -126,9 +126,12 @@ def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
         return {}
     try:
         table = pq.read_table(path, page_checksum_verification=True)
-        names = table.column_names   # the footer's schema has no checksum: a flipped bit can leave a name invalid UTF-8
-    except (pa.ArrowException, OSError, UnicodeDecodeError) as exc:
+        names = table.column_names
+        rows = table.to_pylist()
+    except (pa.ArrowException, OSError) as exc:
         raise _refuse(path, f"exists but is not a readable Parquet table ({' '.join(str(exc).split())})") from None
+    except (UnicodeDecodeError, ValueError, TypeError):      # a flipped bit in a column name or a string value
+        raise _refuse(path, "exists but is not a readable Parquet table (text that is not UTF-8)") from None
     missing = [c for c in REQUIRED if c not in names]
     if missing:
         raise _refuse(path, f"is not a phonepose batch table (no column {', '.join(missing)})")
@@ -137,7 +140,6 @@ def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
             got = table.schema.field(name).type
             if got != want and not pa.types.is_null(got):
                 raise _refuse(path, f"is not a phonepose batch table (column {name} is {got}, not {want})")
-    rows = table.to_pylist()
     want_hash = (table.schema.metadata or {}).get(CHECKSUM_KEY)
     if want_hash is not None and want_hash.decode(errors="replace") != content_hash(rows):
         raise _refuse(path, "does not match its checksum: it changed on the disk after phonepose wrote it")

@@ -76,8 +76,9 @@ def playback(
     gt_format: Optional[str] = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
 ) -> None:
     """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
+    from phonepose.files import OutputPlan, check_input
     from phonepose.pipeline.trackers import make_trackers
-    from phonepose.playback.engine import run_playback
+    from phonepose.playback.engine import default_out_dir, run_playback
 
     if rerun is not None and spawn:
         raise ConfigError("--rerun and --spawn are exclusive: give one")
@@ -85,18 +86,30 @@ def playback(
         raise ConfigError(f"--end ({end}) must be after --start ({start})")
     correction_math = correction_math.value
     make_trackers(tracker, correction_math)  # unknown names fail here, before any work
+    # the output rule (phonepose.files): the folder and the .rrd are written under temporary names and put in
+    # place whole when the playback is complete, so no file of an earlier run survives beside the new ones and a
+    # failed or killed run leaves the earlier output as it was; a second playback into the same --out stops
+    named = [(session, "session"), (gt_calibration, "calibration file"), (gt, "ground-truth file")]
+    inputs = [p for p, _ in named if p is not None]
+    for p, what in named:
+        if p is not None:
+            check_input(p, what)   # before any side effect: a missing file, a FIFO or a device is one line at once
+    plan = OutputPlan(inputs=inputs)
+    folder = plan.dir(out if out is not None else default_out_dir(session), "--out", command="playback")
+    rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
     console = Console(stderr=True)
-    with Progress(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
-                  TimeRemainingColumn(), console=console, disable=quiet, transient=True) as bar:
+    with plan, Progress(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
+                        TimeRemainingColumn(), console=console, disable=quiet, transient=True) as bar:
         task = bar.add_task("ticks", total=None)
 
         def progress(done: int, total: int) -> None:
             if done == 1 or done % 10 == 0 or done == total:
                 bar.update(task, completed=done, total=total)
 
-        result = run_playback(session, trackers=tracker, out_dir=out, rate_hz=rate, correction_math=correction_math,
-                              rerun_path=rerun, spawn=spawn, start_s=start, end_s=end, realtime=realtime,
-                              progress=progress, gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
+        result = run_playback(session, trackers=tracker, out_dir=folder.tmp, rate_hz=rate,
+                              correction_math=correction_math, rerun_path=rrd.tmp if rrd is not None else None,
+                              spawn=spawn, start_s=start, end_s=end, realtime=realtime, progress=progress,
+                              gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
     stdout_console().print(metrics_table(result.metrics))
     if not result.has_gt:
         typer.echo(f"no usable ground truth (needs {Topic.GT_CONTROLLER_POSE} and {Topic.GT_CALIBRATION} within the "
@@ -107,5 +120,5 @@ def playback(
         where = " and display_vio" if gt_note["world_display_vio"] == "calibrated" else ""
         typer.echo(f"ground truth moved into the phone's frame, clock{where} ({gt_note['calibration_file']}: "
                    f"{gt_note['body_rotation_deg']:.2f} deg, ground-truth clock {gt_note['time_offset_s'] * 1e3:+.1f} ms)")
-    typer.echo(f"{result.n_ticks} ticks in {result.wall_s:.1f} s -> {result.out_dir}"
-               + (f", rerun: {result.rerun_path}" if result.rerun_path else ""))
+    typer.echo(f"{result.n_ticks} ticks in {result.wall_s:.1f} s -> {folder.path}"
+               + (f", rerun: {rrd.path}" if rrd is not None else ""))

@@ -43,6 +43,11 @@ def report_lines(r: RecoveryReport) -> list[str]:
         lines.append(f"  {s.bytes} bytes: {what}")
     if r.orphan_messages:
         lines.append(f"  {r.orphan_messages} messages dropped: their channel definition was in a lost chunk")
+    if r.summary_damaged:
+        lines.append("  the summary section fails its CRC" + (
+            f"; these topics are named only there (their chunk was lost), check them: "
+            f"{', '.join(r.channels_from_damaged_summary)}" if r.channels_from_damaged_summary else
+            ": not used, every channel is defined in the chunks"))
     if not r.had_summary:
         lines.append("  the file ends before its footer (recording interrupted or file cut): "
                      "anything not yet written to disk is gone")
@@ -73,6 +78,7 @@ def recover(
             "chunks_recovered": r.chunks_recovered, "chunks_skipped": r.chunks_skipped,
             "bytes_unreadable": r.bytes_unreadable, "file_size": r.file_size, "time_lost_s": r.time_lost_s,
             "orphan_messages": r.orphan_messages, "had_summary": r.had_summary,
+            "summary_damaged": r.summary_damaged, "channels_from_damaged_summary": r.channels_from_damaged_summary,
             "start_ns": r.start_ns, "end_ns": r.end_ns,
             "lost": [{"start_ns": s.start_ns, "end_ns": s.end_ns, "bytes": s.bytes} for s in r.lost],
         }, indent=2))

@@ -49,8 +49,17 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
-from phonepose.geometry import (Pose, Quat, is_finite, quat_as_rotvec, quat_from_rotvec, quat_inv, quat_matrix,
-                                quat_mul, quat_normalised)
+from phonepose.geometry import (
+    Pose,
+    Quat,
+    is_finite,
+    quat_as_rotvec,
+    quat_from_rotvec,
+    quat_inv,
+    quat_matrix,
+    quat_mul,
+    quat_normalised,
+)
 from phonepose.pipeline.types import Observation
 
 # Per tick, T8 works on single poses as (quaternion tuple, translation array) pairs with the closed-form
@@ -113,7 +122,7 @@ class FusionConfig:
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
 
     @classmethod
-    def from_dict(cls, values: dict) -> "FusionConfig":
+    def from_dict(cls, values: dict) -> FusionConfig:
         known = {f.name: f.type for f in fields(cls)}
         unknown = sorted(set(values) - set(known))
         if unknown:

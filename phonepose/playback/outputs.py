@@ -15,9 +15,8 @@ from typing import Any
 import numpy as np
 
 from phonepose.errors import OutputError
-from phonepose.geometry import Pose
-
 from phonepose.evaluation.metrics import SCOPES
+from phonepose.geometry import Pose
 
 
 def empty_scope(scope: str = "inside") -> dict:

@@ -363,6 +363,11 @@ def _read_record(op: int, body: bytes, length: int, path: str, pos: int):
         raise damaged(path, f"the record at byte {pos} does not parse") from None
 
 
+def _time(index: SessionIndex, m: Message) -> None:
+    if index.times is not None:
+        index.times.setdefault(m.channel_id, []).append(m.log_time)
+
+
 def _add(index: SessionIndex, counts: dict[int, int], r) -> None:
     if isinstance(r, Schema):
         index.schemas.setdefault(r.id, r)
@@ -370,8 +375,7 @@ def _add(index: SessionIndex, counts: dict[int, int], r) -> None:
         index.channels.setdefault(r.id, r)
     elif isinstance(r, Message):
         index.loose.append(r)
-        assert index.times is not None   # the data-section scan starts with times={}
-        index.times.setdefault(r.channel_id, []).append(r.log_time)
+        _time(index, r)
         counts[r.channel_id] = counts.get(r.channel_id, 0) + 1
 
 
@@ -387,8 +391,7 @@ def _scan_chunk(index: SessionIndex, counts: dict[int, int], body: bytes, path: 
     for r in chunk_records(chunk, path, pos, t0):
         if isinstance(r, Message):
             in_chunk[r.channel_id] = in_chunk.get(r.channel_id, 0) + 1
-            assert index.times is not None   # the data-section scan starts with times={}
-            index.times.setdefault(r.channel_id, []).append(r.log_time)
+            _time(index, r)
             lo = r.log_time if lo is None else min(lo, r.log_time)
             hi = r.log_time if hi is None else max(hi, r.log_time)
         else:

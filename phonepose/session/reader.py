@@ -96,9 +96,9 @@ class SessionReader:
         except PhoneposeError:
             self._file.close()
             raise
-        except Exception as exc:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
+        except Exception:  # noqa: BLE001 - any parse failure of a damaged file (MemoryError, struct.error, ...)
             self._file.close()
-            raise damaged(self.path, f"its summary and index do not parse: {type(exc).__name__}") from None
+            raise damaged(self.path, "its summary and index cannot be read") from None
         self._decoders: dict[int, Callable[[bytes], Any]] = {}
         self._file_order_chunks: list | None | bool = False  # False: not checked yet
         self._fallback = DecoderFactory()
@@ -242,29 +242,37 @@ class SessionReader:
 
     def _iter_sorted(self, chunks, wanted, start_ns, end_ns) -> Iterator[McapMessage]:
         if self._in_file_order():
-            carry: list[McapMessage] = []    # the last log time of a chunk: the next one may start at it
-            for ci in chunks:
-                msgs = self._chunk_messages(ci, wanted, start_ns, end_ns)
-                if not msgs:
-                    continue
-                msgs.sort(key=_order_key)
-                if carry and msgs[0].log_time == carry[0].log_time:
-                    msgs = sorted(carry + msgs, key=_order_key)
-                else:
-                    yield from carry
-                k = len(msgs)
-                while k and msgs[k - 1].log_time == msgs[-1].log_time:
-                    k -= 1
-                yield from msgs[:k]
-                carry = msgs[k:]
-            yield from carry
-            return
-        # chunks overlap in time (another writer): merge them, opening each chunk when its first log
-        # time comes up (what the mcap reader's log_time_order does)
+            return self._iter_file_order(chunks, wanted, start_ns, end_ns)
+        return self._iter_merged(chunks, wanted, start_ns, end_ns)
+
+    def _iter_file_order(self, chunks, wanted, start_ns, end_ns) -> Iterator[McapMessage]:
+        """Chunks that follow each other in time: each one sorted on its own."""
+        carry: list[McapMessage] = []    # the last log time of a chunk: the next one may start at it
+        for ci in chunks:
+            msgs = self._chunk_messages(ci, wanted, start_ns, end_ns)
+            if not msgs:
+                continue
+            msgs.sort(key=_order_key)
+            if carry and msgs[0].log_time == carry[0].log_time:
+                msgs = sorted(carry + msgs, key=_order_key)
+            else:
+                yield from carry
+            k = len(msgs)
+            while k and msgs[k - 1].log_time == msgs[-1].log_time:
+                k -= 1
+            yield from msgs[:k]
+            carry = msgs[k:]
+        yield from carry
+
+    def _iter_merged(self, chunks, wanted, start_ns, end_ns) -> Iterator[McapMessage]:
+        """Chunks that overlap in time (another writer), and messages outside chunks: merged, each chunk
+        opened when its first log time comes up (what the mcap reader's log_time_order does)."""
+        def keep(m: McapMessage) -> bool:
+            return ((wanted is None or m.channel_id in wanted) and (start_ns is None or m.log_time >= start_ns)
+                    and (end_ns is None or m.log_time < end_ns))
+
         heap: list = [(ci.message_start_time, 0, i, 0, ci) for i, ci in enumerate(chunks)]
-        heap += [(m.log_time, 1, m.channel_id, m.sequence, m) for m in self.index.loose
-                 if (wanted is None or m.channel_id in wanted) and (start_ns is None or m.log_time >= start_ns)
-                 and (end_ns is None or m.log_time < end_ns)]
+        heap += [(m.log_time, 1, m.channel_id, m.sequence, m) for m in self.index.loose if keep(m)]
         heapq.heapify(heap)
         while heap:
             _, kind, _, _, item = heapq.heappop(heap)
@@ -287,8 +295,8 @@ class SessionReader:
                 yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, m
         except PhoneposeError:
             raise
-        except Exception as exc:  # noqa: BLE001 - anything the mcap/zstd/lz4 layers raise on damaged bytes
-            raise damaged(self.path, f"its data does not parse: {type(exc).__name__}") from None
+        except Exception:  # noqa: BLE001 - anything the mcap/zstd/lz4 layers raise on damaged bytes
+            raise damaged(self.path, "its data cannot be read where the index points") from None
 
     def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[Message]:

@@ -15,6 +15,7 @@ their topic, schema, log_time, publish_time and sequence, into a temporary file 
 
 from __future__ import annotations
 
+import io
 import mmap
 import os
 import struct
@@ -22,19 +23,20 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
-from phonepose.session.reader import MCAP_MAGIC
+from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC
 from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
 
 # opcodes (MCAP spec)
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 OP_METADATA, OP_DATA_END = 0x0C, 0x0F
 _MAX_OPCODE = 0x0F
-_MAX_UNCOMPRESSED = 1 << 31  # a chunk claiming more than 2 GiB is corrupt, not real
 _COMPRESSIONS = (b"", b"zstd", b"lz4")
 
 
@@ -71,6 +73,8 @@ class RecoveryReport:
     start_ns: int | None = None   # of what was recovered
     end_ns: int | None = None
     had_summary: bool = False     # the input was a finished file (only damage inside, if any)
+    summary_damaged: bool = False  # its summary fails its CRC
+    channels_from_damaged_summary: list[str] = field(default_factory=list)   # topics only that summary named
     metadata_records: int = 0
 
     @property
@@ -84,80 +88,44 @@ class RecoveryReport:
 
     @property
     def damaged(self) -> bool:
-        return bool(self.chunks_skipped or self.bytes_unreadable or self.orphan_messages or not self.had_summary)
+        return bool(self.chunks_skipped or self.bytes_unreadable or self.orphan_messages or not self.had_summary
+                    or self.summary_damaged)
 
 
 # ---------------------------------------------------------------------------- parsing
+# Records are decoded by mcap.records. Only a chunk's fixed header is read with struct: the resync
+# scan tries it at every 0x06 byte of a damaged region, and decoding it with Chunk.read would copy
+# the chunk's data (up to megabytes) for each candidate.
 _U8 = struct.Struct("<Q")
-_U4 = struct.Struct("<I")
 
 
 def _u8(b, off: int) -> int:
     return _U8.unpack_from(b, off)[0]
 
 
-def _u4(b, off: int) -> int:
-    return _U4.unpack_from(b, off)[0]
-
-
-def _string(b, off: int, end: int) -> tuple[str, int]:
-    if off + 4 > end:
-        raise _Bad("string length")
-    n = _u4(b, off)
-    off += 4
-    if off + n > end:
-        raise _Bad("string")
+def _decode(cls, b, start: int, end: int, *args):
+    """``cls.read`` (an mcap.records class) over the record body ``b[start:end]``; _Bad if it does not parse."""
     try:
-        return bytes(b[off:off + n]).decode("utf-8"), off + n
-    except UnicodeDecodeError:
-        raise _Bad("utf-8") from None
-
-
-def _string_map(b, off: int, end: int) -> tuple[dict[str, str], int]:
-    if off + 4 > end:
-        raise _Bad("map length")
-    n = _u4(b, off)
-    off += 4
-    stop = off + n
-    if stop > end:
-        raise _Bad("map")
-    out = {}
-    while off < stop:
-        k, off = _string(b, off, stop)
-        v, off = _string(b, off, stop)
-        out[k] = v
-    return out, off
+        return cls.read(ReadDataStream(io.BytesIO(bytes(b[start:end]))), *args)
+    except Exception as exc:  # noqa: BLE001 - struct.error, EndOfFile, UnicodeDecodeError on damaged bytes
+        raise _Bad(f"{cls.__name__}: {type(exc).__name__}") from None
 
 
 def _schema(b, off: int, end: int):
-    if off + 2 > end:
-        raise _Bad("schema")
-    sid = struct.unpack_from("<H", b, off)[0]
-    name, p = _string(b, off + 2, end)
-    encoding, p = _string(b, p, end)
-    if p + 4 > end:
-        raise _Bad("schema data")
-    n = _u4(b, p)
-    if p + 4 + n > end:
-        raise _Bad("schema data")
-    return sid, name, encoding, bytes(b[p + 4:p + 4 + n])
+    r = _decode(Schema, b, off, end)
+    return r.id, r.name, r.encoding, r.data
 
 
 def _channel(b, off: int, end: int):
-    if off + 4 > end:
-        raise _Bad("channel")
-    cid, schema_id = struct.unpack_from("<HH", b, off)
-    topic, p = _string(b, off + 4, end)
-    encoding, p = _string(b, p, end)
-    metadata, p = _string_map(b, p, end)
-    return cid, schema_id, topic, encoding, metadata
+    r = _decode(Channel, b, off, end)
+    return r.id, r.schema_id, r.topic, r.message_encoding, r.metadata
 
 
 def _message(b, off: int, end: int):
     if off + 22 > end:
         raise _Bad("message")
-    cid, seq, log_time, publish_time = struct.unpack_from("<HIQQ", b, off)
-    return cid, seq, log_time, publish_time, bytes(b[off + 22:end])
+    r = _decode(Message, b, off, end, end - off)
+    return r.channel_id, r.sequence, r.log_time, r.publish_time, r.data
 
 
 def _chunk_header(b, off: int, end: int):
@@ -165,8 +133,7 @@ def _chunk_header(b, off: int, end: int):
     if off + 32 > end:
         raise _Bad("chunk header")
     t0, t1, usize = struct.unpack_from("<QQQ", b, off)
-    crc = _u4(b, off + 24)
-    clen = _u4(b, off + 28)
+    crc, clen = struct.unpack_from("<II", b, off + 24)
     if clen > 4 or off + 32 + clen + 8 > end:
         raise _Bad("chunk compression")
     comp = bytes(b[off + 32:off + 32 + clen])
@@ -175,26 +142,9 @@ def _chunk_header(b, off: int, end: int):
     p = off + 32 + clen
     dlen = _u8(b, p)
     p += 8
-    if p + dlen != end or t1 < t0 or usize > _MAX_UNCOMPRESSED:
+    if p + dlen != end or t1 < t0 or usize > MAX_CHUNK_BYTES:
         raise _Bad("chunk lengths")
     return t0, t1, usize, crc, comp.decode(), p, dlen
-
-
-def _decompress(comp: str, data: bytes, usize: int) -> bytes:
-    try:
-        if comp == "zstd":
-            out = zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
-        elif comp == "lz4":
-            import lz4.frame  # optional dependency of mcap
-
-            out = lz4.frame.decompress(data)
-        else:
-            out = bytes(data)
-    except Exception as exc:  # zstd/lz4 raise their own error types on corrupt input
-        raise _Bad(f"decompression: {type(exc).__name__}") from None
-    if len(out) != usize:
-        raise _Bad("uncompressed size")
-    return out
 
 
 class _Salvager:
@@ -210,6 +160,11 @@ class _Salvager:
         self.chunks: list[tuple[int, int, dict, int | None, int | None]] = []
         self.loose: list = []   # messages outside chunks (unchunked writers)
         self.metadata: list[tuple[str, dict]] = []
+        # schemas and channels read after the Data End record: the summary's, used only if its CRC holds
+        self.in_summary = False
+        self.summary_schemas: dict[int, tuple[str, str, bytes]] = {}
+        self.summary_channels: dict[int, tuple[int, str, str, dict]] = {}
+        self.from_summary: set[int] = set()     # channels only the summary defines
         self.bad_regions: list[tuple[int, int, int | None, int | None]] = []  # (from, to, t0, t1)
 
     # one record at ``pos``: returns the next position, or raises _Bad
@@ -228,19 +183,37 @@ class _Salvager:
             self.chunk(start, end)
         elif op == OP_SCHEMA:
             sid, name, enc, data = _schema(b, start, end)
-            self.schemas.setdefault(sid, (name, enc, data))
+            (self.summary_schemas if self.in_summary else self.schemas).setdefault(sid, (name, enc, data))
         elif op == OP_CHANNEL:
             cid, sid, topic, enc, meta = _channel(b, start, end)
-            self.channels.setdefault(cid, (sid, topic, enc, meta))
+            (self.summary_channels if self.in_summary else self.channels).setdefault(cid, (sid, topic, enc, meta))
+        elif op == OP_DATA_END:
+            self.in_summary = True
         elif op == OP_MESSAGE:
             self.loose.append(_message(b, start, end))
         elif op == OP_METADATA:
-            name, p = _string(b, start, end)
-            meta, _ = _string_map(b, p, end)
-            self.metadata.append((name, meta))
+            r = _decode(Metadata, b, start, end)
+            self.metadata.append((r.name, r.metadata))
         elif op == OP_FOOTER:
             self.report.had_summary = True
+            self._take_summary(start, end)
         return end
+
+    def _take_summary(self, start: int, end: int) -> None:
+        """The summary's schemas and channels, for the channels of a lost first chunk. When the footer's
+        CRC over the summary fails they may be wrong: chunks' own definitions always win, and the ones
+        taken from a damaged summary are counted for the report."""
+        if end - start < 20:
+            return
+        summary_start, _, crc = struct.unpack_from("<QQI", self.b, start)
+        if crc and (summary_start >= start or zlib.crc32(self.b[summary_start:start + 16]) != crc):
+            self.report.summary_damaged = True
+        for k, v in self.summary_schemas.items():
+            self.schemas.setdefault(k, v)
+        for k, v in self.summary_channels.items():
+            if k not in self.channels:
+                self.channels[k] = v
+                self.from_summary.add(k)
 
     def chunk(self, start: int, end: int) -> None:
         msgs, schemas, channels = self.parse_chunk(start, end)
@@ -258,27 +231,20 @@ class _Salvager:
     def parse_chunk(self, start: int, end: int):
         """(messages, schemas, channels) of the chunk record body [start, end); _Bad unless wholly intact."""
         t0, t1, usize, crc, comp, doff, dlen = _chunk_header(self.b, start, end)
-        data = _decompress(comp, self.b[doff:doff + dlen], usize)
-        if crc and zlib.crc32(data) != crc:
-            raise _Bad("chunk crc")
-        msgs, p = [], 0
-        schemas, channels = {}, {}
-        while p < len(data):   # every inner record must parse: a chunk is kept whole or not at all
-            if p + 9 > len(data):
-                raise _Bad("chunk record header")
-            op, length = data[p], _u8(data, p + 1)
-            s, e = p + 9, p + 9 + length
-            if e > len(data):
-                raise _Bad("chunk record")
-            if op == OP_MESSAGE:
-                msgs.append(_message(data, s, e))
-            elif op == OP_SCHEMA:
-                sid, name, enc, sdata = _schema(data, s, e)
-                schemas[sid] = (name, enc, sdata)
-            elif op == OP_CHANNEL:
-                cid, sid, topic, enc, meta = _channel(data, s, e)
-                channels[cid] = (sid, topic, enc, meta)
-            p = e
+        chunk = Chunk(compression=comp, data=bytes(self.b[doff:doff + dlen]), message_start_time=t0,
+                      message_end_time=t1, uncompressed_crc=crc, uncompressed_size=usize)
+        try:   # every inner record must parse: a chunk is kept whole or not at all
+            records = breakup_chunk(chunk, validate_crc=True)
+        except Exception as exc:  # noqa: BLE001 - zstd/lz4 errors, CRC mismatch, records cut short
+            raise _Bad(f"chunk: {type(exc).__name__}") from None
+        msgs, schemas, channels = [], {}, {}
+        for r in records:
+            if isinstance(r, Message):
+                msgs.append((r.channel_id, r.sequence, r.log_time, r.publish_time, r.data))
+            elif isinstance(r, Schema):
+                schemas[r.id] = (r.name, r.encoding, r.data)
+            elif isinstance(r, Channel):
+                channels[r.id] = (r.schema_id, r.topic, r.message_encoding, r.metadata)
         return msgs, schemas, channels
 
     def _plausible_chunk_at(self, pos: int) -> bool:
@@ -407,6 +373,8 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             counts[topic] = counts.get(topic, 0) + n
             t_min = lo if t_min is None else min(t_min, lo)
             t_max = hi if t_max is None else max(t_max, hi)
+    if report.summary_damaged:
+        report.channels_from_damaged_summary = sorted(sal.channels[c][1] for c in sal.from_summary)
     report.chunks_recovered = len(sal.chunks)
     report.metadata_records = len(sal.metadata)
     report.start_ns, report.end_ns = t_min, t_max

@@ -134,7 +134,7 @@ class MocapConfig:
     ERRORS = ("noise_m", "noise_deg", "hand_eye_rotation_deg", "hand_eye_translation_m", "clock_offset_s",
               "calibration_translation_m", "calibration_rotation_deg")
 
-    def effective(self) -> "MocapConfig":
+    def effective(self) -> MocapConfig:
         """The configuration the simulator uses: with ``exact``, every mocap error is zero (the random
         draws still happen, so every other stream of the session is unchanged)."""
         off: dict[str, Any] = {k: 0.0 for k in self.ERRORS}   # (replace() is typed per field)
@@ -170,7 +170,7 @@ class SimConfig:
         """The full effective configuration as TOML (stored in SessionInfo.config_toml)."""
         return to_toml(dataclasses.asdict(self))
 
-    def replace(self, **sections: dict) -> "SimConfig":
+    def replace(self, **sections: dict) -> SimConfig:
         """A copy with some keys changed: ``cfg.replace(render={"noise_sigma_dn": 0})``."""
         data = dataclasses.asdict(self)
         _merge(data, sections, "")
