@@ -2,9 +2,9 @@
 
 Batch: ``SESSIONS`` simulator sessions (exp2 TRI1/TRI2/REC1/REC2, default world: 30 Hz 640x480
 camera) x ``PARAMS`` (correction_math=paper,se3: two playbacks of equal cost per session) x the
-paper's seven trackers (``--tracker paper``): 12 units (playbacks), seven rows each. Measured side by side in one run, alternating, best of
-``ROUNDS``, wall clock from the call to the table written (pool start-up included: it is part of
-what a user waits for):
+paper's seven trackers (``--tracker paper``): 12 units (playbacks), seven rows each. Measured side by
+side in one run, alternating, best of ``ROUNDS``, wall clock from the call to the table written (pool
+start-up included: it is part of what a user waits for):
 
 * 1 local worker process, 2 local worker processes: the speed-up is the figure (target: report it;
   ~1.6-1.9x is what 2 cores can give, the parent process and the pool's start-up are serial). Next
@@ -114,7 +114,8 @@ def main() -> dict:
         "load_average_min": min(load), "load_average_max": max(load),
         **dask,
     }
-    print(f"batch: {len(sessions)} sessions x 2 parameter combinations x T1-T7 = {rows} rows (best of {ROUNDS}, pool start-up included; "
+    print(f"batch: {len(sessions)} sessions x 2 parameter combinations x T1-T7 = {rows} rows (best of {ROUNDS}, "
+          "pool start-up included; "
           f"1-min load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores: other jobs take cores too)")
     print(f"  1 worker   {best[1]:6.1f} s  {result['rows_per_s_1']:5.1f} rows/s  "
           f"(playback {result['playback_s_per_unit_1']:.2f} s per playback in the worker; workers used {cores[1]:.2f} cores)")

@@ -159,8 +159,8 @@ def formats() -> dict:
                        file_interface.read_kitti_poses_file(str(kitti_est)))),
         }
         for name, ((g, e), (rg, re_)) in cases.items():
-            ours, t_ours = best_of(lambda: _ours_format(g, e))
-            theirs, t_evo = best_of(lambda: _evo_format(rg, re_))
+            ours, t_ours = best_of(lambda g=g, e=e: _ours_format(g, e))
+            theirs, t_evo = best_of(lambda rg=rg, re_=re_: _evo_format(rg, re_))
             worst = 0.0
             for metric in ("ape", "rpe"):
                 for stat, v in theirs[metric].items():

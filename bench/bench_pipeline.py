@@ -102,13 +102,14 @@ def main() -> dict:
     results["ours_sequence"] = _stats(np.concatenate(seq_ms))
     results["ours_sequence"]["stages"] = dict(recognizer.stats)
     results["apriltag_full_frame"] = _stats(_ms(april_full.detectMarkers, grays[:15]))
-    results["ratio_ours_cold_vs_plain"] = round(results["ours_cold"]["median_ms"] / results["plain_detectMarkers"]["median_ms"], 2)
-    results["ratio_ours_sequence_vs_plain"] = round(results["ours_sequence"]["median_ms"] / results["plain_detectMarkers"]["median_ms"], 2)
+    plain_ms = results["plain_detectMarkers"]["median_ms"]
+    results["ratio_ours_cold_vs_plain"] = round(results["ours_cold"]["median_ms"] / plain_ms, 2)
+    results["ratio_ours_sequence_vs_plain"] = round(results["ours_sequence"]["median_ms"] / plain_ms, 2)
 
     # accuracy on the same random frames: ours vs plain detectMarkers + IPPE_SQUARE (best solution)
     obj = marker_object_points(MARKER.size_m)
     errs = {"ours": ([], []), "plain+IPPE": ([], [])}
-    for gray, pose in zip(grays, random_poses):
+    for gray, pose in zip(grays, random_poses, strict=True):
         recognizer.reset()
         o = recognizer.recognize(gray)
         if o is not None:

@@ -9,13 +9,15 @@ process, median of ``LONG_ROUNDS``. Playback can be under the floor: it decodes 
 a tick carries (20 of 30 Hz) and recognises the marker in a region of interest while it tracks.
 Targets: <= 1.0x the floor, <= 1.3x with Rerun.
 
-Part 2 (issue 8): playback throughput of the paper's seven trackers (``--tracker paper``, T1-T7) without and with Rerun, next to the floor.
+Part 2 (issue 8): playback throughput of the paper's seven trackers (``--tracker paper``, T1-T7)
+without and with Rerun, next to the floor.
 
 The floor is what no playback can avoid: JPEG decode + marker recognition of the same camera
 frames the engine decodes (the frames the ticks carry as new). Playback adds the file pass, the
-tick scheduling, the seven trackers T1-T7 (the issue's target; ``all`` also runs our T8), the output files and (optionally) Rerun logging. Reported as
-frames/s and as ratios to the floor, measured side by side in one run (best of ``ROUNDS``), by
-wall clock and by the process's CPU time (all threads, so Rerun's writer thread counts).
+tick scheduling, the seven trackers T1-T7 (the issue's target; ``all`` also runs our T8), the output
+files and (optionally) Rerun logging. Reported as frames/s and as ratios to the floor, measured side
+by side in one run (best of ``ROUNDS``), by wall clock and by the process's CPU time (all threads, so
+Rerun's writer thread counts).
 Targets: <= 1.3x the floor without Rerun, <= 1.6x with.
 
 Session: a simulator session (``phonepose record sim --scenario exp2 ...``) when the simulator

@@ -50,7 +50,7 @@ def main() -> dict:
         t_build, session = _best(lambda: SimSession(args["scenario"], args["path"], args["trial"], args["seed"]))
         n_frames = len(session.t_cam)
         rng = np.random.default_rng(0)
-        session.renderer  # build the renderer (backgrounds, maps, noise bank) outside the timing
+        _ = session.renderer  # build the renderer (backgrounds, maps, noise bank) outside the timing
 
         def render_all():
             for i in range(n_frames):

@@ -32,7 +32,8 @@ The rule, the same in every command:
    recording cannot be made again. A new recording (``in_place``) is the one exception to rule 2:
    it is written under its final name, created exclusively, because what a killed recorder leaves
    there is the user's data (``phonepose recover`` reads it); with ``--force`` over an existing
-   file it goes to a temporary like any output, so the old file stays until the new one is done. Any other output file is replaced whole. An output folder is
+   file it goes to a temporary like any output, so the old file stays until the new one is done.
+   Any other output file is replaced whole. An output folder is
    replaced whole when it is empty or an earlier phonepose output (it holds the
    ``.phonepose-output`` manifest), so no file of an earlier run survives beside the new ones;
    a folder holding anything else is refused, and so is the current directory.

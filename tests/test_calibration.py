@@ -178,7 +178,7 @@ def test_detected_corners_are_where_the_known_camera_projects_them(synthetic):
     images, poses, _ = synthetic
     finder = BoardFinder()
     errs, found = [], 0
-    for img, (R, t) in zip(images, poses):
+    for img, (R, t) in zip(images, poses, strict=True):
         view = finder.find(img, "v")
         if view is None:
             continue

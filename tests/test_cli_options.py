@@ -138,7 +138,7 @@ def test_library_warnings_stay_off_the_terminal():
             big = np.array([1e200, 1e200])
             assert np.isinf(big * big).all()                        # ufunc overflow: no warning
             np.linalg.norm(np.full((3, 3), 1e300))                  # numpy's own RuntimeWarning: filtered
-            warnings.warn("a phonepose warning stays", UserWarning)
+            warnings.warn("a phonepose warning stays", UserWarning, stacklevel=1)
         assert [str(w.message) for w in caught] == ["a phonepose warning stays"]
     finally:
         np.seterr(**old)

@@ -112,7 +112,7 @@ stamp_lists = st.lists(st.integers(0, 400), min_size=1, max_size=60).map(lambda 
 @given(te=stamp_lists, tr=stamp_lists)
 def test_rpg_association_equals_greedy_loop(te, tr):
     i, j = associate_rpg(te, tr, 0.02)
-    assert list(zip(i.tolist(), j.tolist())) == rpg_associate_loop(te, tr, 0.02)
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == rpg_associate_loop(te, tr, 0.02)
 
 
 @settings(max_examples=80, deadline=None)
@@ -150,7 +150,7 @@ steps = st.lists(st.sampled_from([0.0, 0.0, 0.1, 0.25, 0.3, 1.0, 1.7]), min_size
 def test_rpg_pair_search_equals_loop(s, length):
     d = np.concatenate(([0.0], np.cumsum(s)))
     a, b = find_pairs(d, length)
-    assert list(zip(a.tolist(), b.tolist())) == rpg_pairs_loop(d.tolist(), length, 0.2 * length)
+    assert list(zip(a.tolist(), b.tolist(), strict=True)) == rpg_pairs_loop(d.tolist(), length, 0.2 * length)
 
 
 @settings(max_examples=100, deadline=None)
@@ -411,4 +411,4 @@ def test_rpg_association_dense_irregular_stamps(monkeypatch, max_rounds):
     te = np.sort(rng.uniform(0, 2, 300))
     tr = np.sort(te + rng.normal(0, 0.004, 300))
     i, j = associate_rpg(te, tr, 0.02)
-    assert list(zip(i.tolist(), j.tolist())) == rpg_associate_loop(te, tr, 0.02)
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == rpg_associate_loop(te, tr, 0.02)

@@ -62,7 +62,7 @@ def test_mcap_core_decodes_the_frame_tree_and_the_image_annotations(tmp_path):
     from phonepose.session import SessionReader
 
     with SessionReader(out / "trackers.mcap") as r:
-        pairs = list(zip(r.messages([Topic.PIPELINE_MARKERS]), r.messages([Topic.PIPELINE_MARKER_ANNOTATIONS])))
+        pairs = list(zip(r.messages([Topic.PIPELINE_MARKERS]), r.messages([Topic.PIPELINE_MARKER_ANNOTATIONS]), strict=True))
     seen = [(d.msg, a.msg) for d, a in pairs if d.msg.detections]
     assert seen
     d, a = seen[0]

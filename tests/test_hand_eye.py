@@ -175,15 +175,16 @@ def test_duplicated_messages_are_used_once(tmp_path):
     t = np.arange(0.2, 12.0, 1 / 30)
     stamps, body = mocap_of(t, 0.030)
     msgs = [(int(1e9 * (100 + x)), "/controller/vio/pose", pose_in_frame(p, "controller_vio", int(1e9 * (100 + x))))
-            for x, p in zip(t, phone_motion(t))]
+            for x, p in zip(t, phone_motion(t), strict=True)]
     msgs += [(int(1e9 * (100 + x)), "/gt/controller/pose", pose_in_frame(p, "world", int(1e9 * (100 + x))))
-             for x, p in zip(stamps[stamps < 12.5], body[np.flatnonzero(stamps < 12.5)])]
+             for x, p in zip(stamps[stamps < 12.5], body[np.flatnonzero(stamps < 12.5)], strict=True)]
     with SessionWriter(session) as w:
         for ns, topic, msg in sorted(msgs, key=lambda m: m[0]):
             w.write(topic, msg, ns)
 
     def twice(topic, msg, t):
-        return [(topic, msg, t), (topic, msg, t)] if topic in ("/controller/vio/pose", "/gt/controller/pose") else [(topic, msg, t)]
+        doubled = topic in ("/controller/vio/pose", "/gt/controller/pose")
+        return [(topic, msg, t), (topic, msg, t)] if doubled else [(topic, msg, t)]
 
     doubled = rewrite(session, tmp_path / "doubled.mcap", twice)
     he_once = hand_eye_from_session(session, bootstrap=0)

@@ -303,12 +303,12 @@ def test_page_shows_marker_and_streams(server, page):
     imu = wait_until(lambda: len(server.of_type("imu")) >= len(samples) and server.of_type("imu"),
                      what=f"{len(samples)} imu messages")
     assert len(imu) == len(samples)
-    for m, s in zip(imu, samples):
+    for m, s in zip(imu, samples, strict=True):
         assert set(m) == {"type", "t", "gyro", "accel"}
         assert m["gyro"] == [math.radians(s["beta"]), math.radians(s["gamma"]), math.radians(s["alpha"])]
         assert m["accel"] == [s["x"], s["y"], s["z"]]
     ts = [m["t"] for m in imu]
-    assert all(b > a for a, b in zip(ts, ts[1:]))
+    assert all(b > a for a, b in zip(ts, ts[1:], strict=False))
     # epoch ms (performance.timeOrigin + the event's timeStamp): between dispatching and receiving
     assert wall_ms - 1000 < ts[0] < ts[-1] < time.time() * 1000 + 1000
 

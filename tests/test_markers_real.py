@@ -55,7 +55,7 @@ def charuco_errors():
         found = _recognize_all(image, camera, "DICT_6X6_250", reference)
         ours += [found[k] - reference[k] for k in found]
         corners, ids, _ = raw_detector.detectMarkers(image)
-        raw += [c.reshape(4, 2) - reference[int(i)] for c, i in zip(corners, ids.reshape(-1)) if int(i) in reference]
+        raw += [c.reshape(4, 2) - reference[int(i)] for c, i in zip(corners, ids.reshape(-1), strict=True) if int(i) in reference]
     return np.array(ours), np.array(raw), n_expected
 
 

@@ -52,7 +52,8 @@ def test_se3_math_is_a_rigid_offset():
 
 def test_se3_removes_a_rigid_frame_error_where_paper_leaves_a_residual():
     # VIO lives in a frame rotated 10 deg and shifted against the truth (a mis-resolved anchor).
-    frame_error = Pose.from_rotvec([0.3, -0.1, 0.05], np.radians(10) * np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93]))
+    axis = np.array([0.2, 0.3, 0.93]) / np.linalg.norm([0.2, 0.3, 0.93])
+    frame_error = Pose.from_rotvec([0.3, -0.1, 0.05], np.radians(10) * axis)
     truth_then, truth_later = REF, NOW
     vio_then, vio_later = frame_error @ truth_then, frame_error @ truth_later
     se3 = marker_correction(truth_then, vio_then, "se3").apply(vio_later)

@@ -48,7 +48,7 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     assert r.metrics == doc
     assert doc["session"] == "s.mcap" and doc["rate_hz"] == 20
     assert list(doc["trackers"]) == names
-    for name, m in doc["trackers"].items():
+    for m in doc["trackers"].values():
         assert list(m) == ["inside", "outside", "total"]
         for scope in ("inside", "outside"):
             assert list(m[scope]) == ["frames", "p_ate_m", "r_ate_deg", "p_re_m"]

@@ -106,7 +106,7 @@ def test_grid_starts_at_first_camera_frame_and_covers_the_session(session):
     ticks, sched = ticks_of(session)
     assert ticks[0].t_ns == T0 + 5 * MS
     assert [t.index for t in ticks] == list(range(len(ticks)))
-    assert all(b.t_ns - a.t_ns == 50 * MS for a, b in zip(ticks, ticks[1:]))
+    assert all(b.t_ns - a.t_ns == 50 * MS for a, b in zip(ticks, ticks[1:], strict=False))
     assert ticks[-1].t_ns <= T0 + 1000 * MS < ticks[-1].t_ns + 50 * MS
 
 
@@ -199,7 +199,7 @@ def test_start_end_select_grid_ticks(session):
 
 def test_rate_option(session):
     ticks, _ = ticks_of(session, rate_hz=10)
-    assert all(b.t_ns - a.t_ns == 100 * MS for a, b in zip(ticks, ticks[1:]))
+    assert all(b.t_ns - a.t_ns == 100 * MS for a, b in zip(ticks, ticks[1:], strict=False))
 
 
 def test_no_camera_grid_from_controller_vio_and_no_gt(tmp_path):

@@ -316,12 +316,13 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     log_times = [m.log_time_ns for m in msgs]
     assert log_times[3:] == sorted(log_times[3:])                # one time order across topics
     # the page clock offset is recovered: capture stamps = true capture times within a few ms
-    errs = [m.msg.timestamp.ToNanoseconds() - true for m, (_, _, true) in zip(by[Topic.CONTROLLER_VIO_POSE], sent_poses)]
+    pairs = zip(by[Topic.CONTROLLER_VIO_POSE], sent_poses, strict=True)
+    errs = [m.msg.timestamp.ToNanoseconds() - true for m, (_, _, true) in pairs]
     assert np.median(np.abs(errs)) < 1_000_000 and max(abs(e) for e in errs) < 3_000_000, \
         (np.median(np.abs(errs)), max(abs(e) for e in errs))
     # out of order: written as received, counted in the summary and /log
     stamps = [m.msg.timestamp.ToNanoseconds() for m in by[Topic.CONTROLLER_VIO_POSE]]
-    assert sum(b <= a for a, b in zip(stamps, stamps[1:])) == 1
+    assert sum(b <= a for a, b in zip(stamps, stamps[1:], strict=False)) == 1
     logs = [m.msg.message for m in by[Topic.LOG]]
     assert any("/controller/vio/pose 1" in t for t in logs)
     assert any("malformed messages ignored: 5" in t for t in logs)

@@ -636,7 +636,7 @@ def markdown_table(tmp: Path) -> str:
             line = line[:237] + "..."
         command = " ".join(argv[:2]) if argv[0] in ("record", "experiment") else argv[0]
         rows.append(f"| {_cell(case.what)} | `{command}` | {code} | {_code(line)} |")
-    for cid, what, fn, message in WARNING_CASES:
+    for _cid, what, _fn, message in WARNING_CASES:
         msg = re.sub(r"\\(.)", r"\1", message)     # the regex's escapes undone
         rows.append(f"| {_cell(what)} | `playback` | 0 | {_code('phonepose: warning: ' + msg)} (samples skipped) |")
     return "\n".join(rows)

@@ -19,6 +19,7 @@ import pytest
 import pyarrow.parquet as pq
 from mcap.reader import make_reader
 
+from phonepose.errors import DamagedFileError
 from phonepose.session import SessionReader
 from phonepose.session.recover import salvage
 from test_reliability_data import mounted_tmpfs
@@ -75,7 +76,7 @@ def test_sigkill_at_random_moments_loses_at_most_a_second(complete, tmp_path):
         reported = max([reported] + [int(x) for x in child.stdout.read().split()])  # written before death
         child.wait(timeout=DEADLINE_S)
         assert child.returncode == -signal.SIGKILL
-        with pytest.raises(Exception):
+        with pytest.raises(DamagedFileError):
             SessionReader(out)       # no summary: the file needs recover
         fixed = tmp_path / f"fixed{i}.mcap"
         report = salvage(out, fixed)

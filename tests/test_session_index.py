@@ -267,7 +267,8 @@ def test_a_chunk_claiming_a_gigabyte_is_refused_before_it_is_inflated(tmp_path):
         SessionReader(p)
     assert time.perf_counter() - t0 < 2.0
     assert str(err.value) == (
-        f"{p}: damaged MCAP file: the chunk at byte {ci.chunk_start_offset} (log time 0.00-0.00 s) claims 1073741824 bytes uncompressed, "
+        f"{p}: damaged MCAP file: the chunk at byte {ci.chunk_start_offset} (log time 0.00-0.00 s) "
+        "claims 1073741824 bytes uncompressed, "
         f"more than the {MAX_CHUNK_BYTES >> 20} MiB any real chunk holds; run `phonepose recover {p} --out FIXED.mcap`")
 
 

@@ -189,7 +189,7 @@ def test_same_seed_same_world_different_seed_different():
 # ---------------------------------------------------------------- IMU
 def _integrate(gyro: np.ndarray, dts: np.ndarray, R0: Rotation) -> Rotation:
     R = R0
-    for w, dt in zip(gyro, dts):
+    for w, dt in zip(gyro, dts, strict=True):
         R = R * Rotation.from_rotvec(w * dt)
     return R
 

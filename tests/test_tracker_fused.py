@@ -72,9 +72,9 @@ def run(tracker, obs):
 
 
 def errors(est, truth, obs):
-    pos = np.array([np.linalg.norm(e.translation - truth(o.tick.t_ns / 1e9).translation) for e, o in zip(est, obs)])
+    pos = np.array([np.linalg.norm(e.translation - truth(o.tick.t_ns / 1e9).translation) for e, o in zip(est, obs, strict=True)])
     rot = np.array([np.degrees((e.rotation * truth(o.tick.t_ns / 1e9).rotation.inv()).magnitude())
-                    for e, o in zip(est, obs)])
+                    for e, o in zip(est, obs, strict=True)])
     return pos, rot
 
 

@@ -135,7 +135,7 @@ def test_vio_samples_are_mapped_only_when_a_tracker_reads_them(tmp_path):
     for trackers in ("paper", "all"):
         made, counts = [], []
 
-        def stages_factory(context):
+        def stages_factory(context, made=made, counts=counts):   # this pass's lists
             stages = SharedStages(context)
             process = stages.process
             stages.process = lambda tick: counts.append(len((obs := process(tick)).controller_vio_samples_dvio)) or obs

@@ -130,12 +130,13 @@ def test_each_tracker_has_one_colour_on_every_entity(played):
 
 def test_errors_are_cm_and_degrees_over_the_task_window(played):
     result, _, found = played
-    gt = dict(zip(result.gt_stamps_ns.tolist(), result.gt.translation))
+    gt = dict(zip(result.gt_stamps_ns.tolist(), result.gt.translation, strict=True))
     for name in TRACKERS:
         traj = result.trajectories[name]
-        est = dict(zip(traj.stamps_ns.tolist(), traj.poses.translation))
+        est = dict(zip(traj.stamps_ns.tolist(), traj.poses.translation, strict=True))
         rows = [(t, v) for chunk, batch in found[E.position_error(name)] if "Scalars:scalars" in batch.schema.names
-                for t, v in zip(batch.column("time").cast("int64").to_pylist(), batch.column("Scalars:scalars").to_pylist())
+                for t, v in zip(batch.column("time").cast("int64").to_pylist(), batch.column("Scalars:scalars").to_pylist(),
+                                strict=True)
                 if v is not None]
         assert rows and all(t in gt and t in est for t, _ in rows)   # task-window ticks with GT only
         for t, v in rows:
@@ -161,7 +162,7 @@ def test_status_lanes_mark_the_task_window_and_the_marker_in_view(played):
     assert _values(found[E.STATUS_TASK], "StateChange:state") == ["calibration", "task", "after"]
     states = _values(found[E.STATUS_MARKER], "StateChange:state")
     assert {"in_view", "out_of_view"} <= set(states)
-    assert all(a != b for a, b in zip(states, states[1:]))     # logged on change only
+    assert all(a != b for a, b in zip(states, states[1:], strict=False))     # logged on change only
 
 
 def _blueprint_rows(rrd) -> dict[str, list]:
@@ -181,7 +182,8 @@ def _blueprint_rows(rrd) -> dict[str, list]:
 def test_blueprint_holds_the_documented_views_and_an_eye_on_the_task(played):
     _, rrd, found = played
     rows = _blueprint_rows(rrd)
-    views = dict(zip([str(v) for v in rows["ViewBlueprint:space_origin"]], rows["ViewBlueprint:class_identifier"]))
+    views = dict(zip([str(v) for v in rows["ViewBlueprint:space_origin"]], rows["ViewBlueprint:class_identifier"],
+                     strict=True))
     expected = {E.WORLD: "3D", E.IMAGE: "2D", E.STATUS: "StateTimeline", E.POSITION_ERRORS: "TimeSeries",
                 E.ROTATION_ERRORS: "TimeSeries"}
     assert {o: str(views.get(o, "")) for o in expected} == expected
@@ -242,7 +244,7 @@ def test_rerun_mcap_convert_connects_camera_controller_and_marker_to_the_root(tm
         for kind in ("Transform3D", "Pinhole"):
             if f"{kind}:child_frame" in batch.schema.names:
                 for p, c in zip(batch.column(f"{kind}:parent_frame").to_pylist(),
-                                batch.column(f"{kind}:child_frame").to_pylist()):
+                                batch.column(f"{kind}:child_frame").to_pylist(), strict=True):
                     p, c = (p[0] if isinstance(p, list) else p), (c[0] if isinstance(c, list) else c)
                     assert parent.setdefault(c, p) == p, f"{c} has two parents"
 

@@ -199,7 +199,8 @@ def table_18(plain: list[dict]) -> str:
 
 def table_18_hand_eye(plain: list[dict], hand_eye: list[dict]) -> str:
     a, b = _means(plain), _means(hand_eye)
-    head = [f"| r_ATE °, in / out / total ({a['n']} sequences) | as recorded | with `--hand-eye` | p_ATE cm total, as recorded → `--hand-eye` |",
+    head = [f"| r_ATE °, in / out / total ({a['n']} sequences) | as recorded | with `--hand-eye` "
+            "| p_ATE cm total, as recorded → `--hand-eye` |",
             "|---|---|---|---|"]
     rows = [f"| {t} | {_triple(a, t, 'r_ate_deg', 1)} | {_triple(b, t, 'r_ate_deg', 1)} | "
             f"{_f(a[(t, 'total', 'p_ate_m')], 100, 2)} → {_f(b[(t, 'total', 'p_ate_m')], 100, 2)} |" for t in paper.REPORTED]

@@ -42,7 +42,8 @@ CHECKSUM_KEY = b"phonepose.content_sha256"
 
 def content_hash(rows: list[dict]) -> str:
     """SHA-256 of the rows as JSON (keys sorted; NaN spelled NaN): the same rows, the same hash."""
-    return hashlib.sha256(json.dumps(rows, sort_keys=True, allow_nan=True, default=str).encode()).hexdigest()   # the only columns that differ between two runs of the same batch
+    # the only columns that differ between two runs of the same batch
+    return hashlib.sha256(json.dumps(rows, sort_keys=True, allow_nan=True, default=str).encode()).hexdigest()
 
 
 def _infer(values: list) -> pa.DataType:

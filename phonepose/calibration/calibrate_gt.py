@@ -20,9 +20,10 @@ Method:
 3. Gross outliers (residual above 5x the median: a flipped marker pose) are dropped, then
    ``scipy.optimize.least_squares`` refines X, Z and δ together on the residuals
    (rotation / σ_rot, translation / σ_trans, each σ the closed form's RMS).
-4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 3 s, or a fifth of the sightings' span if shorter, since consecutive frames'
-   errors are correlated) re-solves step 3 on each resample; each 1σ is the RMS deviation of a
-   quantity (the magnitude of a rotation or translation error) over the resamples.
+4. Uncertainty: a moving-block bootstrap over the sightings (blocks of 3 s, or a fifth of the
+   sightings' span if shorter, since consecutive frames' errors are correlated) re-solves step 3
+   on each resample; each 1σ is the RMS deviation of a quantity (the magnitude of a rotation or
+   translation error) over the resamples.
 
 Refused (SessionContentError, one line): too few sightings overlapping the ground truth, a phone that
 turned about one axis only. Warned with numbers: any 1σ above the tolerance the result is meant for

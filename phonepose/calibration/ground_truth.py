@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -42,7 +43,7 @@ class GroundTruthSeries:
         q = self.poses.rotation.as_quat(canonical=False)
         t = np.atleast_2d(self.poses.translation)
         raws = [tuple(float(v) for v in (*q[k], *t[k])) for k in range(len(q))]
-        return np.rint(self.stamps_s * 1e9).astype(np.int64), raws   # type: ignore[return-value]
+        return np.rint(self.stamps_s * 1e9).astype(np.int64), cast(list[RawPose], raws)   # 7 floats each: q then t
 
 
 def unique_ascending(stamps: np.ndarray, poses: Pose, source: str) -> GroundTruthSeries:
@@ -72,6 +73,7 @@ def file_ground_truth(path: "str | os.PathLike", fmt: str | None = None) -> Grou
 
     check_input(path, "ground-truth file")
     traj = load_trajectory(path, gt_format_of(path, fmt))
+    assert traj.stamps is not None   # TUM and EuRoC files are stamped (only KITTI is not)
     series = unique_ascending(traj.stamps, traj.poses, os.fspath(path))
     if len(series) < 2:
         raise SessionContentError(f"{path}: fewer than 2 poses: not a ground-truth trajectory")

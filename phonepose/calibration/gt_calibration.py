@@ -160,8 +160,9 @@ def load_gt_calibration(path: "str | os.PathLike", what: str = "calibration") ->
             raise InputFileError(f"{path}: version {version} is newer than this phonepose reads ({VERSION})")
         X = _pose(path, fs, "T_controller_gt" if version else "T_controller_mocap", required=True)
         offset = _real(fs, "time_offset_s", 0.0)
+        assert X is not None   # required=True: a missing matrix raised above
         cal = GtCalibration(
-            T_controller_gt=X, time_offset_s=float(offset),    # type: ignore[arg-type]
+            T_controller_gt=X, time_offset_s=float(offset),
             T_world_display_vio=_pose(path, fs, "T_world_display_vio", required=False),
             T_world_camera=_pose(path, fs, "T_world_camera", required=False),
             method=_text(fs, "method") or "calibrate-hand-eye",

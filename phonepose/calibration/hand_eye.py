@@ -23,7 +23,6 @@ not remove it. Measure it with a ruler and pass it in (``--translation``).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,7 +104,7 @@ def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, st
     for _ in range(n):
         counts = np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks).astype(float)
         best = (np.inf, R_X, delta)
-        for d, (a, b, blocks) in zip(grid, sets):
+        for d, (a, b, blocks) in zip(grid, sets, strict=True):
             w = counts[blocks]
             if np.count_nonzero(w) < 3:
                 continue

@@ -41,7 +41,8 @@ def _root(
     """phonepose: smartphone 6DoF controller tracking (Park & Ogawa 2024), recorded, replayed and measured."""
 
 
-# Command modules register themselves on ``app`` when imported.
+# Command modules register themselves on ``app`` when imported, in this order (the order of --help):
+# isort: off
 from phonepose.cli import info  # noqa: E402,F401
 from phonepose.cli import record  # noqa: E402,F401
 from phonepose.cli import playback  # noqa: E402,F401
@@ -52,6 +53,7 @@ from phonepose.cli import recover  # noqa: E402,F401
 from phonepose.cli import calibrate  # noqa: E402,F401  (board, marker, calibrate-camera)
 from phonepose.cli import live  # noqa: E402,F401  (record live)
 from phonepose.cli import batch  # noqa: E402,F401
+# isort: on
 
 
 def error(message: str, code: int = 1) -> None:

@@ -12,7 +12,7 @@ that both list the same values.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from typing import Any, Callable
 
 from phonepose.numbers import SECONDS_MAX, SEED_MAX, check_number
@@ -39,19 +39,19 @@ SECONDS: dict[str, Any] = dict(callback=number(0, SECONDS_MAX, unit="s"))
 
 
 # ----------------------------------------------------------------------------- choices
-class CorrectionMath(str, Enum):
+class CorrectionMath(StrEnum):
     """phonepose.pipeline.corrections.CorrectionMath's values."""
     paper = "paper"
     se3 = "se3"
 
 
-class Scenario(str, Enum):
+class Scenario(StrEnum):
     """phonepose.record.sim.scenarios.SCENARIOS."""
     exp1 = "exp1"
     exp2 = "exp2"
 
 
-class SimPath(str, Enum):
+class SimPath(StrEnum):
     """phonepose.record.sim.scenarios.PATHS."""
     TRI1 = "TRI1"
     TRI2 = "TRI2"
@@ -59,7 +59,7 @@ class SimPath(str, Enum):
     REC2 = "REC2"
 
 
-class Paper(str, Enum):
+class Paper(StrEnum):
     """phonepose.calibration.board.PAPER_MM, and fit."""
     a4 = "a4"
     a3 = "a3"
@@ -67,28 +67,28 @@ class Paper(str, Enum):
     fit = "fit"
 
 
-class Metric(str, Enum):
+class Metric(StrEnum):
     rpg = "rpg"
     ape = "ape"
     rpe = "rpe"
     paper = "paper"
 
 
-class Align(str, Enum):
+class Align(StrEnum):
     posyaw = "posyaw"
     se3 = "se3"
     sim3 = "sim3"
     none = "none"
 
 
-class TrajectoryFormat(str, Enum):
+class TrajectoryFormat(StrEnum):
     """phonepose.evaluation.trajectory.FORMATS."""
     tum = "tum"
     euroc = "euroc"
     kitti = "kitti"
 
 
-class DeltaUnit(str, Enum):
+class DeltaUnit(StrEnum):
     """evo's RPE delta units."""
     f = "f"
     m = "m"
@@ -96,7 +96,7 @@ class DeltaUnit(str, Enum):
     r = "r"
 
 
-class PoseRelation(str, Enum):
+class PoseRelation(StrEnum):
     """evo's pose relations."""
     trans = "trans"
     angle = "angle"

@@ -85,7 +85,7 @@ def associate_rpg(est_stamps: np.ndarray, ref_stamps: np.ndarray, max_diff: floa
 def _greedy_tail(ci, cj, used_i, used_j):
     """Plain greedy over the remaining candidates (already in acceptance order)."""
     out_i, out_j = [], []
-    for i, j in zip(ci.tolist(), cj.tolist()):
+    for i, j in zip(ci.tolist(), cj.tolist(), strict=True):
         if not used_i[i] and not used_j[j]:
             used_i[i] = used_j[j] = True
             out_i.append(i)

@@ -68,7 +68,7 @@ def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.nd
     return starts, np.sqrt(np.sum(err * err, axis=1))
 
 
-def paper_metrics(stamps: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -> dict:
+def paper_metrics(stamps: np.ndarray, gt: Pose | None, est: Pose | None, inside: np.ndarray) -> dict:
     """``{"inside"|"outside"|"total": {"frames", "p_ate_m", "r_ate_deg", "p_re_m"}}`` (None = not computable);
     ``total`` also has the boundary jumps (phonepose.evaluation.boundary: count, max, RMS)."""
     stamps = np.asarray(stamps, dtype=float)

@@ -85,7 +85,7 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarr
         return m
     # slow path: find the first bad line and name it
     width = None
-    for s, lineno in zip(rows, lines):
+    for s, lineno in zip(rows, lines, strict=True):
         parts = [x for x in (s.split(delimiter) if delimiter else s.split())]
         try:
             vals = [float(x) for x in parts]
@@ -197,7 +197,7 @@ def tum_lines(stamps, poses: Pose | None) -> list[str]:
     if len(stamp_txt) != len(vals):
         raise ValueError(f"{len(stamp_txt)} stamps for {len(vals)} poses")
     body = [" ".join(f"{v:.9f}" for v in row) for row in vals.tolist()]
-    return [f"{a} {b}" for a, b in zip(stamp_txt, body)]
+    return [f"{a} {b}" for a, b in zip(stamp_txt, body, strict=True)]
 
 
 def write_tum(path: str | os.PathLike, stamps, poses: Pose | None) -> None:
@@ -224,7 +224,7 @@ def write_in_view(path: str | os.PathLike, stamps, inside) -> None:
     flags = np.asarray(inside, dtype=bool).ravel()
     if len(stamps) != len(flags):
         raise ValueError(f"{len(stamps)} stamps for {len(flags)} flags")
-    text = "# timestamp in_view\n" + "".join(f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags)) \
+    text = "# timestamp in_view\n" + "".join(f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags, strict=True)) \
         if len(stamps) else "# timestamp in_view\n"
     try:
         Path(path).write_text(text)

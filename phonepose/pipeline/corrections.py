@@ -34,7 +34,7 @@ Where the reference comes from:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -54,7 +54,7 @@ def _parse_choice(cls, value, what: str):
         raise ConfigError(f"unknown {what} {value!r}; allowed: {allowed}") from None
 
 
-class CorrectionMath(str, Enum):
+class CorrectionMath(StrEnum):
     PAPER = "paper"   # equations (1)-(6): position difference + left-multiplied quaternion
     SE3 = "se3"       # rigid offset: T_CM = T_ref · T_vio^-1
 
@@ -63,7 +63,7 @@ class CorrectionMath(str, Enum):
         return _parse_choice(cls, value, "correction math")
 
 
-class CM1Reading(str, Enum):
+class CM1Reading(StrEnum):
     CONSISTENT = "consistent"        # ref = pose_fix_vio, vio = pose_align_vio (default; see module doc)
     PAPER_LITERAL = "paper-literal"  # eq. (1)-(2) as printed: ref = pose_align_vio, vio = pose_fix_vio
 

@@ -125,7 +125,7 @@ class MarkerRecognizer:
         corners, ids, _ = detector.detectMarkers(image)
         if ids is None:
             return None
-        for c, i in zip(corners, ids.reshape(-1)):
+        for c, i in zip(corners, ids.reshape(-1), strict=True):
             if int(i) == self.marker.id:
                 return c.reshape(4, 2).astype(np.float64)
         return None

@@ -34,7 +34,7 @@ import importlib
 import importlib.metadata
 import logging
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 from typing import Callable, Iterable
 
 
@@ -48,12 +48,12 @@ from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.session import codec
 
 
-class Method(str, Enum):
+class Method(StrEnum):
     VIO = "VIO"
     MARKER = "marker"
 
 
-class CorrectionKind(str, Enum):
+class CorrectionKind(StrEnum):
     NONE = "none"
     CM1 = "CM1"
     CM2 = "CM2"

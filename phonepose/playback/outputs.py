@@ -33,7 +33,7 @@ def normalise_metrics(m: dict | None) -> dict:
 
 
 # ----------------------------------------------------------------------------- metrics
-def paper_metrics(stamps_s: np.ndarray, gt: Pose, est: Pose, inside: np.ndarray) -> dict:
+def paper_metrics(stamps_s: np.ndarray, gt: Pose | None, est: Pose | None, inside: np.ndarray) -> dict:
     """The paper's p_ATE / r_ATE / p_RE per scope (phonepose.evaluation), in the metrics.json layout."""
     from phonepose.evaluation import paper_metrics as compute
 
