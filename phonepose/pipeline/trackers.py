@@ -35,7 +35,7 @@ import importlib.metadata
 import logging
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 
 from phonepose.errors import ConfigError
@@ -250,7 +250,7 @@ def _import_reference(ref: str) -> Callable[[], object]:
     if not module or not attr:
         raise ConfigError(f"tracker {ref!r}: a reference is package.module:ClassName")
     try:
-        obj = importlib.import_module(module)
+        obj: Any = importlib.import_module(module)   # then the attribute a user named: any object
     except ImportError as exc:
         raise ConfigError(f"tracker {ref!r}: cannot import {module}: {exc}") from None
     for part in attr.split("."):
@@ -263,7 +263,7 @@ def _import_reference(ref: str) -> Callable[[], object]:
 def _user_tracker(ref: str, factory: Callable[[], object]) -> Tracker:
     """A user's tracker, built without arguments and checked against the protocol before any tick."""
     try:
-        tracker = factory()
+        tracker: Any = factory()   # a user's object, checked against the protocol below
     except Exception as exc:  # noqa: BLE001 - a user's constructor: whatever it raises is its error
         raise ConfigError(f"tracker {ref!r}: could not be created: {type(exc).__name__}: {exc}") from None
     missing = [a for a in TRACKER_PROTOCOL if not hasattr(tracker, a)]
@@ -272,7 +272,7 @@ def _user_tracker(ref: str, factory: Callable[[], object]) -> Tracker:
                           "(docs/writing-a-tracker.md)")
     if tracker.name in TRACKERS:
         raise ConfigError(f"tracker {ref!r} is named {tracker.name!r}, the name of a built-in tracker")
-    return tracker  # type: ignore[return-value]
+    return tracker
 
 
 def is_user_tracker(name: str) -> bool:

@@ -136,8 +136,12 @@ class Tracker(Protocol):
     """
 
     name: str
-    needs_camera: bool
-    uses_vio_samples: bool
+
+    @property
+    def needs_camera(self) -> bool: ...   # a class attribute satisfies it (read-only)
+
+    @property
+    def uses_vio_samples(self) -> bool: ...
 
     def reset(self) -> None:
         """Forget everything: the next ``step`` is the first tick of a session."""

@@ -30,7 +30,7 @@ import bisect
 import logging
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -325,7 +325,8 @@ class _PassState:
         self.d_anchor: Pose | None = None
         self.c_anchor: Pose | None = None
         self.last_stamp: dict[str, tuple[int, int]] = {}   # topic -> (log_time, header stamp) of the last sample used
-        self.handlers = {
+        # each handler takes (message, log_time, raw pose): the raw pose is None for topics that carry none
+        self.handlers: dict[str, Callable[[Any, int, Any], None]] = {
             Topic.CAMERA_IMAGE: self._image, Topic.DISPLAY_VIO_POSE: self._display_vio,
             Topic.CONTROLLER_VIO_POSE: self._controller_vio, Topic.GT_CONTROLLER_POSE: self._gt,
             Topic.DISPLAY_ANCHOR: self._display_anchor, Topic.CONTROLLER_ANCHOR: self._controller_anchor,
@@ -423,6 +424,7 @@ class _PassState:
         frame = None
         if self.image is not None:
             data, fmt = self.image
+            assert self.image_t is not None   # set together with self.image
             frame = Frame(data=data, format=fmt, t_ns=self.image_t, is_new=new_image, T_dvio_display=T_dvio_display)
         tick = Tick(
             index=self.index, t_ns=t, frame=frame,
@@ -470,6 +472,7 @@ class _PassState:
             return None
         if s._T_mocap_controller is not None:
             T_world_ctrl = raw_compose(T_world_ctrl, s._T_mocap_controller)
+        assert s._T_dvio_world is not None   # has_gt: the world's calibration is known
         return Pose.from_raw(raw_compose(s._T_dvio_world, T_world_ctrl))
 
     def _in_task(self, t: int) -> bool:

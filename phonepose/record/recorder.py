@@ -17,7 +17,7 @@ import signal
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from phonepose.errors import SessionContentError
 from phonepose.record.source import Record, Source
@@ -94,7 +94,7 @@ class Recorder:
         first: int | None = None
         last: int | None = None
         next_progress = start
-        flush = {} if self.flush_every_ns is None else {"flush_every_ns": self.flush_every_ns}
+        flush: dict[str, Any] = {} if self.flush_every_ns is None else {"flush_every_ns": self.flush_every_ns}
         with SessionWriter(self.out, **flush) as writer:
             for rec in static:
                 self._write(writer, rec, last_per_topic)
