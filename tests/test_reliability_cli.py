@@ -343,7 +343,7 @@ CASES = [
          4, r"no matching stamps between .*gt\.txt and .*late\.txt \(\|dt\| < 0\.02 s\)$"),
     Case("unknown-tracker", "unknown tracker name",
          lambda g, d: ["playback", str(g), "-q", "-t", "T99", "--out", str(d / "o")], 5,
-         r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper$"),
+         r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper, or package\.module:ClassName$"),
     Case("bad-rate", "bad option value (`--rate -1`)",
          lambda g, d: ["playback", str(g), "-q", "--rate", "-1", "--out", str(d / "o")], 5,
          r"^phonepose: error: --rate -1: expected a finite number in \(0, 1000\] Hz$"),
