@@ -23,7 +23,6 @@ import copy
 import time
 from pathlib import Path
 
-
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "evo"
 GT, EST = DATA / "fr2_desk_groundtruth.txt", DATA / "fr2_desk_ORB.txt"
 REPEATS = 5

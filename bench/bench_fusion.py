@@ -17,8 +17,8 @@ import cv2
 
 
 def _observations(session: Path) -> tuple[list, float]:
-    from phonepose.pipeline.shared import SharedStages
     from phonepose.pipeline.context import read_context
+    from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 

@@ -65,18 +65,17 @@ print(json.dumps({"peak_kb": peak_kb(), "setup_rss_kb": seen.get("setup_rss_kb",
 def write_streaming_session(path: Path, duration_s: float, width: int = 640, height: int = 480) -> int:
     """A session like ``write_test_session`` (marker in view throughout), written in log-time order
     without holding it in memory. Returns the number of messages."""
-    import numpy as np
     from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from scipy.spatial.transform import Rotation
 
     from phonepose.geometry import Pose
-    from phonepose.testing.marker_images import encode_jpeg, pinhole_camera, render_marker
-    from phonepose.testing.playback_session import ANCHOR_ERROR, MARKER, T0_NS, T_DVIO_ANCHOR, T_WORLD_DVIO, T_camera_marker_at
     from phonepose.schemas import phonepose_pb2 as pb
     from phonepose.schemas.topics import Frame, Topic
     from phonepose.session import SessionWriter
     from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
-    from scipy.spatial.transform import Rotation
+    from phonepose.testing.marker_images import encode_jpeg, pinhole_camera, render_marker
+    from phonepose.testing.playback_session import ANCHOR_ERROR, MARKER, T0_NS, T_DVIO_ANCHOR, T_WORLD_DVIO, T_camera_marker_at
 
     cam = pinhole_camera(f=250.0 * width / 320, width=width, height=height)
     T_dvio_display = Pose.identity()

@@ -24,9 +24,9 @@ import numpy as np
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary, marker_object_points
 from phonepose.pipeline.shared import SharedStages
-from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import Frame, MarkerModel, SessionContext, Tick
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 
 CAMERA = pinhole_camera()
 MARKER = MarkerModel("DICT_4X4_50", 7, 0.05, Pose.identity())

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import cv2
 
@@ -67,8 +67,8 @@ def _opencv_timed(stages, clock: _Clock) -> Iterator[None]:
 
 
 def _shared_stages(session: Path, repeats: int = 3) -> tuple[list, dict]:
-    from phonepose.pipeline.shared import SharedStages
     from phonepose.pipeline.context import read_context
+    from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 

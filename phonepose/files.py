@@ -53,9 +53,9 @@ import os
 import secrets
 import shutil
 import stat
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from phonepose.errors import RECOVER_HINT, ConfigError, InputFileError, OutputError, PhoneposeError
 
@@ -400,7 +400,7 @@ class OutputPlan:
                         raise ConfigError(f"{x.option} {x.path} lies inside {y.option} {y.path}, which is replaced "
                                           f"whole: write it elsewhere")
 
-    def __enter__(self) -> "OutputPlan":
+    def __enter__(self) -> OutputPlan:
         self.check()
         try:
             for out in self.outputs:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from typing import TypeGuard
+
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -50,7 +51,7 @@ class Pose:
         self.translation = translation
 
     @classmethod
-    def _of(cls, quat: Quat, translation: np.ndarray) -> "Pose":
+    def _of(cls, quat: Quat, translation: np.ndarray) -> Pose:
         """A single pose from a unit quaternion tuple, no check, no scipy object."""
         pose = cls.__new__(cls)
         pose._rotation = None
@@ -80,13 +81,13 @@ class Pose:
 
     # ----------------------------------------------------------------- constructors
     @classmethod
-    def identity(cls, n: int | None = None) -> "Pose":
+    def identity(cls, n: int | None = None) -> Pose:
         if n is None:
             return cls._of((0.0, 0.0, 0.0, 1.0), np.zeros(3))
         return cls(Rotation.identity(n), np.zeros((n, 3)))
 
     @classmethod
-    def from_xyzw(cls, translation, quat_xyzw) -> "Pose":
+    def from_xyzw(cls, translation, quat_xyzw) -> Pose:
         """From translation(s) and x,y,z,w quaternion(s); quaternions are normalised."""
         quat = np.asarray(quat_xyzw, dtype=float)
         if quat.shape == (4,):
@@ -94,30 +95,30 @@ class Pose:
         return cls(Rotation.from_quat(quat), np.asarray(translation, dtype=float))
 
     @classmethod
-    def from_matrix(cls, matrix) -> "Pose":
+    def from_matrix(cls, matrix) -> Pose:
         m = np.asarray(matrix, dtype=float)
         return cls(Rotation.from_matrix(m[..., :3, :3]), m[..., :3, 3].copy())
 
     @classmethod
-    def from_rotvec(cls, translation, rotvec) -> "Pose":
+    def from_rotvec(cls, translation, rotvec) -> Pose:
         rv = np.asarray(rotvec, dtype=float)
         if rv.shape == (3,):
             return cls._of(quat_from_rotvec(rv.tolist()), np.asarray(translation, dtype=float))
         return cls(Rotation.from_rotvec(rv), np.asarray(translation, dtype=float))
 
     @classmethod
-    def from_cv(cls, rvec, tvec) -> "Pose":
+    def from_cv(cls, rvec, tvec) -> Pose:
         """From OpenCV's rvec/tvec (as returned by solvePnP): the object frame in the camera frame."""
         return cls.from_rotvec(np.asarray(tvec, dtype=float).reshape(3), np.asarray(rvec, dtype=float).reshape(3))
 
     @classmethod
-    def from_raw(cls, raw: RawPose) -> "Pose":
+    def from_raw(cls, raw: RawPose) -> Pose:
         """From a raw ``(qx, qy, qz, qw, x, y, z)`` tuple (normalised once more, as scipy's from_quat would)."""
         return cls._of(quat_normalised(raw),
                        np.array(raw[4:], dtype=float))
 
     @classmethod
-    def concatenate(cls, poses: "list[Pose]") -> "Pose":
+    def concatenate(cls, poses: list[Pose]) -> Pose:
         rots = Rotation.concatenate([p.rotation for p in poses])
         trans = np.vstack([np.atleast_2d(p.translation) for p in poses])
         return cls(rots, trans)
@@ -151,7 +152,7 @@ class Pose:
         t = np.asarray(self.translation, dtype=float).tolist()
         return (q[0], q[1], q[2], q[3], t[0], t[1], t[2])
 
-    def with_translation(self, translation) -> "Pose":
+    def with_translation(self, translation) -> Pose:
         """The same rotation at another position."""
         q = self._q()
         if q is not None:
@@ -159,14 +160,14 @@ class Pose:
         return Pose(self.rotation, translation)
 
     # ----------------------------------------------------------------- algebra
-    def __matmul__(self, other: "Pose") -> "Pose":
+    def __matmul__(self, other: Pose) -> Pose:
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None and np.ndim(other.translation) == 1:
             return Pose._of(quat_compose(qa, qb), quat_apply(qa, other.translation) + self.translation)
         return Pose(rotation_product(self.rotation, other.rotation),
                     self.rotation.apply(other.translation) + self.translation)
 
-    def inv(self) -> "Pose":
+    def inv(self) -> Pose:
         q = self._q()
         if q is not None and np.ndim(self.translation) == 1:
             q_inv = quat_inv(q)
@@ -189,14 +190,14 @@ class Pose:
             return quat_apply(q, points) + self.translation
         return self.rotation.apply(points) + self.translation
 
-    def relative_to(self, other: "Pose") -> "Pose":
+    def relative_to(self, other: Pose) -> Pose:
         """``other⁻¹ · self``: this pose expressed in the frame of ``other``."""
         return other.inv() @ self
 
     def __len__(self) -> int:
         return len(self.rotation)
 
-    def __getitem__(self, index) -> "Pose":
+    def __getitem__(self, index) -> Pose:
         # the stored quaternions indexed directly: scipy's __getitem__ costs ~0.7 ms on 2000 poses
         q = self.rotation.as_quat()
         if q.ndim == 1:
@@ -207,17 +208,17 @@ class Pose:
     def single(self) -> bool:
         return self._q() is not None
 
-    def angle_to(self, other: "Pose") -> np.ndarray | np.float64:
+    def angle_to(self, other: Pose) -> np.ndarray | np.float64:
         """Rotation angle (rad) between the two orientations (a scalar for single poses)."""
         qa, qb = self._q(), other._q()
         if qa is not None and qb is not None:
             return np.float64(quat_magnitude(quat_compose(quat_inv(qa), qb)))
         return rotation_product(rotation_inverse(self.rotation), other.rotation).magnitude()
 
-    def distance_to(self, other: "Pose") -> np.ndarray:
+    def distance_to(self, other: Pose) -> np.ndarray:
         return np.linalg.norm(self.translation - other.translation, axis=-1)
 
-    def allclose(self, other: "Pose", atol: float = 1e-9) -> bool:
+    def allclose(self, other: Pose, atol: float = 1e-9) -> bool:
         return bool(np.all(self.distance_to(other) <= atol) and np.all(self.angle_to(other) <= atol))
 
 

@@ -116,7 +116,7 @@ def test_two_workers_give_the_same_table(sessions, one_worker, tmp_path):
 
 @pytest.mark.slow
 def test_dask_local_cluster_gives_the_same_table(sessions, one_worker, tmp_path):
-    import distributed   # in the test extra: a missing one must fail, not skip
+    import distributed  # in the test extra: a missing one must fail, not skip
 
     out = tmp_path / "dask.parquet"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:

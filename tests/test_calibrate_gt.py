@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from phonepose.calibration.calibrate_gt import closed_form, calibrate_gt
+from phonepose.calibration.calibrate_gt import calibrate_gt, closed_form
 from phonepose.calibration.ground_truth import GroundTruthSeries, unique_ascending
 from phonepose.calibration.gt_calibration import GtCalibration, load_gt_calibration, save_gt_calibration
 from phonepose.calibration.sightings import Sightings

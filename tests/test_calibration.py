@@ -20,8 +20,7 @@ import numpy as np
 import pytest
 
 from phonepose.calibration import load_calibration, save_calibration
-from phonepose.calibration.board import (DEFAULT_BOARD, BoardSpec, board_png, board_spec, parse_board_spec,
-                                         render_board)
+from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_png, board_spec, parse_board_spec, render_board
 from phonepose.calibration.calibrate import BoardFinder, calibrate_camera, calibrate_views
 from phonepose.calibration.marker_image import marker_image, marker_png
 from phonepose.errors import ConfigError

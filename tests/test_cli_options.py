@@ -9,9 +9,10 @@ import subprocess
 import sys
 
 import pytest
-from hypothesis import given, strategies as st
-
 from conftest import wait_until
+from hypothesis import given
+from hypothesis import strategies as st
+
 from phonepose.cli import options
 from phonepose.errors import ConfigError
 from phonepose.numbers import check_number

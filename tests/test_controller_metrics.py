@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from phonepose.evaluation.controller import (LAG_RESOLUTION_S, availability, controller_metrics, jitter, lag,
-                                             still_ticks)
+from phonepose.evaluation.controller import LAG_RESOLUTION_S, availability, controller_metrics, jitter, lag, still_ticks
 from phonepose.geometry import Pose
 
 TICK = 0.05

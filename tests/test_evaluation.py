@@ -16,8 +16,16 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError, InputFileError
 from phonepose.evaluation import (
-    Trajectory, align, associate_evo, associate_rpg, evaluate_rpg, load_euroc, load_kitti, load_tum,
-    paper_metrics, write_tum,
+    Trajectory,
+    align,
+    associate_evo,
+    associate_rpg,
+    evaluate_rpg,
+    load_euroc,
+    load_kitti,
+    load_tum,
+    paper_metrics,
+    write_tum,
 )
 from phonepose.evaluation.evo_metrics import Unit, _first_crossings, id_pairs_from_delta
 from phonepose.evaluation.relative import find_pairs, relative_errors
@@ -119,7 +127,7 @@ def test_rpg_association_equals_greedy_loop(te, tr):
 @given(te=stamp_lists, tr=stamp_lists)
 def test_evo_association_equals_evo_sync(te, tr):
     """Against evo 1.38.1's own matching_time_indices (shorter trajectory as query; duplicates included)."""
-    from evo.core import sync   # evo 1.38.1 is in the test extra
+    from evo.core import sync  # evo 1.38.1 is in the test extra
 
     i_est, i_ref = associate_evo(te, tr, 0.01)
     if te.size > tr.size:

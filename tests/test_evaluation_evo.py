@@ -59,7 +59,7 @@ def parse(command: str) -> dict:
 CASES = [r for r in EXPECTED if local(r["cwd"], parse(r["command"])["ref"]) and local(r["cwd"], parse(r["command"])["est"])]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load(path: Path, fmt: str):
     return load_trajectory(path, fmt)
 
@@ -100,7 +100,7 @@ def test_equals_evo_cli_outputs(r):
 
 # ----------------------------------------------------------------------------- live evo (Python API)
 def _evo_trajs():
-    from evo.tools import file_interface   # evo 1.38.1 is in the test extra
+    from evo.tools import file_interface  # evo 1.38.1 is in the test extra
 
     ref = file_interface.read_tum_trajectory_file(str(DATA / "evo/fr2_desk_groundtruth.txt"))
     est = file_interface.read_tum_trajectory_file(str(DATA / "evo/fr2_desk_ORB.txt"))

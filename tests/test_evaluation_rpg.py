@@ -34,7 +34,7 @@ RTOL = 1e-6
 ATOL = 1e-9
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load(rel: str):
     return load_tum(DATA / PATHS[rel])
 

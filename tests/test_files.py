@@ -10,10 +10,10 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from conftest import DEADLINE_S
 
 from phonepose.errors import ConfigError, InputFileError, OutputError
 from phonepose.files import MANIFEST, TMP_SUFFIX, OutputPlan, check_input, write_text_output
-from conftest import DEADLINE_S
 
 
 def _tree(root: Path) -> dict[str, bytes]:

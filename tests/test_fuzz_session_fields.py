@@ -14,10 +14,10 @@ import pytest
 from google.protobuf.descriptor import FieldDescriptor
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from phonepose.testing.playback_session import write_test_session
-from phonepose.schemas.topics import TOPIC_TYPES, Topic
 from test_reliability_cli import rewrite
+
+from phonepose.schemas.topics import TOPIC_TYPES, Topic
+from phonepose.testing.playback_session import write_test_session
 
 FUZZ = settings(max_examples=int(os.environ.get("PHONEPOSE_FUZZ_FIELDS", "25")), deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

@@ -4,13 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation, Slerp
 
-from phonepose.geometry import (Pose, interpolate, interpolate_many, quat_as_rotvec, quat_from_rotvec, quat_inv,
-                                quat_matrix, quat_mul, quat_normalised, quat_rotate, quat_slerp, raw_compose,
-                                rotation_inverse, rotation_product,
-                                raw_interpolate)
+from phonepose.geometry import (
+    Pose,
+    interpolate,
+    interpolate_many,
+    quat_as_rotvec,
+    quat_from_rotvec,
+    quat_inv,
+    quat_matrix,
+    quat_mul,
+    quat_normalised,
+    quat_rotate,
+    quat_slerp,
+    raw_compose,
+    raw_interpolate,
+    rotation_inverse,
+    rotation_product,
+)
 
 finite = st.floats(-10, 10, allow_nan=False)
 vec3 = st.tuples(finite, finite, finite).map(np.array)

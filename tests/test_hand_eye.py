@@ -108,8 +108,7 @@ def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
 def test_simulated_session_cli_end_to_end(tmp_path):
     """record sim -> calibrate-hand-eye finds the simulator's 11 deg hand-eye and 30 ms mocap clock;
     playback --hand-eye then scores the trackers' own orientation error, not the rigid body's."""
-    from phonepose.record.sim import SimSession, default_config
-    from phonepose.record.sim import record_sim
+    from phonepose.record.sim import SimSession, default_config, record_sim
 
     session = tmp_path / "s.mcap"
     record_sim(session, scenario="exp2", path="TRI2", trial=1, seed=0)

@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 import pytest
 from aiohttp import WSMsgType, web
+from conftest import DEADLINE_S, wait_until
 from playwright.sync_api import sync_playwright
 
-from conftest import DEADLINE_S, wait_until
 from phonepose.record.live.websocket import PageSocket
 
 # Debian's chromium when installed (tools/install-test-browser.sh), else Playwright's own build
@@ -151,7 +151,7 @@ class LaptopSide:
         self._ready.set()
         self.loop.run_forever()
 
-    def start(self) -> "LaptopSide":
+    def start(self) -> LaptopSide:
         self._thread.start()
         assert self._ready.wait(DEADLINE_S)
         return self

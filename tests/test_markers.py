@@ -9,10 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
-from phonepose.pipeline.markers import (MarkerRecognizer, aruco_dictionary, marker_object_points,
-                                        push_edges_outward)
-from phonepose.testing.marker_images import looking_at, pinhole_camera, project_corners, render_marker
+from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary, marker_object_points, push_edges_outward
 from phonepose.pipeline.types import MarkerModel
+from phonepose.testing.marker_images import looking_at, pinhole_camera, project_corners, render_marker
 
 CAMERA = pinhole_camera()
 MARKER = MarkerModel("DICT_4X4_50", 7, 0.05, Pose.identity())

@@ -9,8 +9,7 @@ from scipy.spatial.transform import Rotation
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 from phonepose.pipeline.anchors import controller_in_display_vio
-from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
-                                            marker_correction)
+from phonepose.pipeline.corrections import CM1Reading, Correction, CorrectionMath, cm1_correction, marker_correction
 
 REF = Pose.from_rotvec([0.31, -0.12, 0.45], [0.2, 0.5, -0.9])
 VIO = Pose.from_rotvec([0.36, -0.05, 0.40], [0.23, 0.47, -0.86])

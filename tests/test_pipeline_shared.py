@@ -8,12 +8,12 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from phonepose.geometry import Pose
 from phonepose.pipeline.anchors import controller_in_display_vio
 from phonepose.pipeline.shared import SharedStages, detections_message
-from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import Frame as PipelineFrame
 from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
 from phonepose.schemas.topics import Frame
 from phonepose.session import codec
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 
 T_DISPLAY_CAMERA = Pose.from_rotvec([0.0, 0.0, 0.0], [0.0, 0.07, 0.0])
 CAMERA = pinhole_camera(T_display_camera=T_DISPLAY_CAMERA)

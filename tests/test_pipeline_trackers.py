@@ -8,8 +8,7 @@ import pytest
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 from phonepose.pipeline.corrections import cm1_correction, marker_correction
-from phonepose.pipeline.trackers import (TRACKERS, CorrectionKind, Method, make_tracker, make_trackers,
-                                         tracker_names)
+from phonepose.pipeline.trackers import TRACKERS, CorrectionKind, Method, make_tracker, make_trackers, tracker_names
 from phonepose.pipeline.types import MarkerObservation, Observation, Tick
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.session.codec import encode_pose

@@ -10,15 +10,13 @@ import pytest
 
 from phonepose.cli import main
 from phonepose.errors import ConfigError, OutputError
-from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import tracker_names
 from phonepose.playback import rerun_log as paths
-from phonepose.viewer import entities as E
 from phonepose.playback.engine import run_playback
-from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas.topics import Topic, tracker_pose_topic
-from phonepose.session import SessionReader
-from phonepose.session import codec
+from phonepose.session import SessionReader, codec
+from phonepose.testing.playback_session import write_test_session
+from phonepose.viewer import entities as E
 
 
 @pytest.fixture(scope="module")

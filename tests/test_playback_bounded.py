@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_reliability_cli import rewrite
 
 from phonepose.cli import main
 from phonepose.pipeline.context import read_context
@@ -21,7 +22,6 @@ from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
 from phonepose.testing.playback_session import write_test_session
-from test_reliability_cli import rewrite
 
 HOUR_NS = 3600 * 10**9
 

@@ -12,15 +12,14 @@ import tomllib
 
 import numpy as np
 import pytest
+from conftest import DEADLINE_S, wait_until
 from mcap.reader import NonSeekingReader
 
 from phonepose.geometry import Pose
 from phonepose.record.sim import T0_NS, default_config, record_sim
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
-from phonepose.session import SessionReader
-from phonepose.session import codec
-from conftest import DEADLINE_S, wait_until
+from phonepose.session import SessionReader, codec
 
 PHONEPOSE = [sys.executable, "-m", "phonepose"]
 # A cheap camera rate keeps these tests fast; everything else is the default world.

@@ -24,6 +24,7 @@ import aiohttp
 import cv2
 import numpy as np
 import pytest
+from conftest import DEADLINE_S, wait_until, wait_until_async, within
 from scipy.spatial.transform import Rotation
 
 from phonepose.calibration.camera_file import CameraCalibrationFile, save_calibration
@@ -31,13 +32,11 @@ from phonepose.geometry import Pose
 from phonepose.playback.engine import run_playback
 from phonepose.record.live import LiveSession
 from phonepose.record.live.clock import OffsetEstimator
-from phonepose.record.live.server import Malformed, parse_message
 from phonepose.record.live.recording import T_DISPLAY_CAMERA
+from phonepose.record.live.server import Malformed, parse_message
 from phonepose.record.live.tls import ensure_certificate
 from phonepose.schemas.topics import Frame, Topic
-from phonepose.session import SessionReader
-from phonepose.session import codec
-from conftest import DEADLINE_S, wait_until, wait_until_async, within
+from phonepose.session import SessionReader, codec
 
 W, H, FPS = 640, 480, 30.0
 K = np.array([[600.0, 0, 320.0], [0, 600.0, 240.0], [0, 0, 1]])
@@ -301,7 +300,7 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
         by.setdefault(m.topic, []).append(m)
     n_frames = int(VIDEO_S * FPS)
     assert len(by[Topic.CAMERA_IMAGE]) == n_frames and len(by[Topic.DISPLAY_VIO_POSE]) == n_frames
-    from phonepose.viewer.frames import FRAME_TREE_TOPICS   # written by the recorder beside the source's records
+    from phonepose.viewer.frames import FRAME_TREE_TOPICS  # written by the recorder beside the source's records
     recorded = [m.topic for m in msgs if m.topic not in FRAME_TREE_TOPICS]
     assert recorded[:3] == [Topic.SESSION_INFO, Topic.CAMERA_CALIBRATION, Topic.CAMERA_EXTRINSICS]
     assert by[Topic.SESSION_INFO][0].msg.source == "live"

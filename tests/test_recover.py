@@ -14,11 +14,11 @@ import sys
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from test_reliability_data import read_keys, write_session
 
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
 from phonepose.session import SessionReader
 from phonepose.session.recover import salvage
-from test_reliability_data import read_keys, write_session
 
 SECONDS = 6.0
 

@@ -14,20 +14,20 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
 from mcap.writer import Writer
 from mcap_protobuf.schema import build_file_descriptor_set
+from test_reliability_data import mounted_tmpfs
 
-from phonepose.testing.playback_session import write_test_session
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, SessionWriter
-from test_reliability_data import mounted_tmpfs
+from phonepose.testing.playback_session import write_test_session
 
 
 # ----------------------------------------------------------------------------- inputs

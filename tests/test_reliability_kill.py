@@ -15,15 +15,15 @@ import sys
 import time
 
 import numpy as np
-import pytest
 import pyarrow.parquet as pq
+import pytest
+from conftest import DEADLINE_S, wait_until
 from mcap.reader import make_reader
+from test_reliability_data import mounted_tmpfs
 
 from phonepose.errors import DamagedFileError
 from phonepose.session import SessionReader
 from phonepose.session.recover import salvage
-from test_reliability_data import mounted_tmpfs
-from conftest import DEADLINE_S, wait_until
 
 pytestmark = pytest.mark.slow
 

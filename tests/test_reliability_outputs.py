@@ -15,17 +15,16 @@ import contextlib
 import os
 import signal
 import stat
-import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
+from test_reliability_data import mounted_tmpfs
 
 from phonepose.files import MANIFEST, TMP_SUFFIX
 from phonepose.testing.playback_session import write_test_session
-from test_reliability_data import mounted_tmpfs
 
 CONFIG = b"[camera]\nrate_hz = 5.0\n"   # a valid override; a 5 Hz camera makes the experiments that run to
 #                                          their end ~5x cheaper (what they output does not matter here)

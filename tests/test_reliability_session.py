@@ -12,11 +12,11 @@ import subprocess
 import sys
 
 import pytest
+from test_reliability_data import mounted_tmpfs, read_keys, session_messages, write_session
 
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.recover import salvage
-from test_reliability_data import mounted_tmpfs, read_keys, session_messages, write_session
 
 
 class FullDisk:

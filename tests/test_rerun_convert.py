@@ -10,8 +10,8 @@ from pathlib import Path
 
 import rerun.chunk as rc
 
-from phonepose.testing.sample import sample_messages, write_sample
 from phonepose.schemas.topics import Topic
+from phonepose.testing.sample import sample_messages, write_sample
 
 
 def _rerun_cli() -> str:

@@ -11,7 +11,6 @@ summary, or without chunks are valid MCAP and read like any other.
 from __future__ import annotations
 
 import contextlib
-import io
 import logging
 import os
 import struct

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 
 from phonepose.errors import DamagedFileError, InputFileError
+from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.testing.sample import sample_messages
-from phonepose.schemas import phonepose_pb2 as pb
 
 
 @pytest.fixture()

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 import rerun as rr
 import rerun.chunk as rc
-from phonepose.testing.playback_session import write_test_session
 
 from phonepose.playback.engine import run_playback
 from phonepose.playback.rerun_log import recording_id
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
+from phonepose.testing.playback_session import write_test_session
 from phonepose.viewer import entities as E
 from phonepose.viewer.style import GT_COLOR, TASK_COLOR, TRACKER_COLORS, tracker_color
 

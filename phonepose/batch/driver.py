@@ -7,10 +7,11 @@ import math
 import os
 import statistics
 import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from phonepose.batch.executor import open_executor
 from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinations, params_label, parse_param_options

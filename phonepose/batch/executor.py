@@ -10,9 +10,9 @@ does the scheduling, and its workers belong to the cluster, not to this command)
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from concurrent.futures import Executor
 from contextlib import contextmanager
-from typing import Iterator
 
 from phonepose.batch.run import init_worker
 from phonepose.errors import ConfigError

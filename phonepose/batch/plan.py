@@ -13,8 +13,8 @@ import itertools
 import json
 import os
 import re
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
 
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, SECONDS_MAX, check_number

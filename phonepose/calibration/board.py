@@ -73,7 +73,7 @@ class BoardSpec:
 
 
 def _dictionary(name: str) -> cv2.aruco.Dictionary:
-    from phonepose.pipeline.markers import aruco_dictionary   # the one place that maps names (ConfigError if unknown)
+    from phonepose.pipeline.markers import aruco_dictionary  # the one place that maps names (ConfigError if unknown)
 
     return aruco_dictionary(name)
 

@@ -21,17 +21,17 @@ import contextlib
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 import cv2
 import numpy as np
 
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
-from phonepose.files import check_input
 from phonepose.errors import ConfigError, InputFileError, SessionContentError
+from phonepose.files import check_input
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MIN_VIEWS = 4            # 9 unknowns + 6 per view; OpenCV's own ChArUco tutorial calibrates from 4 photos
@@ -124,7 +124,7 @@ class _Collected:
     skipped: list[str]
 
 
-def views_from_images(directory: "str | Path", finder: BoardFinder, progress: Progress | None = None) -> _Collected:
+def views_from_images(directory: str | Path, finder: BoardFinder, progress: Progress | None = None) -> _Collected:
     directory = Path(directory)
     if not directory.exists():
         raise InputFileError(f"{directory}: no such directory")
@@ -238,7 +238,7 @@ def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, ev
     return _Collected(views, size, examined, with_board, [])
 
 
-def views_from_video(path: "str | Path", finder: BoardFinder, max_views: int = 40,
+def views_from_video(path: str | Path, finder: BoardFinder, max_views: int = 40,
                      progress: Progress | None = None) -> _Collected:
     path = check_input(path, "video file")
     with _quiet_opencv():
@@ -298,7 +298,7 @@ def calibrate_views(views: list[View], image_size: tuple[int, int], board: Board
                              std_intrinsics=std_in.ravel()[:9].astype(float), board=board)
 
 
-def calibrate_camera(*, images: "str | Path | None" = None, video: "str | Path | None" = None,
+def calibrate_camera(*, images: str | Path | None = None, video: str | Path | None = None,
                      device: int | None = None, board: BoardSpec = DEFAULT_BOARD, max_views: int = 40,
                      min_corners: int = MIN_CORNERS, min_views: int = MIN_VIEWS, device_seconds: float = 120.0,
                      device_interval_s: float = 0.5, device_size: tuple[int, int] | None = None,

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from phonepose.calibration.ground_truth import GroundTruthSeries
 from phonepose.calibration.gt_calibration import GtCalibration
@@ -202,7 +202,7 @@ class _Fit:
     def params(self) -> np.ndarray:
         return np.concatenate([np.zeros(3), self.X.translation, np.zeros(3), self.Z.translation, [self.delta]])
 
-    def at(self, p: np.ndarray) -> "_Fit":
+    def at(self, p: np.ndarray) -> _Fit:
         return _Fit(Pose(self.X.rotation * Rotation.from_rotvec(p[0:3]), p[3:6]),
                     Pose(self.Z.rotation * Rotation.from_rotvec(p[6:9]), p[9:12]), float(p[12]))
 
@@ -373,7 +373,7 @@ def calibrate_gt(sightings: Sightings, gt: GroundTruthSeries, *, max_offset_s: f
         sigma=sigma, ground_truth=gt.source if gt.is_file else "", warnings=_warnings(sigma, spread))
 
 
-def calibrate_gt_session(path: "str | os.PathLike", gt_file: "str | os.PathLike | None" = None, *,
+def calibrate_gt_session(path: str | os.PathLike, gt_file: str | os.PathLike | None = None, *,
                          gt_format: str | None = None, max_offset_s: float = MAX_OFFSET_S,
                          bootstrap: int = BOOTSTRAP, seed: int = 0) -> GtCalibration:
     """:func:`calibrate_gt` on a session's marker sightings and its ground truth (``gt_file``, else /gt/controller/pose).

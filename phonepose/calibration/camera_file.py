@@ -9,9 +9,9 @@ written by OpenCV's ``calibrate_camera_charuco`` sample loads here.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -56,8 +56,8 @@ def calibration_text(calib: CameraCalibrationFile, suffix: str = ".yaml") -> str
     return opencv_text(write, suffix)
 
 
-def save_calibration(path: "str | Path", calib: CameraCalibrationFile, option: str = "--out",
-                     inputs: Sequence["str | Path"] = ()) -> None:
+def save_calibration(path: str | Path, calib: CameraCalibrationFile, option: str = "--out",
+                     inputs: Sequence[str | Path] = ()) -> None:
     """Write the file by the output rule (phonepose.files): the extension chooses YAML, XML or JSON."""
     from phonepose.files import write_text_output
 
@@ -88,7 +88,7 @@ def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
     return fs
 
 
-def load_calibration(path: "str | os.PathLike") -> CameraCalibrationFile:
+def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     """Read a calibration file; a missing or malformed one is an InputFileError (one line, exit 2)."""
     path = Path(path)
     fs = open_yaml(path, "calibration")

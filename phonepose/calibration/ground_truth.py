@@ -57,7 +57,7 @@ def unique_ascending(stamps: np.ndarray, poses: Pose, source: str) -> GroundTrut
     return GroundTruthSeries(stamps[keep], poses[idx], source, duplicates=int(np.count_nonzero(~keep)))
 
 
-def gt_format_of(path: "str | os.PathLike", fmt: str | None = None) -> str:
+def gt_format_of(path: str | os.PathLike, fmt: str | None = None) -> str:
     """The file's format: as given, else EuRoC for ``.csv`` and TUM for anything else."""
     if fmt is None:
         return "euroc" if Path(path).suffix.lower() == ".csv" else "tum"
@@ -66,7 +66,7 @@ def gt_format_of(path: "str | os.PathLike", fmt: str | None = None) -> str:
     return fmt
 
 
-def file_ground_truth(path: "str | os.PathLike", fmt: str | None = None) -> GroundTruthSeries:
+def file_ground_truth(path: str | os.PathLike, fmt: str | None = None) -> GroundTruthSeries:
     """A TUM or EuRoC trajectory file as ground truth (evaluate's readers: one line per bad file)."""
     from phonepose.evaluation.trajectory import load_trajectory
     from phonepose.files import check_input
@@ -80,7 +80,7 @@ def file_ground_truth(path: "str | os.PathLike", fmt: str | None = None) -> Grou
     return series
 
 
-def session_ground_truth(path: "str | os.PathLike") -> GroundTruthSeries:
+def session_ground_truth(path: str | os.PathLike) -> GroundTruthSeries:
     """The session's ``/gt/controller/pose`` samples at their log time (the time playback associates by)."""
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader, codec
@@ -103,7 +103,7 @@ def session_ground_truth(path: "str | os.PathLike") -> GroundTruthSeries:
     return unique_ascending(np.asarray(stamps), Pose.from_xyzw(arr[:, 4:], arr[:, :4]), Topic.GT_CONTROLLER_POSE)
 
 
-def load_ground_truth(session: "str | os.PathLike", gt_file: "str | os.PathLike | None" = None,
+def load_ground_truth(session: str | os.PathLike, gt_file: str | os.PathLike | None = None,
                       fmt: str | None = None) -> GroundTruthSeries:
     """``gt_file`` if given (the session's own ground truth is then ignored), else the session's topic."""
     return file_ground_truth(gt_file, fmt) if gt_file is not None else session_ground_truth(session)

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Sequence
 
 import cv2
 import numpy as np
@@ -61,7 +61,7 @@ class GtCalibration:
     def body_rotation_deg(self) -> float:
         return float(np.degrees(self.T_controller_gt.rotation.magnitude()))
 
-    def with_(self, **changes) -> "GtCalibration":
+    def with_(self, **changes) -> GtCalibration:
         return replace(self, **changes)
 
     def apply(self, stamps_s: np.ndarray | None, T_world_grip: Pose) -> tuple[np.ndarray | None, Pose]:
@@ -112,8 +112,8 @@ def calibration_text(cal: GtCalibration) -> str:
     return opencv_text(write, ".yaml")
 
 
-def save_gt_calibration(path: "str | os.PathLike", cal: GtCalibration, option: str = "--out",
-                        inputs: Sequence["str | os.PathLike"] = ()) -> None:
+def save_gt_calibration(path: str | os.PathLike, cal: GtCalibration, option: str = "--out",
+                        inputs: Sequence[str | os.PathLike] = ()) -> None:
     """Written by the output rule (phonepose.files: checked, temporary name, atomic rename)."""
     from phonepose.files import write_text_output
 
@@ -145,7 +145,7 @@ def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | N
     return Pose.from_matrix(T)
 
 
-def load_gt_calibration(path: "str | os.PathLike", what: str = "calibration") -> GtCalibration:
+def load_gt_calibration(path: str | os.PathLike, what: str = "calibration") -> GtCalibration:
     """A file of ``save_gt_calibration`` or an older hand-eye file; a bad one is an InputFileError (exit 2)."""
     from phonepose.calibration.camera_file import open_yaml
 
@@ -189,8 +189,8 @@ class GroundTruthSetup:
     rerun_params: dict = field(default_factory=dict)   # what makes the Rerun recording id differ
 
 
-def ground_truth_setup(calibration: "str | os.PathLike | GtCalibration | None", calibration_name: str | None = None,
-                       gt_file: "str | os.PathLike | None" = None, gt_format: str | None = None) -> GroundTruthSetup:
+def ground_truth_setup(calibration: str | os.PathLike | GtCalibration | None, calibration_name: str | None = None,
+                       gt_file: str | os.PathLike | None = None, gt_format: str | None = None) -> GroundTruthSetup:
     """The calibration file and the sidecar ground truth, loaded (one line and exit 2 for a bad file)."""
     import hashlib
 

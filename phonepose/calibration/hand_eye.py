@@ -177,7 +177,7 @@ def estimate_hand_eye(t_phone: np.ndarray, phone: Pose, t_mocap: np.ndarray, moc
                    warnings=_warnings(len(a), sigma_deg, sigma_ms, spread))
 
 
-def hand_eye_from_session(path: "str | Path", **options) -> HandEye:
+def hand_eye_from_session(path: str | Path, **options) -> HandEye:
     """Estimate X from a session's controller VIO (/controller/vio/pose) and ground truth (/gt/controller/pose).
 
     ``options`` go to :func:`estimate_hand_eye`."""
@@ -230,12 +230,12 @@ def to_gt_calibration(he: HandEye, session: str = "") -> GtCalibration:
                          session=session, warnings=he.warnings)
 
 
-def save_hand_eye(path: "str | Path", he: HandEye, inputs=(), session: str = "") -> None:
+def save_hand_eye(path: str | Path, he: HandEye, inputs=(), session: str = "") -> None:
     """The common calibration file (gt_calibration.py), by the output rule (phonepose.files)."""
     save_gt_calibration(path, to_gt_calibration(he, session), inputs=inputs)
 
 
-def load_hand_eye(path: "str | Path") -> HandEye:
+def load_hand_eye(path: str | Path) -> HandEye:
     """A calibration file's hand-eye part (this format or the older hand-eye one); a bad file is an InputFileError."""
     cal = load_gt_calibration(path, what="hand-eye")
     return HandEye(T_controller_mocap=cal.T_controller_gt, time_offset_s=cal.time_offset_s, pairs=cal.samples,

@@ -27,7 +27,7 @@ def marker_image(dictionary: str = "DICT_4X4_50", marker_id: int = 7, side_px: i
     the least white the ArUco detector needs around the black border to find the square.
     A bad dictionary, id or size is a ConfigError (one line, exit 5).
     """
-    from phonepose.pipeline.markers import aruco_dictionary   # the one name -> dictionary map
+    from phonepose.pipeline.markers import aruco_dictionary  # the one name -> dictionary map
 
     d = aruco_dictionary(dictionary)
     n_ids = int(d.bytesList.shape[0])

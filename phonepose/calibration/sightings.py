@@ -35,7 +35,7 @@ class Sightings:
     def __len__(self) -> int:
         return len(self.stamps_s)
 
-    def __getitem__(self, index) -> "Sightings":
+    def __getitem__(self, index) -> Sightings:
         return Sightings(self.stamps_s[index], self.T_dvio_body[index], self.T_camera_body[index],
                          self.T_dvio_camera[index], self.frames, self.reprojection_px[index])
 
@@ -69,11 +69,11 @@ def _display_vio(reader) -> tuple[np.ndarray, Pose]:
     return t[keep], Pose.from_xyzw(arr[:, 4:], arr[:, :4])
 
 
-def read_sightings(path: "str | os.PathLike") -> Sightings:
+def read_sightings(path: str | os.PathLike) -> Sightings:
     """Every marker sighting of the session; SessionContentError when it has no camera or no display VIO."""
+    from phonepose.pipeline.context import has_camera, read_context
     from phonepose.pipeline.markers import MarkerRecognizer
     from phonepose.pipeline.shared import decode_gray
-    from phonepose.pipeline.context import has_camera, read_context
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader
 

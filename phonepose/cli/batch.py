@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -45,9 +44,9 @@ def batch(
                                     help="KEY=V1,V2,... (repeat): rate_hz, correction_math, cm1_reading, start_s, end_s; "
                                          "the batch runs the cross product."),
     out: Path = typer.Option(..., "--out", "-o", help="Parquet table; rows already in it with status ok are skipped."),
-    workers: Optional[int] = typer.Option(None, "--workers", "-j", callback=number(1, WORKERS_MAX, integer=True),
+    workers: int | None = typer.Option(None, "--workers", "-j", callback=number(1, WORKERS_MAX, integer=True),
                                           help="Local worker processes (default: one per core)."),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler",
+    scheduler: str | None = typer.Option(None, "--scheduler",
                                             help="Dask scheduler address (tcp://host:8786) instead of local processes."),
     unit_timeout: float = typer.Option(UNIT_TIMEOUT_S, "--unit-timeout",
                                        callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -59,16 +59,16 @@ def marker(
     marker_id: int = typer.Option(7, "--id", callback=number(0, integer=True), help="Marker id (the simulator's: 7)."),
     pixels: int = typer.Option(400, "--pixels", callback=number(1, MAX_IMAGE_SIDE_PX, integer=True),
                                help="Side of the marker (black border included) in pixels."),
-    quiet_zone: Optional[int] = typer.Option(None, "--quiet-zone", callback=number(0, MAX_IMAGE_SIDE_PX, integer=True),
+    quiet_zone: int | None = typer.Option(None, "--quiet-zone", callback=number(0, MAX_IMAGE_SIDE_PX, integer=True),
                                              help="White margin in pixels (default: one bit cell)."),
 ) -> None:
     """Write the controller's ArUco marker as a PNG (what the phone shows on its screen).
 
     Example: [bold]phonepose marker --out marker.png[/bold]
     """
-    from phonepose.calibration.marker_image import marker_image
-
     import cv2
+
+    from phonepose.calibration.marker_image import marker_image
 
     image = marker_image(dictionary.upper(), marker_id, pixels, 1, quiet_zone)
     ok, buf = cv2.imencode(".png", image)
@@ -82,10 +82,10 @@ def marker(
 def calibrate_camera(
     out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (OpenCV YAML, read by "
                              "`record live --calibration`)."),
-    device: Optional[int] = typer.Option(None, "--device", callback=number(0, MAX_CAMERA_INDEX, integer=True),
+    device: int | None = typer.Option(None, "--device", callback=number(0, MAX_CAMERA_INDEX, integer=True),
                                          help="Capture live from camera N (cv2.VideoCapture index)."),
-    video: Optional[Path] = typer.Option(None, "--video", help="A video of the board."),
-    images: Optional[Path] = typer.Option(None, "--images", help="A directory of photos of the board."),
+    video: Path | None = typer.Option(None, "--video", help="A video of the board."),
+    images: Path | None = typer.Option(None, "--images", help="A directory of photos of the board."),
     spec: str = typer.Option(DEFAULT_SPEC, "--board", help="The board that was filmed (as `phonepose board --board`)."),
     max_views: int = typer.Option(40, "--max-views", callback=number(1, 1000, integer=True),
                                   help="Use at most this many views (evenly spread)."),
@@ -93,7 +93,7 @@ def calibrate_camera(
                                     help="A frame is a view if it shows at least this many board corners."),
     seconds: float = typer.Option(120.0, "--seconds", callback=number(0, 24 * 3600, lo_open=True, unit="s"),
                                   help="--device: stop capturing after this long."),
-    size: Optional[str] = typer.Option(None, "--size", help="--device: ask for WxH frames (e.g. 1280x720); "
+    size: str | None = typer.Option(None, "--size", help="--device: ask for WxH frames (e.g. 1280x720); "
                                        "calibrate at the resolution you record at."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
 ) -> None:
@@ -103,11 +103,12 @@ def calibrate_camera(
 
     Example: [bold]phonepose calibrate-camera --video board.mp4 --out cam.yaml[/bold]
     """
-    from phonepose.calibration.board import board_spec, parse_board_spec
-    from phonepose.calibration.calibrate import RECOMMENDED_VIEWS, calibrate_camera as run
-    from phonepose.calibration.camera_file import OPENCV_FORMATS, OPENCV_WHAT, save_calibration
-
     import numpy as np
+
+    from phonepose.calibration.board import board_spec, parse_board_spec
+    from phonepose.calibration.calibrate import RECOMMENDED_VIEWS
+    from phonepose.calibration.calibrate import calibrate_camera as run
+    from phonepose.calibration.camera_file import OPENCV_FORMATS, OPENCV_WHAT, save_calibration
 
     err = Console(stderr=True)
     b = parse_board_spec(spec)
@@ -179,9 +180,9 @@ def calibrate_hand_eye(
 
     Example: [bold]phonepose calibrate-hand-eye s.mcap --out he.yaml && phonepose playback s.mcap --hand-eye he.yaml[/bold]
     """
-    from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
-
     import numpy as np
+
+    from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
 
     try:
         lever = [float(v) for v in translation.split(",")]
@@ -239,9 +240,9 @@ def calibrate_gt(
     session: Path = typer.Argument(..., help="A session with camera frames showing the phone's marker and a ground truth."),
     out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (YAML, read by "
                              "`playback --gt-calibration`)."),
-    gt: Optional[Path] = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC "
+    gt: Path | None = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC "
                                       ".csv) instead of the session's /gt/controller/pose; its clock may be off."),
-    gt_format: Optional[str] = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
+    gt_format: str | None = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
     max_offset: float = typer.Option(0.5, "--max-offset", callback=number(0, 5, lo_open=True, unit="s"),
                                      help="Search the ground truth's clock offset within +- this (s)."),
     bootstrap: int = typer.Option(200, "--bootstrap", callback=number(0, 10_000, integer=True),

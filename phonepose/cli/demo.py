@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+
 from phonepose.cli import app
 from phonepose.cli.options import SEED
 from phonepose.cli.output import stdout_console

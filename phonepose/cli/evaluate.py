@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
 
 from phonepose.cli import app
-from phonepose.cli.output import stdout_console
 from phonepose.cli.options import Align, DeltaUnit, Metric, PoseRelation, TrajectoryFormat, number
+from phonepose.cli.output import stdout_console
 from phonepose.errors import ConfigError, SessionContentError
 from phonepose.numbers import SECONDS_MAX
 
@@ -68,7 +67,7 @@ def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
     console.print(table)
 
 
-def _paper(gt_traj, est_traj, in_view: "Path | None", max_diff: float) -> dict:
+def _paper(gt_traj, est_traj, in_view: Path | None, max_diff: float) -> dict:
     """The paper's metrics as playback computes them, from files: GT, estimate and in-view flags
     associated by timestamp (rpg's greedy association, ``max_diff`` s)."""
     from phonepose.evaluation import associate_rpg, paper_metrics
@@ -121,7 +120,7 @@ def evaluate(
     fmt: TrajectoryFormat = typer.Option(TrajectoryFormat.tum, "--format", case_sensitive=False,
                                          help="GT format: tum | euroc (ASL csv; the estimate in TUM, or ASL csv if "
                                               "it ends in .csv) | kitti."),
-    align: Optional[Align] = typer.Option(None, "--align", case_sensitive=False,
+    align: Align | None = typer.Option(None, "--align", case_sensitive=False,
                                           help="posyaw | se3 | sim3 | none (default: posyaw for rpg, none for "
                                                "ape/rpe as evo)."),
     align_frames: int = typer.Option(-1, "--align-frames", callback=number(1, integer=True, also=(-1,)),
@@ -129,7 +128,7 @@ def evaluate(
     metric: Metric = typer.Option(Metric.rpg, "--metric", case_sensitive=False,
                                   help="rpg (ATE + RE) | ape | rpe (evo-compatible) | paper (p_ATE, r_ATE, p_RE "
                                        "inside / outside the view and the boundary jump; needs --in-view)."),
-    in_view: Optional[Path] = typer.Option(None, "--in-view", help="--metric paper: the in_view.txt playback wrote "
+    in_view: Path | None = typer.Option(None, "--in-view", help="--metric paper: the in_view.txt playback wrote "
                                            "beside groundtruth.tum (timestamp, 0|1 per tick)."),
     delta: float = typer.Option(1.0, "--delta", callback=number(0, 1e9, lo_open=True), help="RPE delta."),
     delta_unit: DeltaUnit = typer.Option(DeltaUnit.f, "--delta-unit",
@@ -141,13 +140,13 @@ def evaluate(
                                 "(default: 10,20,30,40,50 % of the GT path length)."),
     all_pairs: bool = typer.Option(False, "--all-pairs", help="RPE: all (overlapping) pairs instead of consecutive."),
     pairs_from_reference: bool = typer.Option(False, "--pairs-from-reference", help="RPE: pairs from the GT poses."),
-    max_diff: Optional[float] = typer.Option(None, "--max-diff", callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
+    max_diff: float | None = typer.Option(None, "--max-diff", callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
                                              help="Association window in s (default: 0.02 strict for rpg, 0.01 for "
                                                   "ape/rpe)."),
     rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
                                     "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
-    gt_calibration: Optional[Path] = typer.Option(None, "--gt-calibration", "--hand-eye",
+    gt_calibration: Path | None = typer.Option(None, "--gt-calibration", "--hand-eye",
                                                   help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
                                                   "move --gt onto the recorder's clock, the phone's frame and display_vio "
                                                   "first, as playback does (docs/calibration.md)."),
@@ -156,7 +155,6 @@ def evaluate(
     from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
     from phonepose.evaluation.rpg import evaluate_rpg
     from phonepose.evaluation.trajectory import load_trajectory
-
     from phonepose.files import check_input
 
     metric, fmt, delta_unit, pose_relation = metric.value, fmt.value, delta_unit.value, pose_relation.value

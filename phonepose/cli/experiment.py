@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
@@ -60,7 +59,7 @@ def exp2_summary_tables(result) -> list[Table]:
     return [t5, t6]
 
 
-def _check_config(config: Optional[Path]) -> None:
+def _check_config(config: Path | None) -> None:
     """A bad --config fails before the output folder is touched or a sequence starts."""
     if config is not None:
         from phonepose.record.sim import load_config
@@ -74,10 +73,10 @@ def exp2(
     trials: int = typer.Option(3, "--trials", callback=number(1, 3, integer=True),
                                help="Trials per path, 1..3 (the paper has 3)."),
     seed: int = typer.Option(0, "--seed", **SEED, help="Base seed; each sequence derives its own from it."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
+    config: Path | None = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (eq. 1-6) or se3."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", callback=number(1, WORKERS_MAX, integer=True),
+    jobs: int | None = typer.Option(None, "--jobs", "-j", callback=number(1, WORKERS_MAX, integer=True),
                                        help="Sequences in parallel (default: up to 2)."),
     hand_eye: bool = typer.Option(False, "--hand-eye", help="Calibrate each session's mocap hand-eye and clock "
                                   "offset from itself and score in the phone's frame (r_ATE without the 11 deg "
@@ -126,7 +125,7 @@ def exp1(
     out: Path = typer.Option(Path("exp1-out"), "--out", "-o", help="Output directory (replaced whole when it is an "
                              "earlier phonepose output)."),
     seed: int = typer.Option(0, "--seed", **SEED, help="Random seed."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
+    config: Path | None = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (eq. 1-6) or se3."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

@@ -41,7 +41,7 @@ def info(
         s = reader.summary()
         chunks = reader.verify(deep=verify)   # damaged chunks: one error line pointing to `recover`
         task = _task_window(reader, s)
-    start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.timezone.utc).isoformat() if s.message_count else None
+    start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.UTC).isoformat() if s.message_count else None
     if as_json:
         typer.echo(json.dumps({
             "path": str(file), "messages": s.message_count, "start_ns": s.start_ns, "end_ns": s.end_ns,

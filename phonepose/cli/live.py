@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -21,16 +20,16 @@ def live(
                                      "(`phonepose calibrate-camera`, OpenCV YAML)."),
     host: str = typer.Option("0.0.0.0", "--host", help="Address to listen on (0.0.0.0: every interface)."),
     port: int = typer.Option(8443, "--port", help="HTTPS port the phone connects to (0: any free port)."),
-    tls_dir: Optional[Path] = typer.Option(None, "--tls-dir", help="Where the self-signed certificate is kept "
+    tls_dir: Path | None = typer.Option(None, "--tls-dir", help="Where the self-signed certificate is kept "
                                            "(default ~/.config/phonepose/tls)."),
-    marker_size: Optional[float] = typer.Option(None, "--marker-size", help="The marker's side on the phone screen in "
+    marker_size: float | None = typer.Option(None, "--marker-size", help="The marker's side on the phone screen in "
                                                 "metres, measured with a ruler (default: what the page reports)."),
     dictionary: str = typer.Option("DICT_4X4_50", "--marker-dictionary", help="ArUco dictionary the page shows."),
     marker_id: int = typer.Option(7, "--marker-id", help="Marker id the page shows."),
-    duration: Optional[float] = typer.Option(None, "--duration", help="Stop after this many seconds."),
+    duration: float | None = typer.Option(None, "--duration", help="Stop after this many seconds."),
     pace: bool = typer.Option(True, "--pace/--no-pace", help="Video file: read in real time (default) or as fast "
                               "as possible (camera-only tests; a phone's samples only line up with a paced video)."),
-    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
+    rerun: Path | None = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer (live preview)."),
     qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the page's URL as a QR code too."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing "
@@ -45,7 +44,7 @@ def live(
     [bold]Start AR[/bold], hold the phone's screen in the camera's view and tap [bold]Anchor[/bold].
     Ctrl-C or SIGTERM stop the recording and leave a valid file. Guide: docs/recording-real-sessions.md.
     """
-    from phonepose.record.live import LiveSession   # here: keeps `phonepose --help` fast
+    from phonepose.record.live import LiveSession  # here: keeps `phonepose --help` fast
     from phonepose.session.writer import refuse_to_replace
 
     if rerun is not None and spawn:

@@ -12,8 +12,9 @@ that both list the same values.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import StrEnum
-from typing import Any, Callable
+from typing import Any
 
 from phonepose.numbers import SECONDS_MAX, SEED_MAX, check_number
 

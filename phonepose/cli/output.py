@@ -21,7 +21,7 @@ class ProgressBar(Progress):
             self.start()
         super().update(*args, **kwargs)
 
-    def __enter__(self) -> "ProgressBar":
+    def __enter__(self) -> ProgressBar:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -11,10 +10,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import stdout_console
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
-from phonepose.numbers import RATE_MAX_HZ
+from phonepose.cli.output import stdout_console
 from phonepose.errors import ConfigError
+from phonepose.numbers import RATE_MAX_HZ
 from phonepose.schemas.topics import Topic
 
 
@@ -59,21 +58,21 @@ def playback(
                                                    help="paper (equations 1-6) or se3."),
     rate: float = typer.Option(20.0, "--rate", callback=number(0, RATE_MAX_HZ, lo_open=True, unit="Hz"),
                                help="Ticks per second."),
-    start: Optional[float] = typer.Option(None, "--start", **SECONDS, help="Start, seconds after the session start."),
-    end: Optional[float] = typer.Option(None, "--end", **SECONDS, help="End, seconds after the session start."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", show_default="./playback-<session>",
+    start: float | None = typer.Option(None, "--start", **SECONDS, help="Start, seconds after the session start."),
+    end: float | None = typer.Option(None, "--end", **SECONDS, help="End, seconds after the session start."),
+    out: Path | None = typer.Option(None, "--out", "-o", show_default="./playback-<session>",
                                        help="Output directory."),
-    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Save a Rerun recording (.rrd) with a default layout."),
+    rerun: Path | None = typer.Option(None, "--rerun", help="Save a Rerun recording (.rrd) with a default layout."),
     spawn: bool = typer.Option(False, "--spawn", help="Stream to a new Rerun viewer."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace ticks to real time (demos)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-    gt_calibration: Optional[Path] = typer.Option(None, "--gt-calibration", "--hand-eye",
+    gt_calibration: Path | None = typer.Option(None, "--gt-calibration", "--hand-eye",
                                                   help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
                                                   "score against the ground truth in the phone's frame, clock and "
                                                   "display_vio (docs/calibration.md)."),
-    gt: Optional[Path] = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC .csv) "
+    gt: Path | None = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC .csv) "
                                       "instead of the session's; use with --gt-calibration from `calibrate-gt --gt`."),
-    gt_format: Optional[str] = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
+    gt_format: str | None = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
 ) -> None:
     """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
     from phonepose.files import OutputPlan, check_input

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
@@ -35,14 +34,14 @@ def sim(
     trial: int = typer.Option(1, "--trial", callback=number(1, 3, integer=True),
                               help="Trial 1..3 (the paper's Table 4 frame counts differ per trial)."),
     seed: int = typer.Option(0, "--seed", **SEED, help="Random seed: same seed and config give a byte-identical file."),
-    config: Optional[Path] = typer.Option(None, "--config", help="TOML file overriding any subset of the simulator's "
+    config: Path | None = typer.Option(None, "--config", help="TOML file overriding any subset of the simulator's "
                                           "parameters (see docs/simulation.md)."),
-    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
+    rerun: Path | None = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing file "
                                "is an error and stays untouched)."),
-    motion: Optional[Path] = typer.Option(None, "--motion", help="A recorded 6DoF trajectory (TUM, or EuRoC .csv) "
+    motion: Path | None = typer.Option(None, "--motion", help="A recorded 6DoF trajectory (TUM, or EuRoC .csv) "
                                           "as the task's hand motion, instead of --path (docs/simulation.md)."),
     motion_start: float = typer.Option(0.0, "--motion-start", **SECONDS, help="--motion window start, s after the "
                                        "file's first pose."),

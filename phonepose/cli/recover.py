@@ -19,7 +19,7 @@ def _t(ns: int | None, t0: int | None) -> str:
     if ns is None:
         return "?"
     if t0 is None:
-        return dt.datetime.fromtimestamp(ns / 1e9, tz=dt.timezone.utc).isoformat()
+        return dt.datetime.fromtimestamp(ns / 1e9, tz=dt.UTC).isoformat()
     return f"{(ns - t0) / 1e9:+.3f} s"
 
 

@@ -10,7 +10,6 @@ where ``stats`` is ``{"rmse", "mean", "median", "std", "min", "max", "num_sample
 
 from __future__ import annotations
 
-
 from phonepose.errors import ConfigError, SessionContentError
 from phonepose.evaluation.alignment import align
 from phonepose.evaluation.association import associate_index, associate_rpg

@@ -37,7 +37,7 @@ class Trajectory:
     def positions(self) -> np.ndarray:
         return np.atleast_2d(self.poses.translation)
 
-    def __getitem__(self, index) -> "Trajectory":
+    def __getitem__(self, index) -> Trajectory:
         stamps = None if self.stamps is None else self.stamps[index]
         return Trajectory(stamps, self.poses[index], self.source)
 

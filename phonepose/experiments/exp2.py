@@ -11,15 +11,14 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 
 from phonepose.experiments import paper
-from phonepose.experiments.common import (SequenceJob, default_jobs, fmt, mean_or_none, run_jobs, sequence_seed,
-                                          user_trackers)
+from phonepose.experiments.common import SequenceJob, default_jobs, fmt, mean_or_none, run_jobs, sequence_seed, user_trackers
 from phonepose.geometry import Pose
 
 PATHS_INSIDE = ("TRI1", "REC1")
@@ -77,7 +76,8 @@ def table5_rows(sequences: list[dict], names: list[str] = paper.REPORTED) -> lis
         for key, label, scale in METRICS:
             values = {s["name"]: _value(s, tracker, "total", key) for s in seqs}
             avg = mean_or_none(values.values())
-            p = paper.TABLE5_AVERAGE.get(tracker, paper.NO_VALUES)[{"p_ate_m": "p_ate_cm", "r_ate_deg": "r_ate_deg", "p_re_m": "p_re_cm"}[key]]
+            paper_key = {"p_ate_m": "p_ate_cm", "r_ate_deg": "r_ate_deg", "p_re_m": "p_re_cm"}[key]
+            p = paper.TABLE5_AVERAGE.get(tracker, paper.NO_VALUES)[paper_key]
             rows.append({"tracker": tracker, "metric": label, "scale": scale, "values": values, "average": avg,
                          "paper": p, "key": key})
     return rows
@@ -94,7 +94,8 @@ def table6_rows(sequences: list[dict], names: list[str] = paper.REPORTED) -> lis
                     per_path[path] = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] == path)
                 avg = mean_or_none(_value(s, tracker, scope, key) for s in sequences if s["path"] in PATHS_PARTLY_OUTSIDE)
                 rows.append({"tracker": tracker, "scope": scope, "metric": label, "scale": scale, "per_path": per_path,
-                             "average": avg, "paper": paper.TABLE6_AVERAGE.get(tracker, paper.NO_VALUES6)[scope][PAPER_KEY[key]], "key": key})
+                             "average": avg, "key": key,
+                             "paper": paper.TABLE6_AVERAGE.get(tracker, paper.NO_VALUES6)[scope][PAPER_KEY[key]]})
         # the boundary jump (ours; phonepose.evaluation.boundary): largest over the sequences, mean RMS;
         # then lag, jitter and availability
         for key, label, aggregate, scale in JUMP_METRICS + CONTROLLER_METRICS:

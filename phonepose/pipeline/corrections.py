@@ -59,7 +59,7 @@ class CorrectionMath(StrEnum):
     SE3 = "se3"       # rigid offset: T_CM = T_ref · T_vio^-1
 
     @classmethod
-    def parse(cls, value: "CorrectionMath | str") -> "CorrectionMath":
+    def parse(cls, value: CorrectionMath | str) -> CorrectionMath:
         return _parse_choice(cls, value, "correction math")
 
 
@@ -68,7 +68,7 @@ class CM1Reading(StrEnum):
     PAPER_LITERAL = "paper-literal"  # eq. (1)-(2) as printed: ref = pose_align_vio, vio = pose_fix_vio
 
     @classmethod
-    def parse(cls, value: "CM1Reading | str") -> "CM1Reading":
+    def parse(cls, value: CM1Reading | str) -> CM1Reading:
         return _parse_choice(cls, value, "CM1 reading")
 
 
@@ -96,7 +96,7 @@ class Correction:
         return self.offset.translation
 
     @classmethod
-    def between(cls, ref: Pose, vio: Pose, math: "CorrectionMath | str" = CorrectionMath.PAPER) -> "Correction":
+    def between(cls, ref: Pose, vio: Pose, math: CorrectionMath | str = CorrectionMath.PAPER) -> Correction:
         """The offset that maps ``vio`` onto ``ref`` (eqs. 1-4, or T_ref · T_vio^-1)."""
         math = CorrectionMath.parse(math)
         rotation = compose_rotations(ref, vio, None, invert_second=True)
@@ -117,14 +117,14 @@ class Correction:
         return self.offset
 
 
-def cm1_correction(pose_fix_vio: Pose, pose_align_vio: Pose, math: "CorrectionMath | str" = CorrectionMath.PAPER,
-                   reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Correction:
+def cm1_correction(pose_fix_vio: Pose, pose_align_vio: Pose, math: CorrectionMath | str = CorrectionMath.PAPER,
+                   reading: CM1Reading | str = CM1Reading.CONSISTENT) -> Correction:
     """CM1 from the alignment event's two VIO poses (see the module docstring for the reading)."""
     if CM1Reading.parse(reading) is CM1Reading.CONSISTENT:
         return Correction.between(ref=pose_fix_vio, vio=pose_align_vio, math=math)
     return Correction.between(ref=pose_align_vio, vio=pose_fix_vio, math=math)
 
 
-def marker_correction(marker_pose: Pose, vio_pose: Pose, math: "CorrectionMath | str" = CorrectionMath.PAPER) -> Correction:
+def marker_correction(marker_pose: Pose, vio_pose: Pose, math: CorrectionMath | str = CorrectionMath.PAPER) -> Correction:
     """CM2 / CM3 (eqs. 3-4): marker pose and anchor-mapped VIO pose at the same tick."""
     return Correction.between(ref=marker_pose, vio=vio_pose, math=math)

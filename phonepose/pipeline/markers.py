@@ -20,10 +20,9 @@ Choices (measured; see docs/pipeline.md and ../shared/docs/notes/markers.md §1.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from collections import Counter
-
 import math
+from collections import Counter
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np

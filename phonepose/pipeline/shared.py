@@ -2,7 +2,8 @@
 anchor mapping. Their output, one :class:`Observation`, is what every tracker steps on.
 
 Image reuse: the paper recognises the marker per camera frame. When a tick carries the same
-frame as the previous tick (``Frame.is_new`` False), the previous frame's recognition is reused instead of decoding and detecting again, so a frame counts as
+frame as the previous tick (``Frame.is_new`` False), the previous frame's recognition is reused instead of decoding and
+detecting again, so a frame counts as
 "in view" for every tick that carries it.
 
 A recognised marker needs the display pose to be placed in display_vio; while the display

@@ -33,15 +33,14 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import logging
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any, Callable, Iterable
-
+from typing import Any
 
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose, interpolate, is_finite
-from phonepose.pipeline.corrections import (CM1Reading, Correction, CorrectionMath, cm1_correction,
-                                            marker_correction)
+from phonepose.pipeline.corrections import CM1Reading, Correction, CorrectionMath, cm1_correction, marker_correction
 from phonepose.pipeline.fusion import FusedTracker
 from phonepose.pipeline.types import Observation, Tracker
 from phonepose.schemas import phonepose_pb2 as pb
@@ -153,7 +152,7 @@ class TrackerSpec:
     outside: Method
     correction: CorrectionKind
     description: str = ""
-    factory: Callable[["TrackerSpec", CorrectionMath, CM1Reading], Tracker] | None = None
+    factory: Callable[[TrackerSpec, CorrectionMath, CM1Reading], Tracker] | None = None
 
 
 class CompositeTracker:
@@ -227,7 +226,7 @@ def tracker_names() -> list[str]:
     return list(TRACKERS)
 
 
-def split_names(names: "Iterable[str] | str") -> list[str]:
+def split_names(names: Iterable[str] | str) -> list[str]:
     """Tracker names from a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``)."""
     if isinstance(names, str):
         names = [names]
@@ -239,7 +238,7 @@ ENTRY_POINT_GROUP = "phonepose.trackers"
 TRACKER_PROTOCOL = ("name", "needs_camera", "uses_vio_samples", "reset", "step")   # docs/writing-a-tracker.md
 
 
-def _entry_points() -> dict[str, "importlib.metadata.EntryPoint"]:
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
     """Installed trackers: entry points of the group ``phonepose.trackers``, by name."""
     return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
@@ -280,8 +279,8 @@ def is_user_tracker(name: str) -> bool:
     return ":" in name or (name not in TRACKERS and str(name).upper() not in TRACKERS and name in _entry_points())
 
 
-def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
-                 cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> Tracker:
+def make_tracker(name: str, correction_math: CorrectionMath | str = "paper",
+                 cm1_reading: CM1Reading | str = CM1Reading.CONSISTENT) -> Tracker:
     """A built-in tracker by name, or a user's: ``package.module:ClassName`` or an installed entry point's name."""
     spec = TRACKERS.get(name) or TRACKERS.get(str(name).upper())
     if spec is None:
@@ -304,7 +303,7 @@ def make_tracker(name: str, correction_math: "CorrectionMath | str" = "paper",
     return CompositeTracker(spec, math, reading)
 
 
-def expand_names(names: "Iterable[str] | str") -> list[str]:
+def expand_names(names: Iterable[str] | str) -> list[str]:
     """What the user named, one tracker each: ``"all"`` is every registered one (T1-T7, then ours),
     ``"paper"`` T1-T7; a list and/or comma-separated strings (``"T1,T7"``, ``["T1", "T4,T8"]``)."""
     names = split_names(names)
@@ -317,8 +316,8 @@ def expand_names(names: "Iterable[str] | str") -> list[str]:
     return names
 
 
-def make_trackers(names: "Iterable[str] | str" = "all", correction_math: "CorrectionMath | str" = "paper",
-                  cm1_reading: "CM1Reading | str" = CM1Reading.CONSISTENT) -> list[Tracker]:
+def make_trackers(names: Iterable[str] | str = "all", correction_math: CorrectionMath | str = "paper",
+                  cm1_reading: CM1Reading | str = CM1Reading.CONSISTENT) -> list[Tracker]:
     """Trackers by name (:func:`expand_names`), built-in or a user's (:func:`make_tracker`)."""
     return [make_tracker(n, correction_math, cm1_reading) for n in expand_names(names)]
 

@@ -25,9 +25,10 @@ import logging
 import os
 import time
 from array import array
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ from phonepose.session.codec import pose_in_frame
 from phonepose.viewer.annotations import marker_annotations
 
 if TYPE_CHECKING:
-    from phonepose.playback.rerun_log import PlaybackRerunLogger   # imported when used: rerun-sdk costs ~0.3 s
+    from phonepose.playback.rerun_log import PlaybackRerunLogger  # imported when used: rerun-sdk costs ~0.3 s
 
 log = logging.getLogger("phonepose")
 

@@ -29,8 +29,9 @@ from __future__ import annotations
 import bisect
 import logging
 from collections import Counter, deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -201,7 +202,7 @@ class TickScheduler:
         start_ns, end_ns = self._span(reader, summary)
         self.span_ns = (start_ns, end_ns)
         t0 = None
-        for schema, channel, m in reader.raw_messages([origin_topic], start_ns=start_ns, end_ns=end_ns + 1):
+        for _schema, _channel, m in reader.raw_messages([origin_topic], start_ns=start_ns, end_ns=end_ns + 1):
             t0 = m.log_time
             break
         if t0 is None:
@@ -311,7 +312,7 @@ class _PassState:
         self.controller = PoseStream()
         self.gt = PoseStream()
         if sched.has_gt and sched._gt_series is not None:    # a sidecar file: all of it, on the recorder's clock
-            for t_ns, raw in zip(*sched._gt_series.raw_samples()):
+            for t_ns, raw in zip(*sched._gt_series.raw_samples(), strict=True):
                 self.gt.add(int(t_ns) - sched._gt_shift_ns, raw)
         self.images: deque = deque()        # (log_time, CompressedImage), newest at or before next tick kept
         self.d_anchors: deque = deque()     # (log_time, Pose)

@@ -12,7 +12,8 @@ The recorder knows nothing else about where the data comes from.
 
 from __future__ import annotations
 
-from typing import Any, Iterator, NamedTuple, Protocol, runtime_checkable
+from collections.abc import Iterator
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 
 class Record(NamedTuple):

@@ -14,8 +14,8 @@ import re
 import sys
 import tempfile
 
-from google.protobuf import descriptor_pb2, timestamp_pb2
 from foxglove_schemas_protobuf import Pose_pb2, Quaternion_pb2, Vector3_pb2
+from google.protobuf import descriptor_pb2, timestamp_pb2
 
 HERE = pathlib.Path(__file__).resolve().parent
 

@@ -8,15 +8,16 @@ from __future__ import annotations
 
 import heapq
 import os
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 from google.protobuf.message import DecodeError
 from mcap.records import ChunkIndex
 from mcap.records import Message as McapMessage
 from mcap_protobuf.decoder import DecoderFactory
 
-from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
+from phonepose.errors import InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
 from phonepose.session.index import MCAP_MAGIC, SessionIndex, damaged, message_index_times, read_chunk, read_index
 
@@ -314,7 +315,7 @@ class SessionReader:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "SessionReader":
+    def __enter__(self) -> SessionReader:
         return self
 
     def __exit__(self, *exc) -> None:

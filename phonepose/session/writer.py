@@ -124,7 +124,7 @@ class SessionWriter:
         except OSError as exc:
             raise OutputError(f"cannot finish {self.path}: {exc.strerror or exc}{RECOVER_HINT}") from None
 
-    def __enter__(self) -> "SessionWriter":
+    def __enter__(self) -> SessionWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

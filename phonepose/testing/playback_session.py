@@ -17,12 +17,12 @@ from google.protobuf.message import Message
 from scipy.spatial.transform import Rotation
 
 from phonepose.geometry import Pose
-from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 from phonepose.pipeline.types import MarkerModel
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionWriter
 from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
+from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker
 
 T0_NS = 1_700_000_000_000_000_000
 MARKER = MarkerModel(dictionary="DICT_4X4_50", id=7, size_m=0.05, T_body_marker=Pose.identity())

@@ -22,8 +22,16 @@ import numpy as np
 
 from phonepose.geometry import Pose
 from phonepose.record.sim.config import SimConfig
-from phonepose.record.sim.world import (HEIGHT, MARKER_CENTER_IN_BODY, PHONE_HEIGHT_M, PHONE_THICKNESS_M,
-                                        PHONE_WIDTH_M, SCREEN_MARGIN_M, WIDTH, CameraIntrinsics)
+from phonepose.record.sim.world import (
+    HEIGHT,
+    MARKER_CENTER_IN_BODY,
+    PHONE_HEIGHT_M,
+    PHONE_THICKNESS_M,
+    PHONE_WIDTH_M,
+    SCREEN_MARGIN_M,
+    WIDTH,
+    CameraIntrinsics,
+)
 
 MARGIN = 48          # undistorted canvas margin (px) around the 640x480 pinhole image
 SS = 2               # supersampling factor of the phone rendering

@@ -11,8 +11,9 @@ from __future__ import annotations
 import heapq
 import zlib
 from collections import deque
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import Iterator, overload
+from typing import overload
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
@@ -29,8 +30,15 @@ from phonepose.record.sim.motion import Trajectory, make_oscillations
 from phonepose.record.sim.render import Renderer
 from phonepose.record.sim.scenarios import Plan, build_plan
 from phonepose.record.sim.vio import VioErrorModel, VioErrorParams, arrival_times
-from phonepose.record.sim.world import (HEIGHT, T_DISPLAY_CAMERA, WIDTH, World, build_world,
-                                        marker_corners_in_marker, marker_in_view)
+from phonepose.record.sim.world import (
+    HEIGHT,
+    T_DISPLAY_CAMERA,
+    WIDTH,
+    World,
+    build_world,
+    marker_corners_in_marker,
+    marker_in_view,
+)
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic

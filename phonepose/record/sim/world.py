@@ -49,7 +49,7 @@ class CameraIntrinsics:
     height: int = HEIGHT
 
     @classmethod
-    def from_config(cls, cfg: SimConfig) -> "CameraIntrinsics":
+    def from_config(cls, cfg: SimConfig) -> CameraIntrinsics:
         c = cfg.camera
         # Principal point at the image centre in OpenCV's pixel-centre convention.
         K = np.array([[c.fx, 0.0, (WIDTH - 1) / 2], [0.0, c.fy, (HEIGHT - 1) / 2], [0.0, 0.0, 1.0]])
