@@ -129,7 +129,8 @@ def test_output_not_writable_is_output_error(session, tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     code, out, err = cli(capsys, session, "--tracker", "T1", "--out", blocker / "sub")
-    assert code == OutputError.exit_code and "cannot" in err and "\n" not in err.strip()
+    assert code == OutputError.exit_code
+    assert err.strip() == f"phonepose: error: --out {blocker / 'sub'}: {blocker} is not a directory"
 
 
 def test_missing_session_and_bad_options(tmp_path, capsys, session):
