@@ -2,6 +2,10 @@
 # The browser tests/test_live_page.py drives (headless, through playwright): Debian's chromium if
 # it is there or can be installed with apt (as root or with sudo), else Playwright's own build.
 set -euo pipefail
+# The Foxglove-reader test's npm packages (tests/js: @mcap/core, protobufjs), when npm is there.
+if command -v npm >/dev/null 2>&1; then
+    npm ci --prefix "$(dirname "$0")/../tests/js" --no-audit --no-fund --silent
+fi
 if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then
     exit 0
 fi
