@@ -32,21 +32,15 @@ class SlowPhone(Phone):
         super().__init__(*args)
         self.pong_delay_s = pong_delay_s
 
-    async def _reader(self, ws) -> None:
-        async for msg in ws:
-            if msg.type != aiohttp.WSMsgType.TEXT:
-                break
-            m = json.loads(msg.data)
-            self.received.append(m)
-            if m["type"] == "ping" and self.pong_delay_s is not None:
-                asyncio.ensure_future(self._pong(ws, m))
+    async def answer_ping(self, ws, ping: dict) -> None:
+        """No pong at all (``pong_delay_s`` None), or the page's pong after the delay (a late ping delivery),
+        while the reader goes on."""
+        if self.pong_delay_s is not None:
+            asyncio.ensure_future(self._late_pong(ws, ping))
 
-    async def _pong(self, ws, ping: dict) -> None:
-        # the page stamps its pong when it answers: here, after the delay (a late ping delivery)
+    async def _late_pong(self, ws, ping: dict) -> None:
         await asyncio.sleep(self.pong_delay_s)
-        if not ws.closed:
-            await ws.send_str(json.dumps({"type": "pong", "id": ping["id"], "server_ns": ping["server_ns"],
-                                          "t": self.phone_ms(self.clock.now_ns())}))
+        await super().answer_ping(ws, ping)
 
 
 async def _imu(phone: Phone, ws, n: int, *, first_t_ms: float | None = None) -> None:

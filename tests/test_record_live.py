@@ -175,8 +175,13 @@ class Phone:
             m = json.loads(msg.data)
             self.received.append(m)
             if m["type"] == "ping":
-                await ws.send_str(json.dumps({"type": "pong", "id": m["id"], "server_ns": m["server_ns"],
-                                              "t": self.phone_ms(self.clock.now_ns())}))
+                await self.answer_ping(ws, m)
+
+    async def answer_ping(self, ws, ping: dict) -> None:
+        """The page's pong, stamped when it answers: at once here."""
+        if not ws.closed:
+            await ws.send_str(json.dumps({"type": "pong", "id": ping["id"], "server_ns": ping["server_ns"],
+                                          "t": self.phone_ms(self.clock.now_ns())}))
 
     async def connect(self, http: aiohttp.ClientSession):
         ws = await http.ws_connect(f"{self.base}/ws?token={self.token}")
