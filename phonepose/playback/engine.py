@@ -25,7 +25,8 @@ import logging
 import os
 import time
 from array import array
-from collections.abc import Callable, Iterable
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -291,10 +292,34 @@ def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContex
                                rrd_path=options.rerun_path, spawn=options.spawn)
 
 
+# Ticks whose recognition runs ahead of the trackers (SharedStages.prefetch): enough to keep the
+# worker busy while the main thread steps the trackers and writes a tick, few enough to hold no
+# memory (a tick is its frame's JPEG bytes and a few poses).
+LOOKAHEAD_TICKS = 3
+
+
+def _ticks_ahead(ticks: Iterable[tuple[Tick, Pose | None]], stages: Stages) -> Iterator[tuple[Tick, Pose | None]]:
+    """``ticks`` unchanged, with each one's recognition started ``LOOKAHEAD_TICKS`` ticks before it
+    is yielded (when the stages can: ``prefetch``); the same ticks otherwise."""
+    prefetch = getattr(stages, "prefetch", None)
+    if prefetch is None:
+        yield from ticks
+        return
+    queue: deque[tuple[Tick, Pose | None]] = deque()
+    for item in ticks:
+        prefetch(item[0])
+        queue.append(item)
+        if len(queue) > LOOKAHEAD_TICKS:
+            yield queue.popleft()
+    while queue:
+        yield queue.popleft()
+
+
 def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOptions) -> None:
     total = len(scheduler)
     pace0 = None
-    for tick, gt in scheduler.with_truth():
+    ticks = scheduler.with_truth() if options.realtime else _ticks_ahead(scheduler.with_truth(), engine.stages)
+    for tick, gt in ticks:
         if options.realtime:
             if pace0 is None:
                 pace0 = (time.monotonic(), tick.t_ns)
@@ -350,6 +375,8 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
                                   gt_series=gt_setup.series)
         stages = (options.stages_factory or _default_stages)(context)
         stages.map_vio_samples = any(t.uses_vio_samples for t in tracker_objs)
+        if hasattr(stages, "close"):
+            stack.callback(stages.close)   # the look-ahead's worker thread
         engine = PlaybackEngine(context, stages, tracker_objs)   # refuses a tracker named twice
         # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
         # before any file is opened), then the output folder and trackers.mcap
