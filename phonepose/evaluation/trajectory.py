@@ -200,15 +200,27 @@ def tum_lines(stamps, poses: Pose | None) -> list[str]:
     return [f"{a} {b}" for a, b in zip(stamp_txt, body, strict=True)]
 
 
+TUM_WRITE_BLOCK = 2048   # rows formatted at a time
+
+
 def write_tum(path: str | os.PathLike, stamps, poses: Pose | None) -> None:
     """Write ``t tx ty tz qx qy qz qw`` lines with a ``#`` header, 9 decimals everywhere.
 
     ``stamps`` are seconds (float) or integer nanoseconds (any integer dtype, written exactly).
     The same input always gives the same bytes.
     """
-    text = "# timestamp tx ty tz qx qy qz qw\n" + "".join(line + "\n" for line in tum_lines(stamps, poses))
+    stamps = np.atleast_1d(stamps)
+    n = 0 if poses is None else len(stamps)
+    if poses is not None and n and len(np.atleast_2d(poses.translation)) != n:
+        raise ValueError(f"{n} stamps for {len(np.atleast_2d(poses.translation))} poses")
     try:
-        Path(path).write_text(text)
+        with open(path, "w") as f:
+            f.write("# timestamp tx ty tz qx qy qz qw\n")
+            # in blocks: the text of a 10-minute trajectory at once would be the playback's peak
+            # memory (docs/performance.md); each line depends on its row only, so the bytes are the same
+            for k in range(0, n, TUM_WRITE_BLOCK):
+                block = poses if n == 1 else poses[k:k + TUM_WRITE_BLOCK]   # type: ignore[index]
+                f.write("".join(line + "\n" for line in tum_lines(stamps[k:k + TUM_WRITE_BLOCK], block)))
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
