@@ -296,7 +296,7 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     result = out["result"]
     assert result.stop_reason == "the video file ended"
     assert all(v == 403 for k, v in statuses.items() if k not in ("config", "png"))
-    assert statuses["config"] == {"marker": {"dictionary": "DICT_4X4_50", "id": 7}}
+    assert statuses["config"] == {"marker": {"dictionary": "DICT_4X4_50", "id": 7}, "gt_controller": "right"}
     assert statuses["png"] == b"\x89PNG\r\n\x1a\n"
 
     msgs = _messages(tmp_path / "s.mcap")
@@ -378,7 +378,7 @@ def test_anchor_without_the_marker_in_view_is_refused(long_media, tmp_path):
         async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
             ws, reader = await phone.connect(http)
             # the clock offset from a pong (without one, the tap's own receipt would define the offset)
-            await wait_until_async(lambda: s.source.server.current is not None and s.source.server.current.clock.best(),
+            await wait_until_async(lambda: "phone" in s.source.server.current and s.source.server.current["phone"].clock.best(),
                                    what="a pong, for the page clock offset")
             # a tap 2 s before the video started: no camera frame near it
             await phone.send_pose(ws, "anchor", start, start - 2_000_000_000)
@@ -526,7 +526,7 @@ def test_the_real_phone_page_in_headless_chromium_records_imu(long_media, tmp_pa
                     accelerationIncludingGravity: {x: 0.1, y: 9.8, z: 0.2}, interval: 16}));
                 await new Promise((r) => setTimeout(r, 10)); } }""", n)
             wait_until(lambda: s.source.recording.stats["imu"] >= n, what=f"{n} IMU samples at the recorder")
-            wait_until(lambda: s.source.server.current is not None and s.source.server.current.clock.best(),
+            wait_until(lambda: "phone" in s.source.server.current and s.source.server.current["phone"].clock.best(),
                        what="a pong, for the page clock offset")
             s.stop("test done")
             _finish(th)
