@@ -48,22 +48,12 @@
   window.phonepose = { state, link };
 
   // ---------------------------------------------------------------- WebXR
-  async function checkWebXR() {
-    const hint = ': open this link in the browser of a WebXR headset (Meta Quest, Pico, ...)';
-    if (!window.isSecureContext) {
-      return { ok: false, message: NOT_AVAILABLE + ' (the page is not a secure context: open it over https://)' + hint };
-    }
-    if (!navigator.xr) return { ok: false, message: NOT_AVAILABLE + hint };
-    try {
-      const supported = await Promise.race([
-        navigator.xr.isSessionSupported('immersive-vr'),
-        new Promise((resolve) => setTimeout(() => resolve(false), 5000)),
-      ]);
-      if (supported) return { ok: true, message: 'WebXR immersive-vr is available: press "Enter VR" to stream the ground truth' };
-      return { ok: false, message: NOT_AVAILABLE + hint };
-    } catch (e) {
-      return { ok: false, message: NOT_AVAILABLE + ' (' + e.message + ')' + hint };
-    }
+  function checkWebXR() {
+    return window.PhoneposeLink.checkWebXR('immersive-vr', {
+      notAvailable: NOT_AVAILABLE,
+      hint: ': open this link in the browser of a WebXR headset (Meta Quest, Pico, ...)',
+      available: 'WebXR immersive-vr is available: press "Enter VR" to stream the ground truth',
+    });
   }
 
   function sendSessionState(sessionState, message) {
@@ -196,14 +186,7 @@
     }
     $('gt-hand').textContent = state.gtHand;
     state.xr = await xrCheck;
-    const msg = $('xr-message');
-    msg.textContent = state.xr.message;
-    msg.hidden = false;
-    msg.className = state.xr.ok ? 'status' : 'warning';
-    document.body.dataset.webxr = String(state.xr.ok);
-    $('btn-vr').disabled = !state.xr.ok;
-    if (token && !link.accessDenied) link.connect();
-    document.body.dataset.ready = 'true';
+    window.PhoneposeLink.finishStart(link, state.xr, 'btn-vr');
   }
 
   main();

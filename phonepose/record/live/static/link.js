@@ -56,6 +56,41 @@
     return m ? m[1] : null;
   }
 
+  // ---------------------------------------------------------------- WebXR availability
+  // Whether this browser offers a WebXR session of `mode` ('immersive-ar' on the phone,
+  // 'immersive-vr' on the headset): {ok, message}. Every "no" message starts with
+  // `texts.notAvailable` and ends with `texts.hint`; `texts.available` is the "yes" message.
+  async function checkWebXR(mode, texts) {
+    const { notAvailable, hint, available } = texts;
+    if (!window.isSecureContext) {
+      return { ok: false, message: notAvailable + ' (the page is not a secure context: open it over https://)' + hint };
+    }
+    if (!navigator.xr) return { ok: false, message: notAvailable + hint };
+    try {
+      const supported = await Promise.race([
+        navigator.xr.isSessionSupported(mode),
+        new Promise((resolve) => setTimeout(() => resolve(false), 5000)),
+      ]);
+      if (supported) return { ok: true, message: available };
+      return { ok: false, message: notAvailable + hint };
+    } catch (e) {
+      return { ok: false, message: notAvailable + ' (' + e.message + ')' + hint };
+    }
+  }
+
+  // The end of a page's start: the WebXR check's message on the page (#xr-message), the XR button
+  // enabled only with WebXR, then the connection (unless the token was refused).
+  function finishStart(link, xr, buttonId) {
+    const msg = $('xr-message');
+    msg.textContent = xr.message;
+    msg.hidden = false;
+    msg.className = xr.ok ? 'status' : 'warning';
+    document.body.dataset.webxr = String(xr.ok);
+    $(buttonId).disabled = !xr.ok;
+    if (token && !link.accessDenied) link.connect();
+    document.body.dataset.ready = 'true';
+  }
+
   // ---------------------------------------------------------------- the WebSocket
   // options: role ('phone' | 'headset'), hello() -> the hello message, onOpen(), onMessage(msg)
   // for server messages other than ping, setConn(text), onDenied().
@@ -175,5 +210,7 @@
     }
   }
 
-  window.PhoneposeLink = { token, params, $, showError, clearError, nowMs, AccessDenied, fetchChecked, Link };
+  window.PhoneposeLink = {
+    token, params, $, showError, clearError, nowMs, AccessDenied, fetchChecked, checkWebXR, finishStart, Link,
+  };
 })();

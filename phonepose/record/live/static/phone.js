@@ -309,26 +309,12 @@
   }
 
   // ---------------------------------------------------------------- WebXR
-  async function checkWebXR() {
-    const hint = ': use Chrome on an ARCore phone; streaming IMU only';
-    if (!window.isSecureContext) {
-      return { ok: false, message: NOT_AVAILABLE + ' (the page is not a secure context: open it over https://)' + hint };
-    }
-    if (!navigator.xr) {
-      return { ok: false, message: NOT_AVAILABLE + hint };
-    }
-    try {
-      const supported = await Promise.race([
-        navigator.xr.isSessionSupported('immersive-ar'),
-        new Promise((resolve) => setTimeout(() => resolve(false), 5000)),
-      ]);
-      if (supported) {
-        return { ok: true, message: 'WebXR immersive-ar is available: tap "Start AR" to stream the 6DoF pose' };
-      }
-      return { ok: false, message: NOT_AVAILABLE + hint };
-    } catch (e) {
-      return { ok: false, message: NOT_AVAILABLE + ' (' + e.message + ')' + hint };
-    }
+  function checkWebXR() {
+    return window.PhoneposeLink.checkWebXR('immersive-ar', {
+      notAvailable: NOT_AVAILABLE,
+      hint: ': use Chrome on an ARCore phone; streaming IMU only',
+      available: 'WebXR immersive-ar is available: tap "Start AR" to stream the 6DoF pose',
+    });
   }
 
   async function startAR() {
@@ -500,14 +486,7 @@
       }
     }
     state.xr = await xrCheck;
-    const msg = $('xr-message');
-    msg.textContent = state.xr.message;
-    msg.hidden = false;
-    msg.className = state.xr.ok ? 'status' : 'warning';
-    document.body.dataset.webxr = String(state.xr.ok);
-    $('btn-ar').disabled = !state.xr.ok;
-    if (token && !link.accessDenied) link.connect();
-    document.body.dataset.ready = 'true';
+    window.PhoneposeLink.finishStart(link, state.xr, 'btn-ar');
   }
 
   main();
