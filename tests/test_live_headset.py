@@ -185,7 +185,10 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     assert [i.msg.ground_truth_source for i in infos] == ["", "webxr-headset (Quest 3, OculusBrowser/33.0.0.7, right controller)"]
     assert Topic.GT_CALIBRATION not in by
     logs = [m.msg.message for m in by[Topic.LOG]]
-    assert sum("right controller (on the phone) lost tracking 4." in t for t in logs) == 1, logs
+    lost = [t for t in logs if "right controller (on the phone) lost tracking " in t]
+    assert len(lost) == 1, logs
+    into_s = float(lost[0].split("lost tracking ")[1].split(" s into")[0])     # from the first XR frame to the gap
+    assert abs(into_s - (GAP[0] - (headset.sent[0][2] - start) / 1e9)) < 2 / XR_HZ + 0.1, lost[0]
     summary = next(t for t in logs if t.startswith("right controller (on the phone): tracking lost 1 time(s), "))
     gap_s = float(summary.split("time(s), ")[1].split(" s in all")[0])
     assert abs(gap_s - (GAP[1] - GAP[0])) < 2 / XR_HZ + 0.02, summary
