@@ -37,7 +37,7 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
 from phonepose.pipeline.trackers import make_trackers, split_names
@@ -296,17 +296,17 @@ def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOpt
 
 
 def _write_files(out: Path, trajs: Mapping[str, TrackerTrajectory], gt_stamps: np.ndarray, gt: Pose | None,
-                 gt_inside: np.ndarray, files: dict[str, str]) -> None:
+                 gt_inside: np.ndarray, files: dict[str, str], tag: str | None) -> None:
     for name in trajs:
         traj = trajs[name]     # one at a time: read from its spill file, written, dropped
         p = out / "trajectories" / f"{name}.tum"
-        write_tum(p, traj.stamps_ns, traj.poses)
+        write_tum(p, traj.stamps_ns, traj.poses, session=tag)
         files[f"trajectories/{name}.tum"] = str(p)
         del traj
     if gt is not None:
-        write_tum(out / "groundtruth.tum", gt_stamps, gt)
+        write_tum(out / "groundtruth.tum", gt_stamps, gt, session=tag)
         files["groundtruth.tum"] = str(out / "groundtruth.tum")
-        write_in_view(out / "in_view.txt", gt_stamps, gt_inside)
+        write_in_view(out / "in_view.txt", gt_stamps, gt_inside, session=tag)
         files["in_view.txt"] = str(out / "in_view.txt")
 
 
@@ -363,7 +363,7 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
     session_name = Path(session).name
     metrics_doc = metrics_document(session_name, options.rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
-        _write_files(out, trajs, gt_stamps, gt_poses, engine.gt.inside(), files)
+        _write_files(out, trajs, gt_stamps, gt_poses, engine.gt.inside(), files, session_tag(session, context))
         metrics_doc = write_metrics(out / "metrics.json", session_name, options.rate_hz, per_tracker,
                                     ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
