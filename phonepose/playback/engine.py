@@ -37,7 +37,7 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
 from phonepose.pipeline.trackers import make_trackers, split_names
@@ -306,17 +306,18 @@ def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOpt
             options.progress(engine.n_ticks, total)
 
 
-def _write_files(out: Path, engine: PlaybackEngine, trajs: dict[str, TrackerTrajectory], files: dict[str, str]) -> None:
+def _write_files(out: Path, engine: PlaybackEngine, trajs: dict[str, TrackerTrajectory], files: dict[str, str],
+                 tag: str | None) -> None:
     for name, traj in trajs.items():
         p = out / "trajectories" / f"{name}.tum"
-        write_tum(p, traj.stamps_ns, traj.poses)
+        write_tum(p, traj.stamps_ns, traj.poses, session=tag)
         files[f"trajectories/{name}.tum"] = str(p)
     gt = engine.gt.poses()
     if gt is not None:
         gt_stamps = engine.gt.stamps()
-        write_tum(out / "groundtruth.tum", gt_stamps, gt)
+        write_tum(out / "groundtruth.tum", gt_stamps, gt, session=tag)
         files["groundtruth.tum"] = str(out / "groundtruth.tum")
-        write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
+        write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool), session=tag)
         files["in_view.txt"] = str(out / "in_view.txt")
 
 
@@ -372,7 +373,7 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
     session_name = Path(session).name
     metrics_doc = metrics_document(session_name, options.rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
-        _write_files(out, engine, trajs, files)
+        _write_files(out, engine, trajs, files, session_tag(session, context))
         metrics_doc = write_metrics(out / "metrics.json", session_name, options.rate_hz, per_tracker,
                                     ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
