@@ -105,7 +105,7 @@ def rehearse(
     seed: int = typer.Option(0, "--seed", **SEED, help="Random seed of the simulated session."),
     config: Path | None = typer.Option(None, "--config", help="TOML file overriding the simulator's parameters "
                                           "(the rehearsal then sets the live path's own: docs/recording-real-sessions.md)."),
-    lead_in: float | None = typer.Option(None, "--lead-in", callback=number(2, 120, unit="s"), show_default="10",
+    lead_in: float | None = typer.Option(None, "--lead-in", callback=number(2, 120, unit="s"), show_default="20",
                                          help="Still frames before the motion, while the browser starts (s)."),
     headset: bool | None = typer.Option(None, "--headset/--no-headset", show_default="when record live serves it",
                                         help="Also open the headset page (the ground truth)."),

@@ -23,7 +23,7 @@ if TYPE_CHECKING:   # imported when used: numpy, OpenCV and the simulator would 
 
 __all__ = ["LEAD_IN_S", "RehearsalResult", "rehearse", "rows"]
 
-LEAD_IN_S = 10.0             # still frames before the simulated motion: the browser starts meanwhile
+LEAD_IN_S = 20.0             # still frames before the simulated motion: the browser starts meanwhile
 DEFAULT_TIMEOUT_S = 120.0    # each wait on the browser (page load, AR session); generous, as on a loaded machine
 
 

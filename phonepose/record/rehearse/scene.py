@@ -65,7 +65,8 @@ class Truth:
     """What calibrate-gt should find on the rehearsed session."""
 
     time_offset_s: float      # ground-truth stamps minus recorder stamps of the same instant
-    T_world_camera: Pose      # the display camera in the headset's world
+    T_world_camera: Pose      # the display camera in the headset's world (its WebXR axes; the recorder's
+                              # gt_world is webxr.T_GTWORLD_XR of it)
     T_body_grip: Pose         # the grip in the phone's body frame (calibrate-gt's T_controller_gt)
 
 

@@ -20,7 +20,7 @@ from phonepose.errors import ConfigError
 from phonepose.record.rehearse.browser import DevicePage, RehearsalBrowser, grip_offset, wait_for
 from phonepose.record.rehearse.scene import Scene
 
-ANCHOR_BEFORE_S = 1.5     # the tap: this long before the motion starts (lead-in: still, in view)
+ANCHOR_BEFORE_S = 5.0     # the tap: this long before the motion starts (lead-in: still, in view; a click can take 1-2 s)
 
 
 @dataclass
@@ -83,6 +83,11 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         sim0_ns = source.camera.start_ns + int(round(scene.lead_in_s * 1e9))
         run_info = RecordedRun(out, [], {}, "", sim0_ns, headset=headset)
         t_setup = time.monotonic()
+        steps: list[str] = []
+
+        def step(what: str) -> None:
+            steps.append(f"{what} {time.monotonic() - t_setup:.1f} s")
+
         pages: list[DevicePage] = []
         phone = browser.open(url, "phone")
         pages.append(phone)
@@ -91,27 +96,30 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         vr = None
         if headset:
             assert headset_url is not None
-            vr = browser.open(headset_url, "headset", viewport={"width": 800, "height": 600})
+            vr = browser.open(headset_url, "headset")
             pages.append(vr)
             vr.evaluate("t => window.__rehearsal.load(t)", {"mode": "headset", **scene.headset_tables(grip_offset(vr))})
+        step("pages loaded")
         for p in pages:
             run_info.clocks[p.name] = p.measure_clock(clock.now_ns)
             p.start(sim0_ns)
         wait_for(lambda: phone.page.is_enabled("#btn-ar"), "the phone page to offer Start AR", timeout_s)
         phone.page.click("#btn-ar")
         wait_for(lambda: phone.page.inner_text("#btn-ar").strip() == "Stop AR", "the phone's AR session", timeout_s)
+        step("AR")
         if vr is not None:
             wait_for(lambda: vr.page.is_enabled("#btn-vr"), "the headset page to offer its VR button", timeout_s)
             vr.page.click("#btn-vr")
             wait_for(lambda: vr.state()["driven"] > 0, "the headset's VR session", timeout_s)
+            step("VR")
         run_info.setup_s = time.monotonic() - t_setup
         late = (clock.now_ns() - sim0_ns) / 1e9 + ANCHOR_BEFORE_S
         if late > 0:
-            raise ConfigError(f"rehearsal: the browser took {run_info.setup_s:.1f} s to open the pages, {late:.1f} s "
-                              f"too long for the {scene.lead_in_s:g} s lead-in: give a longer --lead-in")
+            raise ConfigError(f"rehearsal: the browser took {run_info.setup_s:.1f} s to open the pages ({', '.join(steps)}), "
+                              f"{late:.1f} s too long for the {scene.lead_in_s:g} s lead-in: give a longer --lead-in")
         wait_for(lambda: clock.now_ns() >= sim0_ns - int(ANCHOR_BEFORE_S * 1e9), "the anchor's moment", timeout_s)
         phone.page.click("#btn-anchor")
-        echo(f"  pages ready after {run_info.setup_s:.1f} s; tapped Anchor at sim time "
+        echo(f"  pages ready ({', '.join(steps)}); tapped Anchor at sim time "
              f"{(clock.now_ns() - sim0_ns) / 1e9:+.2f} s")
         end_s = scene.duration_s
         wait_for(lambda: not thread.is_alive(), "the video to end", end_s + scene.lead_in_s + timeout_s)
