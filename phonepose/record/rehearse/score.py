@@ -350,7 +350,7 @@ def rows(sc: Scores) -> list[Row]:
     if sc.gt is not None:
         out += _stream_rows("headset grip", sc.gt)
     for page, err in sorted(sc.clock_offsets_ms.items()):
-        out.append(Row(f"{page} page clock: recorder's estimate - measured", f"{err:+.2f} ms", "", None))
+        out.append(Row(f"{page} page clock: the recorder's last logged offset - measured", f"{err:+.2f} ms", "", None))
     c = sc.calibration
     if c is not None:
         out += [Row("calibrate-gt clock offset", f"{c.time_offset_ms:+.1f} ms (simulated {c.true_time_offset_ms:+.1f} ms)",
