@@ -227,6 +227,9 @@ def read_session_tag(path: str | os.PathLike) -> str | None:
     return None
 
 
+TUM_WRITE_BLOCK = 2048   # rows formatted at a time
+
+
 def write_tum(path: str | os.PathLike, stamps, poses: Pose | None, session: str | None = None) -> None:
     """Write ``t tx ty tz qx qy qz qw`` lines with a ``#`` header, 9 decimals everywhere.
 
@@ -234,10 +237,18 @@ def write_tum(path: str | os.PathLike, stamps, poses: Pose | None, session: str 
     ``session``: a tag naming the session the poses come from (:func:`read_session_tag`).
     The same input always gives the same bytes.
     """
-    text = ("# timestamp tx ty tz qx qy qz qw\n" + session_tag_line(session)
-            + "".join(line + "\n" for line in tum_lines(stamps, poses)))
+    stamps = np.atleast_1d(stamps)
+    n = 0 if poses is None else len(stamps)
+    if poses is not None and n and len(np.atleast_2d(poses.translation)) != n:
+        raise ValueError(f"{n} stamps for {len(np.atleast_2d(poses.translation))} poses")
     try:
-        Path(path).write_text(text)
+        with open(path, "w") as f:
+            f.write("# timestamp tx ty tz qx qy qz qw\n" + session_tag_line(session))
+            # in blocks: the text of a 10-minute trajectory at once would be the playback's peak
+            # memory (docs/performance.md); each line depends on its row only, so the bytes are the same
+            for k in range(0, n, TUM_WRITE_BLOCK):
+                block = poses if n == 1 else poses[k:k + TUM_WRITE_BLOCK]   # type: ignore[index]
+                f.write("".join(line + "\n" for line in tum_lines(stamps[k:k + TUM_WRITE_BLOCK], block)))
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
