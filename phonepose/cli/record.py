@@ -115,7 +115,7 @@ def rehearse(
     [bold]record live[/bold], the real phone and headset pages in headless Chromium with emulated WebXR
     devices (IWER) driven by the simulated motion, then calibrate-gt and playback against the source.
 
-    Example: [bold]phonepose record rehearse --out rehearsal[/bold] (about a minute; exit 1 if a goal is missed)
+    Example: [bold]phonepose record rehearse --out rehearsal[/bold] (1.5 min; exit 1 if a goal is missed)
     """
     from rich.table import Table
 
