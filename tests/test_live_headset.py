@@ -16,6 +16,8 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import subprocess
+import sys
 
 import aiohttp
 import numpy as np
@@ -184,6 +186,9 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     infos = by[Topic.SESSION_INFO]
     assert [i.msg.ground_truth_source for i in infos] == ["", "webxr-headset (Quest 3, OculusBrowser/33.0.0.7, right controller)"]
     assert Topic.GT_CALIBRATION not in by
+    info = subprocess.run([sys.executable, "-m", "phonepose", "info", str(tmp_path / "s.mcap"), "--json"],
+                          capture_output=True, text=True)
+    assert json.loads(info.stdout)["ground_truth_source"] == infos[-1].msg.ground_truth_source, info.stderr
     logs = [m.msg.message for m in by[Topic.LOG]]
     lost = [t for t in logs if "right controller (on the phone) lost tracking " in t]
     assert len(lost) == 1, logs
