@@ -107,15 +107,15 @@ def rehearse(
                                           "(the rehearsal then sets the live path's own: docs/recording-real-sessions.md)."),
     lead_in: float | None = typer.Option(None, "--lead-in", callback=number(2, 120, unit="s"), show_default="20",
                                          help="Still frames before the motion, while the browser starts (s)."),
-    headset: bool | None = typer.Option(None, "--headset/--no-headset", show_default="when record live serves it",
-                                        help="Also open the headset page (the ground truth)."),
+    headset: bool = typer.Option(True, "--headset/--no-headset", help="Also open the headset page (the ground truth; "
+                                 "without it: no calibrate-gt, p_ATE against the true pose)."),
     iwer: Path | None = typer.Option(None, "--iwer", help="iwer.min.js (default: the repository's tests/js/node_modules)."),
 ) -> None:
     """Rehearse a real recording with no hardware: a simulated session's frames played as a video by
     [bold]record live[/bold], the real phone and headset pages in headless Chromium with emulated WebXR
     devices (IWER) driven by the simulated motion, then calibrate-gt and playback against the source.
 
-    Example: [bold]phonepose record rehearse --out rehearsal[/bold] (about a minute; exit 1 if a goal is missed)
+    Example: [bold]phonepose record rehearse --out rehearsal[/bold] (1.5 min; exit 1 if a goal is missed)
     """
     from rich.table import Table
 

@@ -47,11 +47,11 @@ class RehearsalResult:
 
 def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | None = "REC1", trial: int = 1,
              seed: int = 0, config: str | os.PathLike | None = None, lead_in_s: float = LEAD_IN_S,
-             headset: bool | None = None, iwer: str | os.PathLike | None = None, timeout_s: float = DEFAULT_TIMEOUT_S,
+             headset: bool = True, iwer: str | os.PathLike | None = None, timeout_s: float = DEFAULT_TIMEOUT_S,
              echo: Callable[[str], None] = print) -> RehearsalResult:
     """Rehearse one recording into the folder ``out_dir`` (phonepose.files' rule: written under a temporary
     name, in place when complete): source.mcap, camera.avi, camera.yaml, live.mcap, gt-calibration.yaml
-    (with the headset), rehearsal.json (the scores). ``headset`` None: when ``record live`` serves its page."""
+    (with the headset), rehearsal.json (the scores)."""
     from phonepose.files import OutputPlan, check_input
     from phonepose.record.rehearse.browser import find_iwer
     from phonepose.record.rehearse.scene import build_scene, rehearsal_config
@@ -63,9 +63,6 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
     check_seed(seed)
     if config is not None:
         check_input(config, "TOML file")
-    if headset is None:   # the headset page came with issue 20: used whenever record live serves it
-        from phonepose.record.live import LiveSession
-        headset = hasattr(LiveSession, "headset_url")
     cfg = rehearsal_config(config)
     iwer_js = find_iwer(iwer)
     plan = OutputPlan(inputs=[config] if config is not None else [])
@@ -87,7 +84,6 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
                "scores": asdict(scores),
                "rows": [asdict(r) for r in rows(scores)]}
         (folder / "rehearsal.json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
-        names = ["source.mcap", "camera.avi", "camera.yaml", "live.mcap", "rehearsal.json"] + \
-            (["gt-calibration.yaml"] if headset else [])
+        names = sorted(n for n in os.listdir(folder) if not n.startswith("."))
     files = {n: os.fspath(Path(out_dir) / n) for n in names}
     return RehearsalResult(Path(out_dir), scores, files)

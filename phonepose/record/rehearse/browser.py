@@ -35,7 +35,11 @@ VIEWPORT = {"width": 240, "height": 400}
 
 def find_iwer(path: str | os.PathLike | None = None) -> Path:
     """iwer.min.js: the given file, else $PHONEPOSE_IWER, else the repository's tests/js/node_modules."""
-    for candidate in (path, os.environ.get("PHONEPOSE_IWER"), IWER_IN_REPO):
+    if path is not None:
+        if not Path(path).is_file():
+            raise ConfigError(f"--iwer {path}: no such file (expected IWER's build/iwer.min.js)")
+        return Path(path)
+    for candidate in (os.environ.get("PHONEPOSE_IWER"), IWER_IN_REPO):
         if candidate and Path(candidate).is_file():
             return Path(candidate)
     raise ConfigError("IWER (the npm package iwer) is not installed: run `npm ci --prefix tests/js` in the "
@@ -135,6 +139,13 @@ class RehearsalBrowser:
             raise ConfigError(f"the {name} page {url.split('?')[0]} answered "
                               f"{'nothing' if response is None else f'HTTP {response.status}'}")
         return DevicePage(page, name)
+
+
+def browser_failure(exc: Exception) -> ConfigError:
+    """A Playwright error (a page that crashed, a click that timed out) as one line."""
+    text = str(exc).strip()
+    first = text.splitlines()[0] if text else type(exc).__name__
+    return ConfigError(f"rehearsal: the browser failed: {first[:200]}")
 
 
 def wait_for(condition: Callable[[], object], what: str, timeout_s: float, interval_s: float = 0.02):

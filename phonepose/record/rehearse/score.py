@@ -100,6 +100,7 @@ class Scores:
     window_s: tuple[float, float]
     clock_offsets_ms: dict       # page -> (recorder's estimate - rehearsal's measurement) ms
     frames: int
+    calibration_error: str = ""  # calibrate-gt's refusal, if it refused
 
     @property
     def ate_ok(self) -> bool:
@@ -260,6 +261,7 @@ def calibration_check(cal, scene: Scene) -> CalibrationCheck:
 def score(scene: Scene, run: RecordedRun, calibration_out: Path | None = None, echo=print) -> Scores:
     from phonepose.calibration.calibrate_gt import calibrate_gt_session
     from phonepose.calibration.gt_calibration import save_gt_calibration
+    from phonepose.errors import SessionContentError
     from phonepose.playback.engine import run_playback
     from phonepose.record.live.recording import T_DISPLAY_CAMERA as T_LIVE_DISPLAY_CAMERA
     from phonepose.record.live.webxr import T_GTWORLD_XR
@@ -271,7 +273,6 @@ def score(scene: Scene, run: RecordedRun, calibration_out: Path | None = None, e
     whole = (0.0, scene.duration_s)
     t_vio, vio = _poses(run.path, Topic.CONTROLLER_VIO_POSE)
     if vio is None:
-        from phonepose.errors import SessionContentError
         raise SessionContentError(f"{run.path}: the phone page recorded no WebXR pose")
     vio_check = check_stream(t_vio, vio, scene.phone_vio_local, run.sim0_ns, whole)
     gt_check = None
@@ -288,13 +289,17 @@ def score(scene: Scene, run: RecordedRun, calibration_out: Path | None = None, e
     n_imu = int(np.count_nonzero(ok))
     span = s_imu[ok][-1] - s_imu[ok][0] if n_imu > 1 else float("nan")
 
-    cal_check, cal = None, None
+    cal_check, cal, cal_error = None, None, ""
     if run.headset:
         echo("calibrate-gt on the rehearsed session ...")
-        cal = calibrate_gt_session(run.path)
-        cal_check = calibration_check(cal, scene)
-        if calibration_out is not None:
-            save_gt_calibration(calibration_out, cal)
+        try:
+            cal = calibrate_gt_session(run.path)
+        except SessionContentError as exc:   # e.g. a --config whose motion cannot determine it: a row, not lost data
+            cal_error = str(exc)
+        else:
+            cal_check = calibration_check(cal, scene)
+            if calibration_out is not None:
+                save_gt_calibration(calibration_out, cal)
 
     echo("playback --tracker all of the source session ...")
     src = run_playback(scene.source_path, trackers=["all"], write_outputs=False)
@@ -324,7 +329,7 @@ def score(scene: Scene, run: RecordedRun, calibration_out: Path | None = None, e
                   window_ate_cm(reh, t0_reh, t1_reh) if cal is not None else {},
                   window_ate_cm(reh, t0_reh, t1_reh, truth=oracle),
                   window_ate_cm(reh, t0_reh, t1_reh, truth=oracle, scope="total", key="r_ate_deg", scale=1.0).get("T1"),
-                  window, clock_err, run.counts.get(Topic.CAMERA_IMAGE, 0))
+                  window, clock_err, run.counts.get(Topic.CAMERA_IMAGE, 0), cal_error)
 
 
 @dataclass(frozen=True)
@@ -352,6 +357,8 @@ def rows(sc: Scores) -> list[Row]:
     for page, err in sorted(sc.clock_offsets_ms.items()):
         out.append(Row(f"{page} page clock: the recorder's last logged offset - measured", f"{err:+.2f} ms", "", None))
     c = sc.calibration
+    if sc.calibration_error:
+        out.append(Row("calibrate-gt", f"refused: {sc.calibration_error}", "a calibration", False))
     if c is not None:
         out += [Row("calibrate-gt clock offset", f"{c.time_offset_ms:+.1f} ms (simulated {c.true_time_offset_ms:+.1f} ms)",
                     f"within {GOAL_OFFSET_MS:g} ms", c.time_error_ms <= GOAL_OFFSET_MS),

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from phonepose.errors import ConfigError
-from phonepose.record.rehearse.browser import DevicePage, RehearsalBrowser, grip_offset, wait_for
+from phonepose.record.rehearse.browser import DevicePage, RehearsalBrowser, browser_failure, grip_offset, wait_for
 from phonepose.record.rehearse.scene import Scene
 
 ANCHOR_BEFORE_S = 5.0     # the tap: this long before the motion starts (lead-in: still, in view; a click can take 1-2 s)
@@ -42,9 +42,14 @@ class RecordedRun:
 
 def record_rehearsal(scene: Scene, out: Path, *, iwer: Path, headset: bool, timeout_s: float,
                      echo: Callable[[str], None]) -> RecordedRun:
-    with tempfile.TemporaryDirectory(prefix="phonepose-rehearsal-tls-") as tls, \
-            RehearsalBrowser(iwer, timeout_s) as browser:    # a certificate for this run only; Chromium first
-        return _record(scene, out, Path(tls), browser, headset=headset, timeout_s=timeout_s, echo=echo)
+    from playwright.sync_api import Error as PlaywrightError
+
+    try:
+        with tempfile.TemporaryDirectory(prefix="phonepose-rehearsal-tls-") as tls, \
+                RehearsalBrowser(iwer, timeout_s) as browser:    # a certificate for this run only; Chromium first
+            return _record(scene, out, Path(tls), browser, headset=headset, timeout_s=timeout_s, echo=echo)
+    except PlaywrightError as exc:
+        raise browser_failure(exc) from None
 
 
 def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, headset: bool, timeout_s: float,
@@ -55,17 +60,12 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
     live = LiveSession(out, str(scene.video_path), scene.calibration_path, host="127.0.0.1", port=0, tls_dir=tls,
                        dictionary=marker.dictionary, marker_id=marker.id, marker_size_m=marker.size_m, pace=True,
                        echo=lambda line: echo(f"  record live: {line}"))
-    headset_url = None
     try:
         url = live.start()
-        headset_url = getattr(live, "headset_url", None)
     except BaseException:
         live.source.close()
         raise
-    if headset and headset_url is None:
-        live.source.close()
-        raise ConfigError("this phonepose's `record live` serves no headset page (LiveSession.headset_url): "
-                          "rehearse with --no-headset")
+    headset_url = live.headset_url
     result: dict = {}
 
     def run() -> None:
@@ -99,7 +99,6 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
                                                           "imu": scene.imu_table()})
         vr = None
         if headset:
-            assert headset_url is not None
             vr = browser.open(headset_url, "headset")
             pages.append(vr)
             vr.evaluate("t => window.__rehearsal.load(t)", {"mode": "headset", **scene.headset_tables(grip_offset(vr))})
