@@ -38,7 +38,7 @@ def device_of(user_agent: str) -> str:
     its first parenthesis, the browser its XR browser's product token); the raw agent, cut, otherwise."""
     paren = re.search(r"\(([^)]*)\)", user_agent)
     device = paren.group(1).split(";")[-1].strip() if paren else ""
-    browser = re.search(r"(OculusBrowser|PicoBrowser|Wolvic|HeadlessChrome|Firefox|Chrome)/[\d.]+", user_agent)
+    browser = re.search(r"(OculusBrowser|PicoBrowser|Wolvic|HeadlessChrome|Firefox|Chrome)/\d+(?:\.\d+)*", user_agent)
     parts = [p for p in (device, browser.group(0) if browser else "") if p]
     return ", ".join(parts) if parts else (user_agent[:60] or "unknown browser")
 

@@ -119,7 +119,9 @@
     const hands = [];
     let tracked = false;
     for (const source of session.inputSources) {
-      if (!source.gripSpace) continue; // a gaze or screen input: no body to track
+      // A gaze or screen input has no body to track; a tracked hand (source.hand, Quest hand
+      // tracking when the controllers are put down) is not the controller on the phone.
+      if (!source.gripSpace || source.hand) continue;
       hands.push(source.handedness);
       const grip = frame.getPose(source.gripSpace, state.refSpace);
       const entry = { hand: source.handedness };
