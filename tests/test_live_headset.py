@@ -46,6 +46,7 @@ from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import codec
 
 media = test_record_live.media
+long_media = test_record_live.long_media
 HEADSET_S = 8.0
 HEADSET_OFFSET_NS = -987_654_321_123      # the headset page's clock (performance.timeOrigin + now) vs the recorder's
 GT_LAG_S = 0.030                          # its poses are stamped this late (frame time vs the instant tracked)
@@ -220,3 +221,39 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
         a, b = (scored[n].metrics["trackers"][tracker]["inside"] for n in ("estimate", "truth"))
         assert abs(a["p_ate_m"] - b["p_ate_m"]) < 0.0005 and abs(a["r_ate_deg"] - b["r_ate_deg"]) < 0.1, (tracker, a, b)
         assert a["frames"] > 100 and a["p_ate_m"] < 0.005 and a["r_ate_deg"] < 2.0, (tracker, a)   # the marker's own noise
+
+
+def test_a_second_headset_replaces_the_first_and_neither_replaces_the_phone(long_media, tmp_path):
+    s, out, th, lines = _start(long_media, tmp_path, marker_size_m=MARKER_SIZE)
+    phone, first, second = Phone(s, s.port, s.token), Headset(s, s.port, s.token), Headset(s, s.port, s.token)
+    start = _wait_video_start(s)
+    current = s.source.server.current
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws_p, reader_p = await phone.connect(http)
+            ws_1, reader_1 = await first.connect(http)
+            await wait_until_async(lambda: "headset" in current and "phone" in current, what="both connections")
+            phone_conn = current["phone"]
+            ws_2, reader_2 = await second.connect(http)
+            await wait_until_async(lambda: ws_1.closed, what="the first headset to be closed")
+            assert ws_1.close_code == 1000 and not ws_p.closed and current["phone"] is phone_conn
+            await second.stream(ws_2, start, (s.source.clock.now_ns() - start) / 1e9 + 0.3)
+            await phone.stream(ws_p, start, (s.source.clock.now_ns() - start) / 1e9 + 0.3)
+            n = sum(k == "right" for k, _, _ in second.sent)
+            await wait_until_async(lambda: s.source.recording.stats[Topic.GT_CONTROLLER_POSE] >= n, what="the poses")
+            for ws, reader in ((ws_p, reader_p), (ws_2, reader_2)):
+                await ws.close()
+                reader.cancel()
+            reader_1.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    errors = [m["message"] for m in first.received if m["type"] == "error"]
+    assert errors == ["another page connected; this one is no longer recorded"]
+    assert not [m for m in phone.received if m["type"] == "error"]
+    assert any("headset #2 (127.0.0.1): replaced by headset #3 (127.0.0.1)" in line for line in lines), lines
+    msgs = _messages(tmp_path / "s.mcap")
+    assert sum(m.topic == Topic.GT_CONTROLLER_POSE for m in msgs) == sum(k == "right" for k, _, _ in second.sent)
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in msgs) == sum(k == "imu" for k, _, _ in phone.sent)

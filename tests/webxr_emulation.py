@@ -9,15 +9,11 @@ The device is ``window.__xrDevice`` in the page; set poses with :func:`set_pose`
 
 from __future__ import annotations
 
-import shutil
-from pathlib import Path
-
 from conftest import DEADLINE_S
 
-IWER_JS = Path(__file__).parent / "js" / "node_modules" / "iwer" / "build" / "iwer.min.js"
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")   # else Playwright's own build
-CHROMIUM_ARGS = ["--no-sandbox", "--no-first-run", "--disable-background-networking", "--disable-component-update",
-                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+# the rehearsal's browser: the same Chromium, flags, IWER file and small viewport (IWER's canvas costs CPU per pixel)
+from phonepose.record.rehearse.browser import CHROMIUM_ARGS, VIEWPORT, find_chromium, find_iwer
+
 INSTALL = """(() => {{
   const device = new IWER.XRDevice(IWER.{device});
   device.installRuntime({{ forceInstall: true }});
@@ -28,18 +24,16 @@ INSTALL = """(() => {{
 
 def launch(pw):
     """Headless Chromium with WebGL (SwiftShader: an XR session needs a WebGL base layer)."""
-    return pw.chromium.launch(executable_path=CHROMIUM, headless=True, timeout=DEADLINE_S * 1000, args=CHROMIUM_ARGS)
+    return pw.chromium.launch(executable_path=find_chromium(), headless=True, timeout=DEADLINE_S * 1000, args=CHROMIUM_ARGS)
 
 
 def new_page(browser, *, device: str | None = "metaQuest3"):
     """A page of a new context (HTTPS errors ignored: the recorder's certificate is self-signed) with IWER's
     ``device`` (an IWER export: metaQuest3, metaQuest2, ...) installed before any script; None: no emulation."""
-    if device is not None and not IWER_JS.is_file():
-        raise RuntimeError(f"{IWER_JS} is missing: run `npm ci --prefix tests/js`")
-    ctx = browser.new_context(ignore_https_errors=True)
+    ctx = browser.new_context(viewport=VIEWPORT, ignore_https_errors=True)
     ctx.set_default_timeout(DEADLINE_S * 1000)
     if device is not None:
-        ctx.add_init_script(path=str(IWER_JS))
+        ctx.add_init_script(path=str(find_iwer()))
         ctx.add_init_script(script=INSTALL.format(device=device))
     return ctx.new_page()
 
