@@ -9,6 +9,12 @@ step over the Observations built once, three times each, best kept: T1-T7 togeth
 
 Targets (issue 23): T1-T7 together <= 0.1 ms per tick; the shared stages' non-OpenCV work
 <= 0.3 ms per tick; T8 <= 0.4 ms per tick (helper "accuracy"'s).
+
+Every figure is taken twice in the same run: by the wall clock and by the thread's CPU time
+(``time.thread_time``; OpenCV runs single-threaded here, in the calling thread). On a shared
+machine the wall clock also counts the time the thread waited for a core (at load average 12 on
+2 cores the wall figures doubled within minutes); the CPU time is the code's own cost, so the
+summary judges the targets on it (``*_cpu_ms_per_tick``) and reports the wall figures beside.
 """
 
 from __future__ import annotations
@@ -26,15 +32,17 @@ _OPENCV_CALLS = ("imdecode", "solvePnPGeneric", "solvePnPRefineLM", "projectPoin
 
 class _Clock:
     def __init__(self) -> None:
-        self.seconds = 0.0
+        self.seconds = 0.0        # wall
+        self.cpu_seconds = 0.0    # this thread's CPU time
 
     def wrap(self, fn):
         def timed(*args, **kwargs):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 return fn(*args, **kwargs)
             finally:
                 self.seconds += time.perf_counter() - t0
+                self.cpu_seconds += time.thread_time() - c0
         return timed
 
 
@@ -82,28 +90,32 @@ def _shared_stages(session: Path, repeats: int = 3) -> tuple[list, dict]:
         stages.map_vio_samples = True
         clock = _Clock()
         with _opencv_timed(stages, clock):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             obs = [stages.process(tick) for tick in ticks]
-            total = time.perf_counter() - t0
-        run = {"total_ms": 1e3 * total / len(ticks), "opencv_ms": 1e3 * clock.seconds / len(ticks)}
+            total, cpu = time.perf_counter() - t0, time.thread_time() - c0
+        run = {"total_ms": 1e3 * total / len(ticks), "opencv_ms": 1e3 * clock.seconds / len(ticks),
+               "total_cpu_ms": 1e3 * cpu / len(ticks), "opencv_cpu_ms": 1e3 * clock.cpu_seconds / len(ticks)}
         run["own_ms"] = run["total_ms"] - run["opencv_ms"]
-        if best is None or run["own_ms"] < best["own_ms"]:
+        run["own_cpu_ms"] = run["total_cpu_ms"] - run["opencv_cpu_ms"]
+        if best is None or run["own_cpu_ms"] < best["own_cpu_ms"]:
             best = run
     assert best is not None
     return obs, best
 
 
-def _per_tick_ms(trackers: list, obs: list, repeats: int = 3) -> float:
-    best = float("inf")
+def _per_tick_ms(trackers: list, obs: list, repeats: int = 3) -> tuple[float, float]:
+    """(wall, CPU) ms per tick, each the best of ``repeats``."""
+    best, best_cpu = float("inf"), float("inf")
     for _ in range(repeats):
         for tracker in trackers:
             tracker.reset()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         for o in obs:
             for tracker in trackers:
                 tracker.step(o)
         best = min(best, (time.perf_counter() - t0) / len(obs))
-    return best * 1e3
+        best_cpu = min(best_cpu, (time.thread_time() - c0) / len(obs))
+    return best * 1e3, best_cpu * 1e3
 
 
 def main() -> dict:
@@ -117,15 +129,20 @@ def main() -> dict:
         obs, shared = _shared_stages(session)
     out = {"ticks": len(obs), "shared_stages_ms_per_tick": shared["total_ms"],
            "shared_opencv_ms_per_tick": shared["opencv_ms"], "shared_own_ms_per_tick": shared["own_ms"],
-           "T1_T7_ms_per_tick": _per_tick_ms(make_trackers("paper"), obs)}
+           "shared_stages_cpu_ms_per_tick": shared["total_cpu_ms"],
+           "shared_opencv_cpu_ms_per_tick": shared["opencv_cpu_ms"],
+           "shared_own_cpu_ms_per_tick": shared["own_cpu_ms"]}
+    out["T1_T7_ms_per_tick"], out["T1_T7_cpu_ms_per_tick"] = _per_tick_ms(make_trackers("paper"), obs)
     for name in PAPER_TRACKERS + ("T7L", "T8"):
-        out[f"{name}_ms_per_tick"] = _per_tick_ms([make_tracker(name)], obs)
+        out[f"{name}_ms_per_tick"], out[f"{name}_cpu_ms_per_tick"] = _per_tick_ms([make_tracker(name)], obs)
     out["shared_own_share"] = out["shared_own_ms_per_tick"] / out["shared_stages_ms_per_tick"]
-    print(f"ticks: {out['ticks']} ticks; shared stages {shared['total_ms']:.3f} ms/tick, of which OpenCV "
-          f"{shared['opencv_ms']:.3f} and their own work {shared['own_ms']:.3f} (target <= 0.3); "
-          f"T1-T7 together {out['T1_T7_ms_per_tick']:.3f} ms/tick (target <= 0.1); "
-          f"T7L {out['T7L_ms_per_tick']:.3f}, T8 {out['T8_ms_per_tick']:.3f} (target <= 0.4)")
-    print("  per tracker: " + ", ".join(f"{n} {out[f'{n}_ms_per_tick']:.4f}" for n in PAPER_TRACKERS))
+    print(f"ticks: {out['ticks']} ticks; CPU time per tick (wall in brackets): shared stages "
+          f"{shared['total_cpu_ms']:.3f} ({shared['total_ms']:.3f}) ms, of which OpenCV {shared['opencv_cpu_ms']:.3f} "
+          f"({shared['opencv_ms']:.3f}) and their own work {shared['own_cpu_ms']:.3f} ({shared['own_ms']:.3f}) "
+          f"(target <= 0.3); T1-T7 together {out['T1_T7_cpu_ms_per_tick']:.3f} ({out['T1_T7_ms_per_tick']:.3f}) "
+          f"(target <= 0.1); T7L {out['T7L_cpu_ms_per_tick']:.3f} ({out['T7L_ms_per_tick']:.3f}), "
+          f"T8 {out['T8_cpu_ms_per_tick']:.3f} ({out['T8_ms_per_tick']:.3f}) (target <= 0.4)")
+    print("  per tracker, CPU ms: " + ", ".join(f"{n} {out[f'{n}_cpu_ms_per_tick']:.4f}" for n in PAPER_TRACKERS))
     return out
 
 

@@ -5,11 +5,19 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
-from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary, marker_object_points, push_edges_outward
+from phonepose.pipeline.markers import (
+    MarkerRecognizer,
+    aruco_dictionary,
+    marker_object_points,
+    push_edges_outward,
+    reprojection_rms_px,
+)
 from phonepose.pipeline.types import MarkerModel
 from phonepose.testing.marker_images import looking_at, pinhole_camera, project_corners, render_marker
 
@@ -148,3 +156,14 @@ def test_lens_distortion_is_used():
         # the same corners through a camera model without distortion land centimetres off
         ignored = MarkerRecognizer(CAMERA, MARKER).recognize(img)
         assert 1000 * ignored.T_camera_marker.distance_to(T_true) > 10.0
+
+
+_PX = st.floats(min_value=-2000.0, max_value=2000.0, allow_nan=False, allow_infinity=False)
+
+
+@given(st.lists(_PX, min_size=8, max_size=8), st.lists(_PX, min_size=8, max_size=8))
+def test_reprojection_rms_is_numpys_to_the_bit(projected, corners):
+    p = np.array(projected).reshape(4, 1, 2)           # cv2.projectPoints' shape
+    c = np.array(corners).reshape(4, 2)
+    expected = float(np.sqrt(np.mean(np.sum((p.reshape(4, 2) - c) ** 2, axis=1))))
+    assert reprojection_rms_px(p, c) == expected
