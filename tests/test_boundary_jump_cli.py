@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from phonepose.evaluation.trajectory import load_in_view, write_in_view
+from phonepose.evaluation.trajectory import load_in_view, read_session_tag, write_in_view
 from phonepose.playback.engine import run_playback
 from phonepose.testing.playback_session import write_test_session
 
@@ -34,7 +34,9 @@ def test_in_view_file_matches_the_ticks_and_round_trips(played, tmp_path):
     np.testing.assert_allclose(stamps, result.gt_stamps_ns / 1e9, rtol=0, atol=1e-6)   # float s near 1.7e9: ~0.2 us
     t4 = result.trajectories["T4"]
     assert flags.sum() == t4.inside.sum() and 0 < flags.sum() < flags.size
-    write_in_view(tmp_path / "again.txt", result.gt_stamps_ns, flags)
+    tag = read_session_tag(out / "in_view.txt")
+    assert tag is not None and tag.startswith("s.mcap ")
+    write_in_view(tmp_path / "again.txt", result.gt_stamps_ns, flags, session=tag)
     assert (tmp_path / "again.txt").read_bytes() == (out / "in_view.txt").read_bytes()
 
 

@@ -283,7 +283,7 @@ CASES = [
          r"`phonepose recover .*bad\.mcap --out FIXED\.mcap`$"),
     Case("chunk-header-info", "a chunk's header overwritten, `info` (checks every chunk is where the index says)",
          lambda g, d: ["info", str(_zero_chunk_header(g, d / "hdr.mcap"))], 3,
-         r"hdr\.mcap: damaged MCAP file: the data at byte 42041 is not an MCAP record \(overwritten\?\); run "
+         r"hdr\.mcap: damaged MCAP file: the data at byte 42063 is not an MCAP record \(overwritten\?\); run "
          r"`phonepose recover .*hdr\.mcap --out FIXED\.mcap`$"),
     Case("empty-session", "valid MCAP without messages",
          lambda g, d: ["playback", str(_empty(g, d)), "-q", "--out", str(d / "o")], 4,

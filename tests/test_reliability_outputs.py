@@ -97,7 +97,22 @@ def _fail_calibrate_gt(monkeypatch, d, argv):
     return argv
 
 
+def _fail_rehearsal(monkeypatch, d, argv):
+    """The simulated scene half written, then the disk full: before any browser starts."""
+    import phonepose.record.rehearse.scene as scene
+    from phonepose.errors import OutputError
+
+    def build_scene(folder, **kwargs):
+        (folder / "source.mcap").write_bytes(b"half a session")
+        raise OutputError(f"cannot write {folder / 'camera.avi'}: No space left on device")
+    monkeypatch.setattr(scene, "build_scene", build_scene)
+    return argv
+
+
 WRITERS = [
+    # its run to success (1.5 min, a browser) is tests/test_rehearse.py's slow test
+    Writer("record-rehearse", ["record", "rehearse", "--config", "{input}"], "--out", "rehearsal", kind="dir",
+           input="config", fails=_fail_rehearsal),
     Writer("record-sim", ["record", "sim", "-q", "--config", "{input}", "--force"], "--out", "s.mcap",
            input="config", what="an MCAP session", wrong="s.bag", fails=_fail_recording, missing_input_code=5),
     Writer("record-sim-rerun", ["record", "sim", "-q", "--config", "{input}", "--out", "{d}/rec.mcap"], "--rerun",
@@ -211,11 +226,12 @@ def argv_for(w: Writer, d: Path, out: Path | str, inp: Path | None) -> list[str]
 
 
 def one_line(err: str) -> str:
-    """The error: one line, the last on stderr (batch prints its plan before it), no traceback."""
+    """The error: one line, the last on stderr (batch prints its plan before it, record rehearse its steps),
+    no traceback."""
     lines = err.strip().splitlines()
     errors = [line for line in lines if line.startswith("phonepose: error: ")]
     assert len(errors) == 1 and lines[-1] == errors[0] and "Traceback" not in err, err
-    assert len(lines) == 1 or lines[0].startswith("1 sessions x "), err
+    assert len(lines) == 1 or lines[0].startswith(("1 sessions x ", "simulating exp2 ")), err
     return errors[0][len("phonepose: error: "):]
 
 
@@ -389,9 +405,10 @@ CASES = [
     Case("failed-run", case_failed_run, lambda w: w.fails is not None,
          slow=lambda w: w.id in ("experiment-exp2",), what="failed run"),
     # calibrate-camera / -hand-eye need a real video / a two-axis session to succeed (tests/test_calibration.py,
-    # tests/test_hand_eye.py write theirs); exp2 runs to success in tests/test_experiments.py
+    # tests/test_hand_eye.py write theirs); exp2 runs to success in tests/test_experiments.py, record rehearse
+    # in tests/test_rehearse.py
     Case("replaced-whole", case_replaced_whole, lambda w: w.id not in ("calibrate-camera", "calibrate-hand-eye",
-                                                                       "experiment-exp2"),
+                                                                       "experiment-exp2", "record-rehearse"),
          slow=lambda w: not w.ok, what="stale output (replaced whole)"),
     # a recording on a full disk: tests/test_reliability_kill.py (it stays, for `phonepose recover`)
     Case("disk-full", case_disk_full, lambda w: w.id in ("recover", "board", "marker", "batch", "playback", "experiment-exp1",
