@@ -14,7 +14,9 @@ measurements behind every choice):
   display late; T7's offset absorbs speed × latency). T8 pairs each sighting with VIO
   interpolated at the image's capture time, and estimates the residual time offset ``d`` of the
   VIO stream online as a filter state with the velocity as its Jacobian (Li & Mourikis 2014,
-  "Online temporal calibration for camera-IMU systems", IJRR 33(7)).
+  "Online temporal calibration for camera-IMU systems", IJRR 33(7)); that velocity is a line fit
+  centred on the pair's time, so that it does not share the paired samples' noise (errors in
+  variables: the slope at the newest sample biased ``d`` by +10 ms on 1.5 mm of VIO jitter).
 * **Flipped or outlying marker poses** (IPPE's second solution, motion blur) are rejected by a
   chi-square gate on the innovation; a run of rejections re-initialises the filter (a VIO
   relocalisation jump or a re-resolved anchor).
@@ -28,8 +30,9 @@ measurements behind every choice):
   velocity) and carries the difference to the new source as an offset that decays with
   ``blend_time_s``: no step.
 
-Output: inside the view, the marker's position through a complementary filter (``marker_gain``)
-and the predicted VIO orientation through ``C``, corrected by a share of the newest sighting's
+Output: inside the view, the newest sighting's position **moved from its image time to the tick**
+along the corrected VIO velocity (the 30 Hz image is ~17 ms old at a 20 Hz tick; T4-T7 report it where
+it was), and the predicted VIO orientation through ``C``, corrected by a share of the newest sighting's
 difference to it at the image's own time (a Kalman gain: the prediction's error, growing with how
 far past the newest gyro sample the image lies, against the sighting's; ``pull_*``); outside, the
 corrected, predicted VIO.
@@ -94,6 +97,9 @@ class FusionConfig:
     translation_walk_m_per_sqrt_s: float = 0.002     # ~1 cm/min
     translation_per_path_length: float = 0.02        # drift proportional to distance travelled
     time_offset_walk_s_per_sqrt_s: float = 1e-4
+    # the velocity in d's Jacobian: a line fit through the VIO samples of this window centred on the pair's
+    # time (the pair waits half of it for the VIO to arrive; C changes slowly, so the delay costs nothing)
+    offset_velocity_window_s: float = 0.2
     # marker measurement noise (camera frame: lateral, depth) and VIO noise
     marker_lateral_m: float = 0.002
     marker_depth_m: float = 0.006
@@ -111,7 +117,11 @@ class FusionConfig:
     max_prediction_s: float = 0.5                    # never extrapolate further
     history_s: float = 1.0                           # VIO / IMU kept for pairing
     # output
-    marker_gain: float = 0.7                         # inside: weight of a new sighting against the filtered position
+    # inside: weight of a new sighting against the previous output moved by the VIO velocity (a complementary
+    # filter; 1 = the sighting alone). Once the sighting is moved to the tick, its 2 mm lateral noise is less
+    # than what the filter's memory carries (the VIO velocity's error over a tick, the offset after a re-entry):
+    # 0.7 cost 2-8 % in p_ATE / p_RE inside (docs/pipeline.md, "T8 cell by cell")
+    marker_gain: float = 1.0
     # inside: the sighting's orientation corrects the output by P / (P + pull_marker_rotation_deg^2), with
     # P = pull_vio_rotation_deg^2 + (pull_prediction_deg_per_s * h)^2 and h how far the image lies past the
     # newest gyro sample (the held rate's error grows ~13 deg/s: 1.9 deg RMS over 0.15 s on the simulator)
@@ -120,6 +130,9 @@ class FusionConfig:
     pull_prediction_deg_per_s: float = 12.0          # growth of the held-rate prediction's orientation error
     marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
+    # inside: the sighting is moved from its image time to the tick along the corrected VIO velocity (the
+    # 30 Hz image is ~17 ms old at a 20 Hz tick: 5 mm at 0.3 m/s; T4-T7 report it at the image time)
+    marker_to_tick: int = 1
 
     @classmethod
     def from_dict(cls, values: dict) -> FusionConfig:
@@ -419,6 +432,20 @@ class FusedTracker:
         self._velocity_cache = (key, out)
         return out
 
+    def _velocity_around(self, t_stamp: float) -> np.ndarray:
+        """The VIO velocity at stamp time ``t_stamp`` for the time offset's Jacobian: the slope of a line fit
+        through the samples within ``offset_velocity_window_s`` centred on it. Centred, the slope gives
+        the two samples the pair interpolates (almost) no weight; the slope at the newest sample, which
+        the prediction uses, shares their noise with the residual and biased ``d`` by +10 ms (1.5 mm
+        VIO jitter, a simulated session without any offset; docs/pipeline.md)."""
+        ts = self._vio.t
+        half = self.cfg.offset_velocity_window_s / 2
+        lo = int(np.searchsorted(ts, t_stamp - half, side="left"))
+        hi = int(np.searchsorted(ts, t_stamp + half, side="right"))
+        if hi - lo < 3:
+            return self._velocity(t_stamp)[0]
+        return _polyfit(ts[lo:hi] - t_stamp, self._vio.v[lo:hi, 4:7], 1)[1]
+
     def _vio_predicted(self, t_stamp: float) -> RawPose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
         the fitted velocity, orientation by the gyroscope (the samples received after the VIO
@@ -496,8 +523,8 @@ class FusedTracker:
         while self._pending and len(self._vio):
             t_img, M, R_meas = self._pending[0]
             t_stamp = t_img - f.d
-            if t_stamp > self._vio.last_t:
-                break   # the VIO of that moment has not arrived yet (latency): wait
+            if t_stamp + self.cfg.offset_velocity_window_s / 2 > self._vio.last_t:
+                break   # the VIO of that moment (and half the velocity window after it) has not arrived yet: wait
             self._pending.popleft()
             V = self._vio_at(t_stamp)
             if V is None:
@@ -509,7 +536,7 @@ class FusedTracker:
             if not f.ready:
                 f.initialise(M, V)
                 continue
-            v, _, _ = self._velocity(t_stamp)
+            v = self._velocity_around(t_stamp)
             w = self._angular_rate_at(t_stamp)
             if not f.update(M, V, v, w, R_meas) and f.rejections >= self.cfg.max_rejections:
                 f.initialise(M, V, f.d)   # persistent disagreement: the VIO or the anchor moved
@@ -553,7 +580,7 @@ class FusedTracker:
             t_img, M = self._last_marker
             age = t - t_img
             if 0 <= age <= self.cfg.max_prediction_s:
-                marker_now = M[1]
+                marker_now = M[1] + velocity * age if self.cfg.marker_to_tick else M[1]
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
             if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):   # in view
