@@ -151,6 +151,32 @@ def test_marker_dropping_out_and_back_leaves_no_step():
     assert t4_jumps.min() > 0.01
 
 
+ACCELERATION = np.array([0.4, -0.3, 0.2])   # m/s^2
+
+
+def constant_acceleration(t_s: float) -> Pose:
+    return Pose(R0, np.array([0.1, 0.2, 0.4]) + np.array([0.1, 0.05, 0.0]) * t_s + 0.5 * ACCELERATION * t_s ** 2)
+
+
+def test_entering_the_view_the_motion_over_the_tick_is_the_velocity_at_the_tick():
+    # out of view for 10 ticks, then back in: the output moves by the estimated motion over the switching tick.
+    # The VIO velocity carried to the tick by the quadratic fit's acceleration leaves only the truth's own
+    # curvature, |a| dt^2 / 2; the velocity at the newest VIO sample (~0.13 s old) is |a| (h - dt/2) dt off
+    visible = lambda i: i < 90 or 100 <= i                                           # noqa: E731
+    obs = observations(constant_acceleration, 120, visible=visible)
+    t = np.array([o.tick.t_ns / 1e9 for o in obs])
+    p_gt = np.array([constant_acceleration(s).translation for s in t])
+    inside = np.array([visible(i) for i in range(120)])
+    dt = TICK_NS / 1e9
+
+    def entry_jump(on: int) -> float:
+        est = run(FusedTracker(config=FusionConfig(entry_velocity_at_tick=on)), obs)
+        return float(boundary_jumps(t, p_gt, np.array([e.translation for e in est]), inside)[1])   # [0]: leaving
+
+    assert entry_jump(1) == pytest.approx(np.linalg.norm(ACCELERATION) * dt ** 2 / 2, rel=1e-3)
+    assert entry_jump(0) > 4 * entry_jump(1)
+
+
 def test_a_150_ms_vio_time_offset_is_estimated_online():
     # 20 s around the circle in view, then 5 s out of it, where only the (time-aligned) VIO is left
     obs = observations(circle, 500, visible=lambda i: i < 400, stamp_offset_ns=150_000_000)

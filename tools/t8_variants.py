@@ -70,6 +70,8 @@ def main(argv: list[str]) -> int:
                          if s["name"][:4] in paths) * 100)
     print("r_ATE total / best T1-T7".ljust(30) + "".join(f"{x:9.3f}" for x in r_ate))
     print("largest jump cm".ljust(30) + "".join(f"{x:9.2f}" for x in jumps))
+    print("mean jump RMS cm".ljust(30) + "".join(
+        f"{mean_cell(table[v][1], paths, 'T8', 'total', 'boundary_jump_rms_m') * 100:9.2f}" for v in variants))
     for i, name in enumerate(variants):
         print(f"{i}: {name}")
     return 0

@@ -27,8 +27,8 @@ measurements behind every choice):
   8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
 * **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
   T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
-  velocity) and carries the difference to the new source as an offset that decays with
-  ``blend_time_s``: no step.
+  velocity; entering it: the VIO velocity carried to the tick by the fit's acceleration) and carries
+  the difference to the new source as an offset that decays with ``blend_time_s``: no step.
 
 Output: inside the view, the newest sighting's position **moved from its image time to the tick**
 along the corrected VIO velocity (the 30 Hz image is ~17 ms old at a 20 Hz tick; T4-T7 report it where
@@ -133,6 +133,11 @@ class FusionConfig:
     # inside: the sighting is moved from its image time to the tick along the corrected VIO velocity (the
     # 30 Hz image is ~17 ms old at a 20 Hz tick: 5 mm at 0.3 m/s; T4-T7 report it at the image time)
     marker_to_tick: int = 1
+    # entering the view: the motion over the switching tick is the VIO velocity at the tick (the quadratic
+    # fit's slope plus its acceleration times the ~0.15 s from the newest VIO sample), not at that sample;
+    # the offset carried into the view is then smaller (largest boundary jump 1.09 -> 0.84 cm over exp2
+    # seeds 0-5; docs/pipeline.md, "T8 cell by cell")
+    entry_velocity_at_tick: int = 1
 
     @classmethod
     def from_dict(cls, values: dict) -> FusionConfig:
@@ -382,6 +387,7 @@ class FusedTracker:
         self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
         self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
         self._had_corrected = False                # the last tick had a corrected VIO pose
+        self._accel = np.zeros(3)                  # the newest quadratic VIO fit's acceleration (_velocity)
 
     # ------------------------------------------------------------------ time
     def _s(self, t_ns: int) -> float:
@@ -422,6 +428,8 @@ class FusedTracker:
         lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
         if hi - lo < 2:
             out = (np.zeros(3), self._vio.v[hi - 1, 4:7].copy(), float(ts[hi - 1]))
+            if t_end is None:
+                self._accel = np.zeros(3)
         else:
             tt = ts[lo:hi] - ts[hi - 1]
             pp = self._vio.v[lo:hi, 4:7]
@@ -429,6 +437,8 @@ class FusedTracker:
             degree = self.cfg.velocity_fit_degree if hi - lo > self.cfg.velocity_fit_degree + 1 else 1
             c = _polyfit(tt, pp, degree)
             out = (c[1], c[0], float(ts[hi - 1]))
+            if t_end is None:   # the fit up to the newest sample: its acceleration, for the entry into the view
+                self._accel = 2 * c[2] if degree == 2 else np.zeros(3)
         self._velocity_cache = (key, out)
         return out
 
@@ -627,6 +637,9 @@ class FusedTracker:
             # a switch: this tick's output = the last output moved by the estimated motion over the
             # tick, and the difference to the new source is carried and decays
             motion = velocity
+            if self._source == "vio" and self.cfg.entry_velocity_at_tick and self.filter.ready:
+                # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's acceleration
+                motion = velocity + self.filter._Rm @ self._accel * (t - self.filter.d - self._vio.last_t)
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)
