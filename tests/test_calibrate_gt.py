@@ -197,6 +197,10 @@ def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_
     session = tmp_path / "s.mcap"
     record_sim(session, scenario="exp2", path="REC1", trial=2, seed=0)
     world = SimSession("exp2", "REC1", 2, seed=0).world
+    from phonepose.calibration.ground_truth import ground_truth_source
+    from phonepose.session import SessionReader
+    with SessionReader(session) as reader:
+        assert ground_truth_source(reader) == "simulator"
     r = _run("calibrate-gt", str(session), "--out", str(tmp_path / "own.yaml"))
     assert r.returncode == 0, r.stderr
     assert "clock offset (gt - recorder)" in r.stdout and "grip -> body rotation" in r.stdout

@@ -373,7 +373,7 @@ def test_wrong_token_shows_error(server, page):
     assert "403" in text and "token" in text
     assert page.eval_on_selector("#marker", "e => e.dataset.sizeM") is None
     # the page opens its WebSocket (if ever) before it sets data-ready: none was made, so none can arrive
-    assert page.evaluate("window.phonepose.state.accessDenied && window.phonepose.state.ws === null") is True
+    assert page.evaluate("window.phonepose.link.accessDenied && window.phonepose.link.ws === null") is True
     assert len(server.connections) == n and server.rejected_ws == 0
 
 

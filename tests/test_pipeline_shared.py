@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from phonepose.geometry import Pose
@@ -81,3 +82,45 @@ def test_all_trackers_step_on_one_observation():
     assert poses["T1"].allclose(obs.T_dvio_controller_vio)
     for name in ("T4", "T5", "T6", "T7"):
         assert poses[name] is obs.marker.T_dvio_controller
+
+
+def test_prefetch_gives_the_same_observations_as_process_alone():
+    """The look-ahead recognises on a worker thread, in tick order: the same corners and poses to the
+    bit as without it (the tracked crop depends on the previous frame), the same counters."""
+    near = [looking_at(0.3 + 0.01 * k, 30 - k, 40 + k, roll_deg=15) for k in range(4)]
+    ticks = [tick(0, jpeg(near[0]), 1_000, new=True), tick(1, jpeg(near[0]), 1_000, new=False),
+             tick(2, jpeg(near[1]), 2_000, new=True), tick(3, jpeg(None), 3_000, new=True),
+             tick(4, jpeg(near[2]), 4_000, new=True), tick(5, jpeg(near[3]), 5_000, new=True),
+             Tick(index=6, t_ns=350_000_000)]
+    alone = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    expected = [alone.process(t) for t in ticks]
+    ahead = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    try:
+        for t in ticks:
+            ahead.prefetch(t)
+        got = [ahead.process(t) for t in ticks]
+    finally:
+        ahead.close()
+    assert [o.in_view for o in got] == [o.in_view for o in expected] == [True, True, True, False, True, True, False]
+    assert got[1].marker is got[0].marker                 # the reused frame's recognition, as without it
+    for g, e in zip(got, expected, strict=True):
+        if e.marker is not None:
+            assert g.marker.corners_px.tobytes() == e.marker.corners_px.tobytes()
+            assert g.marker.T_dvio_controller.as_matrix().tobytes() == e.marker.T_dvio_controller.as_matrix().tobytes()
+    assert ahead.frames_decoded == alone.frames_decoded == 5
+    assert ahead.recognizer.stats == alone.recognizer.stats
+    assert alone.recognizer.stats["track-roi"] >= 2       # the crop around the last sighting was used
+
+
+def test_prefetch_out_of_order_is_refused_and_reset_drains():
+    stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    try:
+        t0, t1 = tick(0, jpeg(T_CAMERA_MARKER), 1_000, new=True), tick(1, jpeg(None), 2_000, new=True)
+        stages.prefetch(t0)
+        stages.prefetch(t1)
+        with pytest.raises(RuntimeError, match="in the order they were prefetched"):
+            stages.process(t1)
+        stages.reset()                                      # drops what is still pending
+        assert stages.process(t0).in_view                   # and works without the look-ahead again
+    finally:
+        stages.close()

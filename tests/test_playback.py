@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -67,7 +68,8 @@ def test_outputs_and_metrics_layout(session, tmp_path):
     # TUM: one line per task-window tick with a pose, display_vio, ns stamps
     rows = np.loadtxt(out / "trajectories" / "T1.tum")
     assert rows.shape == (r.trajectories["T1"].stamps_ns.size, 8)
-    first = (out / "trajectories" / "T1.tum").read_text().splitlines()[1]
+    header, tag, first = (out / "trajectories" / "T1.tum").read_text().splitlines()[:3]
+    assert header == "# timestamp tx ty tz qx qy qz qw" and re.fullmatch(r"# session: s\.mcap [0-9a-f]{16}", tag)
     assert first.split()[0] == "1700000000.300000000"
     gt = np.loadtxt(out / "groundtruth.tum")
     assert gt.shape[0] == r.gt_stamps_ns.size == r.n_task_ticks

@@ -678,6 +678,30 @@ def test_evaluate_warns_when_the_matched_poses_cover_a_small_part(clean_run, tmp
     assert ok.returncode == 0 and ok.stderr == ""
 
 
+def test_evaluate_warns_when_the_files_come_from_different_sessions(clean_run, tmp_path):
+    """The issue's case: an estimate scored against another session's ground truth. Both start at the
+    same stamp and overlap for most of their poses, so coverage cannot tell; the session tag playback
+    writes in every file's header can. The same session's files give no warning."""
+    from phonepose.evaluation.trajectory import read_session_tag
+
+    other = tmp_path / "other.mcap"
+    write_test_session(other, duration_s=2.5)          # another task window: another SessionInfo
+    run = tmp_path / "o"
+    assert _subprocess("playback", str(other), "-q", "-t", "T1", "--out", str(run)).returncode == 0
+    est, gt = clean_run / "trajectories" / "T1.tum", run / "groundtruth.tum"
+    tag_est, tag_gt = read_session_tag(est), read_session_tag(gt)
+    assert tag_est.startswith("good.mcap ") and tag_gt.startswith("other.mcap ") and len(tag_gt.split()[1]) == 16
+    assert read_session_tag(run / "trajectories" / "T1.tum") == tag_gt == read_session_tag(run / "in_view.txt")
+    r = _subprocess("evaluate", "--gt", str(gt), "--est", str(est), "--metric", "paper", "--in-view",
+                    str(clean_run / "in_view.txt"))
+    assert r.returncode == 0
+    assert r.stderr.splitlines()[0] == (
+        f"phonepose: warning: these files come from different sessions ({est}: {tag_est}; {gt}: {tag_gt}; "
+        f"{clean_run / 'in_view.txt'}: {tag_est}): the errors compare two recordings")
+    same = _subprocess("evaluate", "--gt", str(run / "groundtruth.tum"), "--est", str(run / "trajectories" / "T1.tum"))
+    assert same.returncode == 0 and same.stderr == ""
+
+
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):
     """Trajectory files: a non-unit quaternion row is skipped and reported; duplicate stamps are reported."""
     import json

@@ -14,6 +14,7 @@ numbers the tables show). So a number in the docs cannot drift from the program:
     python tools/docs_results.py render               # re-render every block from docs/results/ (no experiment)
     python tools/docs_results.py check                # exit 1 if a block differs from its rendering (tests/test_docs.py)
     python tools/docs_results.py check --run          # also re-run the seed-0 experiments and compare (.ci/run)
+    python tools/docs_results.py rehearsal            # run `phonepose record rehearse` (~1 min), save, render
 
 The seed-0 tables are Tables 2, 3, 5 and 6 of the paper beside ours (`phonepose experiment exp1|exp2`,
 default simulator); the 18-sequence tables are the means over exp2's TRI2 and REC2 at seeds 0-2, as recorded
@@ -207,6 +208,15 @@ def table_18_hand_eye(plain: list[dict], hand_eye: list[dict]) -> str:
     return "\n".join(head + rows) + "\n"
 
 
+def table_rehearsal(r: dict) -> str:
+    """`phonepose record rehearse`'s table (docs/recording-real-sessions.md#rehearsal)."""
+    head = [f"| rehearsal: exp2 {r['path']} trial {r['trial']} seed {r['seed']} | measured | goal | met |",
+            "|---|---|---|---|"]
+    met = {True: "yes", False: "**no**", None: ""}
+    return "\n".join(head + [f"| {row['what']} | {row['value']} | {row['goal']} | {met[row['met']]} |"
+                             for row in r["rows"]]) + "\n"
+
+
 def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], str]]:
     """Every generated block by name, rendered (when called) from docs/results/ or from ``load``."""
     _load = load or _load_committed
@@ -222,6 +232,7 @@ def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], 
         "exp1-seed0": lambda: table_exp1(_load("exp1-seed0")),
         "exp2-seeds0-2": lambda: table_18(seeds("exp2")),
         "exp2-hand-eye-seeds0-2": lambda: table_18_hand_eye(seeds("exp2"), seeds("exp2-hand-eye")),
+        "rehearsal": lambda: table_rehearsal(_load("rehearsal")),
     }
 
 
@@ -279,8 +290,23 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("render", help="render every block from docs/results/")
     c = sub.add_parser("check", help="exit 1 if a block differs from its rendering")
     c.add_argument("--run", action="store_true", help="also re-run the seed-0 experiments and compare")
+    h = sub.add_parser("rehearsal", help="run `phonepose record rehearse`, save its table, render")
+    h.add_argument("--from", dest="folder", type=Path, help="take an existing rehearsal folder's rehearsal.json instead")
     args = ap.parse_args(argv)
 
+    if args.cmd == "rehearsal":
+        keep = ("scenario", "path", "trial", "seed", "lead_in_s", "headset", "rows")
+        if args.folder is not None:
+            doc = json.loads((args.folder / "rehearsal.json").read_text())
+        else:
+            from phonepose.record.rehearse import rehearse
+
+            with tempfile.TemporaryDirectory() as tmp:
+                result = rehearse(Path(tmp) / "rehearsal")
+                doc = json.loads(Path(result.files["rehearsal.json"]).read_text())
+        _save("rehearsal", {k: doc[k] for k in keep})
+        print("docs_results: rendered", ", ".join(render()) or "nothing changed")
+        return 0
     if args.cmd == "refresh":
         with tempfile.TemporaryDirectory() as tmp:
             for name, data in run_experiments(args.seeds, Path(tmp)).items():

@@ -2,7 +2,7 @@
 # The browser tests/test_live_page.py drives (headless, through playwright): Debian's chromium if
 # it is there or can be installed with apt (as root or with sudo), else Playwright's own build.
 set -euo pipefail
-# The Foxglove-reader test's npm packages (tests/js: @mcap/core, protobufjs), when npm is there.
+# The npm packages of the tests (tests/js: @mcap/core, protobufjs for the Foxglove-reader test; iwer for the headset page and rehearsal tests), when npm is there.
 if command -v npm >/dev/null 2>&1; then
     npm ci --prefix "$(dirname "$0")/../tests/js" --no-audit --no-fund --silent
 fi

@@ -103,6 +103,19 @@ def session_ground_truth(path: str | os.PathLike) -> GroundTruthSeries:
     return unique_ascending(np.asarray(stamps), Pose.from_xyzw(arr[:, 4:], arr[:, :4]), Topic.GT_CONTROLLER_POSE)
 
 
+def ground_truth_source(reader) -> str:
+    """Where the session's ``/gt/...`` comes from (``SessionInfo.ground_truth_source``: "simulator",
+    "webxr-headset (...)"); a live recording writes the info again when a headset names it, so the last
+    non-empty value counts. Empty: none named (an older file, or no ground truth in it)."""
+    from phonepose.schemas.topics import Topic
+
+    source = ""
+    if reader.summary().has(Topic.SESSION_INFO):
+        for m in reader.messages([Topic.SESSION_INFO]):
+            source = m.msg.ground_truth_source or source
+    return source
+
+
 def load_ground_truth(session: str | os.PathLike, gt_file: str | os.PathLike | None = None,
                       fmt: str | None = None) -> GroundTruthSeries:
     """``gt_file`` if given (the session's own ground truth is then ignored), else the session's topic."""

@@ -113,6 +113,18 @@ def _warn_on_small_overlap(gt: Path, est: Path, gt_traj, est_traj, max_diff: flo
         "from the same session?", 100 * est_frac, est, 100 * gt_frac, gt)
 
 
+def _warn_on_other_session(gt: Path, est: Path, in_view: Path | None) -> None:
+    """One warning line when playback's session tags say the files come from different sessions."""
+    from phonepose.evaluation.trajectory import read_session_tag
+
+    tags = {p: read_session_tag(p) for p in (est, gt) + ((in_view,) if in_view is not None else ())}
+    known = {p: t for p, t in tags.items() if t}
+    if len({t.rsplit(" ", 1)[-1] for t in known.values()}) > 1:
+        logging.getLogger("phonepose").warning(
+            "phonepose: warning: these files come from different sessions (%s): the errors compare two recordings",
+            "; ".join(f"{p}: {t}" for p, t in known.items()))
+
+
 @app.command()
 def evaluate(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
@@ -170,6 +182,7 @@ def evaluate(
         gt_traj = Trajectory(*load_gt_calibration(gt_calibration).apply(gt_traj.stamps, gt_traj.poses), gt_traj.source)
     est_fmt = "kitti" if fmt == "kitti" else ("euroc" if fmt == "euroc" and est.suffix.lower() == ".csv" else "tum")
     est_traj = load_trajectory(est, est_fmt)
+    _warn_on_other_session(gt, est, in_view if metric == "paper" else None)
     _warn_on_small_overlap(gt, est, gt_traj, est_traj, 0.02 if max_diff is None else max_diff)
     if metric == "paper":
         result = _paper(gt_traj, est_traj, in_view, 0.02 if max_diff is None else max_diff)

@@ -37,15 +37,20 @@ def info(
     verify: bool = typer.Option(False, "--verify", help="Also read every chunk and check its CRC."),
 ) -> None:
     """Channels, schemas, message counts, duration and start time of a session."""
+    from phonepose.calibration.ground_truth import ground_truth_source
     with SessionReader(file) as reader:
         s = reader.summary()
         chunks = reader.verify(deep=verify)   # damaged chunks: one error line pointing to `recover`
         task = _task_window(reader, s)
+        try:
+            gt_source = ground_truth_source(reader)
+        except SessionContentError:     # a broken info message: info still shows the rest
+            gt_source = ""
     start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.UTC).isoformat() if s.message_count else None
     if as_json:
         typer.echo(json.dumps({
             "path": str(file), "messages": s.message_count, "start_ns": s.start_ns, "end_ns": s.end_ns,
-            "start_time": start, "duration_s": s.duration_s, "task_window_s": task,
+            "start_time": start, "duration_s": s.duration_s, "task_window_s": task, "ground_truth_source": gt_source,
             "channels": [{"topic": c.topic, "schema": c.schema, "encoding": c.encoding, "messages": c.count}
                          for c in s.channels],
         }, indent=2))
@@ -54,6 +59,8 @@ def info(
     console.print(f"[bold]{file}[/bold]: {s.message_count} messages, {s.duration_s:.2f} s, start {start}")
     if task is not None:   # what playback scores and --start/--end must overlap
         console.print(f"task window {task[0]:.2f}-{task[1]:.2f} s (seconds after the start)")
+    if gt_source:
+        console.print(f"ground truth: {gt_source}")
     table = Table("topic", "schema", "encoding", "messages")
     for c in s.channels:
         table.add_row(c.topic, c.schema, c.encoding, str(c.count))

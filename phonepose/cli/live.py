@@ -31,12 +31,16 @@ def live(
                               "as possible (camera-only tests; a phone's samples only line up with a paced video)."),
     rerun: Path | None = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer (live preview)."),
-    qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the page's URL as a QR code too."),
+    gt_controller: str = typer.Option("right", "--gt-controller", help="Which headset controller is fixed to the phone "
+                                      "(right or left): its grip pose is the ground truth (/gt/controller/pose), the "
+                                      "other one's goes to /gt/board_controller/pose."),
+    qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the pages' URLs as QR codes too."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing "
                                "recording is an error and stays untouched)."),
 ) -> None:
     """Record a live session: webcam frames and, from a phone's browser page (WebXR on ARCore
-    phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view.
+    phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view; and, from a
+    WebXR headset's browser (the second link), the ground truth: the pose of its controller fixed to the phone.
 
     Example: [bold]phonepose record live --camera 0 --calibration cam.yaml --out s.mcap --spawn[/bold]
 
@@ -56,7 +60,7 @@ def live(
 
     session = LiveSession(out, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
                           marker_id=marker_id, marker_size_m=marker_size, duration_s=duration, pace=pace,
-                          rerun_path=rerun, spawn=spawn, echo=echo)
+                          rerun_path=rerun, spawn=spawn, echo=echo, gt_controller=gt_controller)
     url = session.start()
     cert = session.certificate
     typer.echo(f"{'created' if cert.created else 'using'} the self-signed certificate {cert.cert_path} "
@@ -67,6 +71,11 @@ def live(
         import segno
 
         segno.make(url, error="m").terminal(out=sys.stdout, compact=True)
+    typer.echo(f"ground truth (optional): open this page in the headset's browser, its {gt_controller} controller "
+               "fixed to the phone:")
+    typer.echo(f"  {session.headset_url}")
+    if qr:
+        segno.make(session.headset_url, error="m").terminal(out=sys.stdout, compact=True)
     typer.echo("Ctrl-C stops the recording.", err=True)
     sys.stdout.flush()
     t0 = time.perf_counter()
@@ -78,6 +87,7 @@ def live(
     status = "interrupted, file is valid" if r.interrupted else f"{result.stop_reason}, done"
     typer.echo(f"{out}: {r.duration_ns / 1e9:.1f} s, {r.frames} frames, {c.get(Topic.CONTROLLER_VIO_POSE, 0)} poses, "
                f"{c.get(Topic.CONTROLLER_IMU, 0)} IMU samples, {c.get(Topic.CONTROLLER_ANCHOR, 0)} anchors, "
+               f"{c.get(Topic.GT_CONTROLLER_POSE, 0)} ground-truth poses, "
                f"{r.messages} messages in {wall:.1f} s; {status}")
     for line in result.summary[1:]:
         typer.echo(f"warning: {line}", err=True)

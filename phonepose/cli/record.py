@@ -94,6 +94,50 @@ def sim(
                f"{status}")
 
 
+@record_app.command("rehearse")
+def rehearse(
+    out: Path = typer.Option(..., "--out", "-o", help="Folder to write (the source session, the video, the "
+                             "rehearsed recording live.mcap, the calibration, rehearsal.json)."),
+    scenario: Scenario = typer.Option(Scenario.exp2, "--scenario", case_sensitive=False,
+                                      help="The simulated session rehearsed (as record sim)."),
+    path: SimPath = typer.Option(SimPath.REC1, "--path", case_sensitive=False, help="exp2 path (as record sim)."),
+    trial: int = typer.Option(1, "--trial", callback=number(1, 3, integer=True), help="Trial 1..3."),
+    seed: int = typer.Option(0, "--seed", **SEED, help="Random seed of the simulated session."),
+    config: Path | None = typer.Option(None, "--config", help="TOML file overriding the simulator's parameters "
+                                          "(the rehearsal then sets the live path's own: docs/recording-real-sessions.md)."),
+    lead_in: float | None = typer.Option(None, "--lead-in", callback=number(2, 120, unit="s"), show_default="20",
+                                         help="Still frames before the motion, while the browser starts (s)."),
+    headset: bool = typer.Option(True, "--headset/--no-headset", help="Also open the headset page (the ground truth; "
+                                 "without it: no calibrate-gt, p_ATE against the true pose)."),
+    iwer: Path | None = typer.Option(None, "--iwer", help="iwer.min.js (default: the repository's tests/js/node_modules)."),
+) -> None:
+    """Rehearse a real recording with no hardware: a simulated session's frames played as a video by
+    [bold]record live[/bold], the real phone and headset pages in headless Chromium with emulated WebXR
+    devices (IWER) driven by the simulated motion, then calibrate-gt and playback against the source.
+
+    Example: [bold]phonepose record rehearse --out rehearsal[/bold] (1.5 min; exit 1 if a goal is missed)
+    """
+    from rich.table import Table
+
+    from phonepose.cli.output import stdout_console
+    from phonepose.record.rehearse import LEAD_IN_S, rows
+    from phonepose.record.rehearse import rehearse as run_rehearsal
+
+    result = run_rehearsal(out, scenario=scenario.value, path=path.value if scenario == Scenario.exp2 else None,
+                           trial=trial, seed=seed, config=config, lead_in_s=LEAD_IN_S if lead_in is None else lead_in,
+                           headset=headset, iwer=iwer, echo=lambda line: typer.echo(line, err=True))
+    table = Table(title=f"{out}: the rehearsed recording against its source session", title_justify="left")
+    for col in ("", "measured", "goal", "met"):
+        table.add_column(col)
+    for r in rows(result.scores):
+        table.add_row(r.what, r.value, r.goal, "" if r.met is None else ("yes" if r.met else "NO"))
+    stdout_console().print(table)
+    missed = [r.what for r in rows(result.scores) if r.met is False]
+    if missed:
+        typer.echo(f"phonepose: rehearsal: {len(missed)} goal(s) missed: {'; '.join(missed)}", err=True)
+        raise typer.Exit(1)
+
+
 def _centre(text: str) -> tuple[float, float, float]:
     try:
         x, y, z = (float(v) for v in text.split(","))

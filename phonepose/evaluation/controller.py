@@ -108,7 +108,9 @@ def controller_metrics(gt_stamps_s: np.ndarray, gt: Pose, est_stamps_s: np.ndarr
     gt_p = np.atleast_2d(gt.translation)
     est_p = np.atleast_2d(est.translation)
     still = still_ticks(gt_stamps_s, gt_p)
-    j_p, j_r = jitter(common_s, gt[i_gt], est[i_est], still[i_gt]) if common_s.size else (None, None)
+    whole = common_s.size == len(gt_p) == len(est_p)     # one to one: no copies of the poses
+    j_p, j_r = (jitter(common_s, gt if whole else gt[i_gt], est if whole else est[i_est], still[i_gt])
+                if common_s.size else (None, None))
     return {"lag_s": lag(gt_stamps_s, gt_p, est_stamps_s, est_p), "lag_resolution_s": LAG_RESOLUTION_S,
             "jitter_m": j_p, "jitter_deg": j_r, "still_ticks": int(still[i_gt].sum()) if common_s.size else 0,
             "availability": availability(int(np.asarray(gt_stamps_s).size), int(common_s.size))}

@@ -49,23 +49,25 @@ def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.nd
     if lengths is None:
         lengths = default_lengths(gt.translation)
     d = accumulated_distances(gt.translation)
-    starts_all, ends_all = [], []
+    p_gt = np.atleast_2d(gt.translation)
+    p_est: np.ndarray | None = None        # the aligned estimate, once a length has pairs
+    starts_all, errors_all = [], []
     for L in lengths:  # five lengths, not a loop over poses
         if not L > 0:
             continue
         s, e = find_pairs(d, float(L))
         if e.size >= 2:
+            if p_est is None:
+                # positions only (Alignment.apply's own expression): the rotations are not needed here
+                p_est = align(gt, est, "posyaw").apply_positions(np.atleast_2d(est.translation))
+            # one length at a time: the pooled (pairs, 3) temporaries of all five lengths were the
+            # largest allocation of a long playback's metrics (docs/performance.md); same values
+            err = (p_est[e] - p_est[s]) - (p_gt[e] - p_gt[s])
             starts_all.append(s)
-            ends_all.append(e)
+            errors_all.append(np.sqrt(np.sum(err * err, axis=1)))
     if not starts_all:
         return np.zeros(0, np.int64), np.zeros(0)
-    starts = np.concatenate(starts_all)
-    ends = np.concatenate(ends_all)
-    p_gt = np.atleast_2d(gt.translation)
-    a = align(gt, est, "posyaw")
-    p_est = np.atleast_2d(a.apply(est).translation)
-    err = (p_est[ends] - p_est[starts]) - (p_gt[ends] - p_gt[starts])
-    return starts, np.sqrt(np.sum(err * err, axis=1))
+    return np.concatenate(starts_all), np.concatenate(errors_all)
 
 
 def paper_metrics(stamps: np.ndarray, gt: Pose | None, est: Pose | None, inside: np.ndarray) -> dict:

@@ -56,8 +56,12 @@ def _nearest_at_or_after(d: np.ndarray, start: np.ndarray, target: np.ndarray):
     cand = np.stack([k - 2, k - 1, k, k + 1], axis=1)
     valid = (cand >= start[:, None]) & (cand < n)
     cand_c = np.clip(cand, 0, n - 1)
-    err = np.abs(d[cand_c] - target[:, None])
-    err = np.where(valid, err, np.inf)
+    # in place (the same values as np.where(valid, |d - target|, inf)): a long playback's metrics
+    # peak is these (n, 4) temporaries (docs/performance.md)
+    err = d[cand_c]
+    err -= target[:, None]
+    np.abs(err, out=err)
+    err[~valid] = np.inf
     best = cand_c[np.arange(len(k)), np.argmin(err, axis=1)]
     best_err = np.min(err, axis=1)
     # first index of a plateau of equal distances (rpg keeps the first j on ties)

@@ -200,21 +200,61 @@ def tum_lines(stamps, poses: Pose | None) -> list[str]:
     return [f"{a} {b}" for a, b in zip(stamp_txt, body, strict=True)]
 
 
-def write_tum(path: str | os.PathLike, stamps, poses: Pose | None) -> None:
+# ----------------------------------------------------------------------------- which session a file is from
+SESSION_TAG = "# session: "
+
+
+def session_tag_line(tag: str | None) -> str:
+    """The header line naming the session a file was computed from (``""`` for none)."""
+    return "" if not tag else f"{SESSION_TAG}{tag}\n"
+
+
+def read_session_tag(path: str | os.PathLike) -> str | None:
+    """The ``# session: NAME ID`` tag playback writes in its files' headers, or None (any other file).
+
+    Only the leading comment lines are read: evo, rpg and every TUM reader skip ``#`` lines, so the
+    tag costs other tools nothing.
+    """
+    try:
+        with open(path, errors="replace") as f:
+            for line in f:
+                if not line.startswith("#"):
+                    break
+                if line.startswith(SESSION_TAG):
+                    return line[len(SESSION_TAG):].strip() or None
+    except OSError:
+        return None
+    return None
+
+
+TUM_WRITE_BLOCK = 2048   # rows formatted at a time
+
+
+def write_tum(path: str | os.PathLike, stamps, poses: Pose | None, session: str | None = None) -> None:
     """Write ``t tx ty tz qx qy qz qw`` lines with a ``#`` header, 9 decimals everywhere.
 
     ``stamps`` are seconds (float) or integer nanoseconds (any integer dtype, written exactly).
+    ``session``: a tag naming the session the poses come from (:func:`read_session_tag`).
     The same input always gives the same bytes.
     """
-    text = "# timestamp tx ty tz qx qy qz qw\n" + "".join(line + "\n" for line in tum_lines(stamps, poses))
+    stamps = np.atleast_1d(stamps)
+    n = 0 if poses is None else len(stamps)
+    if poses is not None and n and len(np.atleast_2d(poses.translation)) != n:
+        raise ValueError(f"{n} stamps for {len(np.atleast_2d(poses.translation))} poses")
     try:
-        Path(path).write_text(text)
+        with open(path, "w") as f:
+            f.write("# timestamp tx ty tz qx qy qz qw\n" + session_tag_line(session))
+            # in blocks: the text of a 10-minute trajectory at once would be the playback's peak
+            # memory (docs/performance.md); each line depends on its row only, so the bytes are the same
+            for k in range(0, n, TUM_WRITE_BLOCK):
+                block = poses if n == 1 else poses[k:k + TUM_WRITE_BLOCK]   # type: ignore[index]
+                f.write("".join(line + "\n" for line in tum_lines(stamps[k:k + TUM_WRITE_BLOCK], block)))
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 # ----------------------------------------------------------------------------- in-view flags
-def write_in_view(path: str | os.PathLike, stamps, inside) -> None:
+def write_in_view(path: str | os.PathLike, stamps, inside, session: str | None = None) -> None:
     """``timestamp in_view`` lines (1: the marker was recognised at that tick), stamps as in write_tum.
 
     Playback writes it beside groundtruth.tum so that ``phonepose evaluate --metric paper`` can split
@@ -224,8 +264,8 @@ def write_in_view(path: str | os.PathLike, stamps, inside) -> None:
     flags = np.asarray(inside, dtype=bool).ravel()
     if len(stamps) != len(flags):
         raise ValueError(f"{len(stamps)} stamps for {len(flags)} flags")
-    text = "# timestamp in_view\n" + "".join(f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags, strict=True)) \
-        if len(stamps) else "# timestamp in_view\n"
+    text = "# timestamp in_view\n" + session_tag_line(session) + "".join(
+        f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags, strict=True))
     try:
         Path(path).write_text(text)
     except OSError as exc:

@@ -7,6 +7,10 @@ from the first message of each static topic.
 
 from __future__ import annotations
 
+import hashlib
+import os
+from pathlib import Path
+
 import numpy as np
 
 from phonepose.errors import SessionContentError
@@ -128,6 +132,22 @@ def read_context(reader: SessionReader) -> SessionContext:
         task_start_ns=task_start, task_end_ns=task_end,
         session_info=info, targets=targets, path=path_spec,
     )
+
+
+def session_tag(path: str | os.PathLike, context: SessionContext) -> str | None:
+    """``NAME ID``: the session's file name and a 16-hex digest of its ``/session/info`` message.
+
+    Playback writes it in the header of every trajectory it writes, so that ``evaluate`` can tell
+    an estimate and a ground truth from two different recordings apart: simulated sessions all
+    start at the same stamp, so their stamps alone match. Two sessions with the same SessionInfo
+    (the same simulator config and seed, or a copy of one file) get the same ID, as they should.
+    None for a session without SessionInfo.
+    """
+    info = context.session_info
+    if info is None:
+        return None
+    digest = hashlib.sha256(info.SerializeToString(deterministic=True)).hexdigest()[:16]  # type: ignore[attr-defined]
+    return f"{Path(path).name} {digest}"
 
 
 def has_camera(context: SessionContext) -> bool:

@@ -8,9 +8,20 @@ detecting again, so a frame counts as
 
 A recognised marker needs the display pose to be placed in display_vio; while the display
 pose is unknown the marker is reported as not in view (``Observation.marker`` None).
+
+Look-ahead: ``prefetch(tick)`` starts a tick's decode + recognition on one worker thread, so that
+it runs while the caller steps the trackers and writes the outputs of the ticks before it (OpenCV
+releases the GIL in ``imdecode`` and ``detectMarkers``, which are ~80 % of a playback on a session
+with a camera). The worker recognises the frames one after the other in tick order, exactly as
+``process`` does without it, so the results are the same bits; ``process`` of a prefetched tick
+waits for its result. Measured on exp1 (docs/performance.md): the playback's wall time falls by
+the trackers' and outputs' share when a second core is free.
 """
 
 from __future__ import annotations
+
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -42,9 +53,12 @@ class SharedStages:
         # Only trackers with ``uses_vio_samples`` (T8) read them; the engine switches this off
         # when none runs, since it costs ~0.2 ms per tick.
         self.map_vio_samples = True
+        self._worker: ThreadPoolExecutor | None = None     # started by the first prefetch
+        self._pending: deque[tuple[Tick, Future]] = deque()
         self.reset()
 
     def reset(self) -> None:
+        self._drain()
         self.recognizer.reset()
         self._last_marker: MarkerObservation | None = None
         self.frames_decoded = 0
@@ -66,8 +80,34 @@ class SharedStages:
         self._last_marker = marker
         return marker
 
+    def prefetch(self, tick: Tick) -> None:
+        """Start ``tick``'s recognition on the worker thread; ticks come in order, each once, and
+        are then processed in the same order."""
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="phonepose-recognition")
+        self._pending.append((tick, self._worker.submit(self._recognize, tick)))
+
+    def close(self) -> None:
+        """Stop the worker thread (a prefetched tick not processed yet is dropped)."""
+        self._drain()
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
+            self._worker = None
+
+    def _drain(self) -> None:
+        while self._pending:
+            _tick, future = self._pending.popleft()
+            if not future.cancel():
+                future.exception()   # waits for the running one: the recognizer is never shared mid-frame
+
     def process(self, tick: Tick) -> Observation:
-        marker = self._recognize(tick)
+        if self._pending:
+            ahead, future = self._pending.popleft()
+            if ahead is not tick:
+                raise RuntimeError("SharedStages.process: ticks must be processed in the order they were prefetched")
+            marker = future.result()
+        else:
+            marker = self._recognize(tick)
         if marker is not None and marker.T_dvio_controller is None:
             marker = None  # cannot be placed in display_vio without the display pose
         vio = self.anchor_map(tick.T_dvio_anchor, tick.T_cvio_anchor, tick.T_cvio_controller)

@@ -24,8 +24,8 @@ import contextlib
 import logging
 import os
 import time
-from array import array
-from collections.abc import Callable, Iterable
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -37,11 +37,12 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import has_camera, read_context
+from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
 from phonepose.pipeline.trackers import make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
+from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
@@ -56,17 +57,6 @@ log = logging.getLogger("phonepose")
 
 
 @dataclass
-class TrackerTrajectory:
-    """One tracker's output over the task window (only the ticks where it had a pose)."""
-
-    name: str
-    stamps_ns: np.ndarray                 # (N,) int64
-    poses: Pose | None                    # N poses in display_vio (None when N == 0)
-    inside: np.ndarray                    # (N,) bool: marker recognised at that tick
-    ticks_without_pose: int = 0           # task-window ticks where step() returned None
-
-
-@dataclass
 class PlaybackResult:
     session: str
     out_dir: Path | None
@@ -74,7 +64,7 @@ class PlaybackResult:
     n_ticks: int                          # ticks played
     n_task_ticks: int                     # of which inside the task window
     frames_decoded: int                   # camera frames the shared stages decoded
-    trajectories: dict[str, TrackerTrajectory]
+    trajectories: Mapping[str, TrackerTrajectory]   # each read from its spill file when looked up
     gt_stamps_ns: np.ndarray              # task-window ticks with associated GT
     gt: Pose | None                       # GT controller pose in display_vio at those ticks
     metrics: dict                         # the metrics.json document
@@ -85,36 +75,6 @@ class PlaybackResult:
     @property
     def has_gt(self) -> bool:
         return self.gt is not None and len(self.gt_stamps_ns) > 0
-
-
-class _Collector:
-    """Per-tick values of one tracker (or of the GT), packed: 8 bytes per number, so a playback's
-    memory grows by ~65 bytes per tick and tracker (the metrics need the whole trajectory), not by
-    the ~400 of a list of small numpy arrays."""
-
-    def __init__(self) -> None:
-        self.t = array("q")
-        self.rot = array("d")      # x, y, z, w per tick
-        self.trans = array("d")    # x, y, z per tick
-        self.inside = array("b")
-        self.none = 0
-
-    def add(self, t_ns: int, pose: Pose | None, inside: bool) -> None:
-        if pose is None:
-            self.none += 1
-            return
-        self.t.append(t_ns)
-        self.rot.extend(pose.quat_xyzw.ravel().tolist())
-        self.trans.extend(np.asarray(pose.translation, dtype=float).ravel().tolist())
-        self.inside.append(bool(inside))
-
-    def stamps(self) -> np.ndarray:
-        return np.array(self.t, dtype=np.int64)
-
-    def poses(self) -> Pose | None:
-        if not self.t:
-            return None
-        return Pose.from_xyzw(np.array(self.trans, dtype=float).reshape(-1, 3), np.array(self.rot, dtype=float).reshape(-1, 4))
 
 
 def _default_stages(context: SessionContext) -> Stages:
@@ -164,9 +124,9 @@ class PlaybackEngine:
         self.trackers = trackers
         self.writer = writer
         self.rerun_logger = rerun_logger
-        self.collectors = {t.name: _Collector() for t in trackers}
+        self.collectors = {t.name: TrajectoryCollector() for t in trackers}
         self._topics = {t.name: tracker_pose_topic(t.name) for t in trackers}
-        self.gt = _Collector()
+        self.gt = TrajectoryCollector()
         self.n_ticks = 0
         self.n_task_ticks = 0
         for t in trackers:
@@ -203,19 +163,20 @@ class PlaybackEngine:
                     hit = encoded[id(pose)] = (msg, msg.SerializeToString())
                 self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
 
-    def trajectories(self) -> dict[str, TrackerTrajectory]:
-        out = {}
-        for name, c in self.collectors.items():
-            out[name] = TrackerTrajectory(name, c.stamps(), c.poses(), np.asarray(c.inside, dtype=bool), c.none)
-        return out
+    def trajectories(self) -> Trajectories:
+        """Every tracker's trajectory, each read back from its collector when looked up."""
+        return Trajectories(self.collectors)
 
-    def metrics(self, trajectories: dict[str, TrackerTrajectory] | None = None) -> dict[str, dict]:
+    def metrics(self, trajectories: Mapping[str, TrackerTrajectory] | None = None,
+                gt: tuple[np.ndarray, Pose | None] | None = None) -> dict[str, dict]:
         """Per tracker, over the task-window ticks where both the tracker and the GT have a pose
-        (``trajectories``: those of :meth:`trajectories` when the caller has them already)."""
-        gt_t = self.gt.stamps()
-        gt_poses = self.gt.poses()
+        (``trajectories``: those of :meth:`trajectories` when the caller has them already; ``gt``:
+        the GT's stamps and poses, likewise). One tracker's trajectory is in memory at a time."""
+        gt_t, gt_poses = gt if gt is not None else (self.gt.stamps(), self.gt.poses())
         out = {}
-        for name, traj in (trajectories if trajectories is not None else self.trajectories()).items():
+        trajs = trajectories if trajectories is not None else self.trajectories()
+        for name in trajs:
+            traj = trajs[name]
             if gt_poses is None or traj.poses is None:
                 out[name] = paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))
                 continue
@@ -224,9 +185,13 @@ class PlaybackEngine:
                 out[name] = paper_metrics(np.zeros(0), None, None, np.zeros(0, bool))
                 continue
             stamps_s = common / 1e9
-            out[name] = paper_metrics(stamps_s, gt_poses[i_gt], traj.poses[i_est], traj.inside[i_est])
+            # a tracker with a pose at every GT tick (the usual case) is associated one to one: no copies
+            whole = common.size == len(gt_t) == len(traj.stamps_ns)
+            out[name] = paper_metrics(stamps_s, gt_poses if whole else gt_poses[i_gt],
+                                      traj.poses if whole else traj.poses[i_est], traj.inside[i_est])
             out[name]["total"].update(controller_metrics(gt_t / 1e9, gt_poses, traj.stamps_ns / 1e9, traj.poses,
                                                          stamps_s, i_gt, i_est))
+            del traj
         return out
 
 
@@ -291,10 +256,34 @@ def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContex
                                rrd_path=options.rerun_path, spawn=options.spawn)
 
 
+# Ticks whose recognition runs ahead of the trackers (SharedStages.prefetch): enough to keep the
+# worker busy while the main thread steps the trackers and writes a tick, few enough to hold no
+# memory (a tick is its frame's JPEG bytes and a few poses).
+LOOKAHEAD_TICKS = 3
+
+
+def _ticks_ahead(ticks: Iterable[tuple[Tick, Pose | None]], stages: Stages) -> Iterator[tuple[Tick, Pose | None]]:
+    """``ticks`` unchanged, with each one's recognition started ``LOOKAHEAD_TICKS`` ticks before it
+    is yielded (when the stages can: ``prefetch``); the same ticks otherwise."""
+    prefetch = getattr(stages, "prefetch", None)
+    if prefetch is None:
+        yield from ticks
+        return
+    queue: deque[tuple[Tick, Pose | None]] = deque()
+    for item in ticks:
+        prefetch(item[0])
+        queue.append(item)
+        if len(queue) > LOOKAHEAD_TICKS:
+            yield queue.popleft()
+    while queue:
+        yield queue.popleft()
+
+
 def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOptions) -> None:
     total = len(scheduler)
     pace0 = None
-    for tick, gt in scheduler.with_truth():
+    ticks = scheduler.with_truth() if options.realtime else _ticks_ahead(scheduler.with_truth(), engine.stages)
+    for tick, gt in ticks:
         if options.realtime:
             if pace0 is None:
                 pace0 = (time.monotonic(), tick.t_ns)
@@ -306,17 +295,18 @@ def _play(scheduler: TickScheduler, engine: PlaybackEngine, options: PlaybackOpt
             options.progress(engine.n_ticks, total)
 
 
-def _write_files(out: Path, engine: PlaybackEngine, trajs: dict[str, TrackerTrajectory], files: dict[str, str]) -> None:
-    for name, traj in trajs.items():
+def _write_files(out: Path, trajs: Mapping[str, TrackerTrajectory], gt_stamps: np.ndarray, gt: Pose | None,
+                 gt_inside: np.ndarray, files: dict[str, str], tag: str | None) -> None:
+    for name in trajs:
+        traj = trajs[name]     # one at a time: read from its spill file, written, dropped
         p = out / "trajectories" / f"{name}.tum"
-        write_tum(p, traj.stamps_ns, traj.poses)
+        write_tum(p, traj.stamps_ns, traj.poses, session=tag)
         files[f"trajectories/{name}.tum"] = str(p)
-    gt = engine.gt.poses()
+        del traj
     if gt is not None:
-        gt_stamps = engine.gt.stamps()
-        write_tum(out / "groundtruth.tum", gt_stamps, gt)
+        write_tum(out / "groundtruth.tum", gt_stamps, gt, session=tag)
         files["groundtruth.tum"] = str(out / "groundtruth.tum")
-        write_in_view(out / "in_view.txt", gt_stamps, np.asarray(engine.gt.inside, dtype=bool))
+        write_in_view(out / "in_view.txt", gt_stamps, gt_inside, session=tag)
         files["in_view.txt"] = str(out / "in_view.txt")
 
 
@@ -350,6 +340,8 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
                                   gt_series=gt_setup.series)
         stages = (options.stages_factory or _default_stages)(context)
         stages.map_vio_samples = any(t.uses_vio_samples for t in tracker_objs)
+        if hasattr(stages, "close"):
+            stack.callback(stages.close)   # the look-ahead's worker thread
         engine = PlaybackEngine(context, stages, tracker_objs)   # refuses a tracker named twice
         # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
         # before any file is opened), then the output folder and trackers.mcap
@@ -366,13 +358,12 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
     trajs = engine.trajectories()
-    for c in engine.collectors.values():
-        c.__init__()   # type: ignore[misc]  # packed per-tick values are in ``trajs`` now: free them before the metrics' peak
-    per_tracker = engine.metrics(trajs)
+    gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
+    per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))
     session_name = Path(session).name
     metrics_doc = metrics_document(session_name, options.rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
-        _write_files(out, engine, trajs, files)
+        _write_files(out, trajs, gt_stamps, gt_poses, engine.gt.inside(), files, session_tag(session, context))
         metrics_doc = write_metrics(out / "metrics.json", session_name, options.rate_hz, per_tracker,
                                     ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
@@ -380,7 +371,7 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
     return PlaybackResult(
         session=session, out_dir=out, rate_hz=options.rate_hz, n_ticks=engine.n_ticks,
         n_task_ticks=engine.n_task_ticks, frames_decoded=int(stages.frames_decoded), trajectories=trajs,
-        gt_stamps_ns=engine.gt.stamps(), gt=engine.gt.poses(), metrics=metrics_doc,
+        gt_stamps_ns=gt_stamps, gt=gt_poses, metrics=metrics_doc,
         rerun_path=os.fspath(rerun_path) if rerun_path is not None else None,
         wall_s=time.perf_counter() - wall0, files=files,
     )

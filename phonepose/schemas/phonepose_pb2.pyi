@@ -143,7 +143,7 @@ class PathSpec(_message.Message):
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., name: _Optional[str] = ..., trial: _Optional[int] = ..., waypoints: _Optional[_Iterable[_Union[_Vector3_pb2.Vector3, _Mapping]]] = ..., closed: _Optional[bool] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("timestamp", "source", "scenario", "path", "trial", "seed", "phonepose_version", "config_toml", "description", "task_start", "task_end")
+    __slots__ = ("timestamp", "source", "scenario", "path", "trial", "seed", "phonepose_version", "config_toml", "description", "task_start", "task_end", "ground_truth_source")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     SCENARIO_FIELD_NUMBER: _ClassVar[int]
@@ -155,6 +155,7 @@ class SessionInfo(_message.Message):
     DESCRIPTION_FIELD_NUMBER: _ClassVar[int]
     TASK_START_FIELD_NUMBER: _ClassVar[int]
     TASK_END_FIELD_NUMBER: _ClassVar[int]
+    GROUND_TRUTH_SOURCE_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     source: str
     scenario: str
@@ -166,4 +167,5 @@ class SessionInfo(_message.Message):
     description: str
     task_start: _timestamp_pb2.Timestamp
     task_end: _timestamp_pb2.Timestamp
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., source: _Optional[str] = ..., scenario: _Optional[str] = ..., path: _Optional[str] = ..., trial: _Optional[int] = ..., seed: _Optional[int] = ..., phonepose_version: _Optional[str] = ..., config_toml: _Optional[str] = ..., description: _Optional[str] = ..., task_start: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., task_end: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
+    ground_truth_source: str
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., source: _Optional[str] = ..., scenario: _Optional[str] = ..., path: _Optional[str] = ..., trial: _Optional[int] = ..., seed: _Optional[int] = ..., phonepose_version: _Optional[str] = ..., config_toml: _Optional[str] = ..., description: _Optional[str] = ..., task_start: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., task_end: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., ground_truth_source: _Optional[str] = ...) -> None: ...

@@ -22,6 +22,7 @@ class Frame:
     """Coordinate frame ids (``frame_id`` fields, Rerun frame names)."""
 
     WORLD = "world"                    # motion capture
+    GT_WORLD = "gt_world"              # a WebXR headset's stationary reference space, z up (phonepose/record/live/webxr.py)
     DISPLAY_VIO = "display_vio"        # the display device's VIO world; trackers report here
     CONTROLLER_VIO = "controller_vio"  # the controller's own VIO world
     DISPLAY = "display"                # display device body
@@ -45,6 +46,8 @@ class Topic:
     CONTROLLER_MARKER = "/controller/marker"
     GT_CONTROLLER_POSE = "/gt/controller/pose"
     GT_DISPLAY_POSE = "/gt/display/pose"
+    GT_BOARD_CONTROLLER_POSE = "/gt/board_controller/pose"   # a headset's other controller (the paper's R-sensor)
+    GT_HEADSET_POSE = "/gt/headset/pose"                       # a headset's viewer
     GT_CALIBRATION = "/gt/calibration"                 # world -> display_vio
     CALIBRATION_EVENTS = "/events/calibration"
     EXPERIMENT_TARGETS = "/experiment/targets"
@@ -81,6 +84,8 @@ TOPIC_TYPES: dict[str, type[Message]] = {
     Topic.CONTROLLER_MARKER: pb.MarkerSpec,
     Topic.GT_CONTROLLER_POSE: PoseInFrame,
     Topic.GT_DISPLAY_POSE: PoseInFrame,
+    Topic.GT_BOARD_CONTROLLER_POSE: PoseInFrame,
+    Topic.GT_HEADSET_POSE: PoseInFrame,
     Topic.GT_CALIBRATION: FrameTransform,
     Topic.CALIBRATION_EVENTS: pb.CalibrationEvent,
     Topic.EXPERIMENT_TARGETS: pb.Targets,

@@ -88,6 +88,8 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, Message, int]]:
         (Topic.CONTROLLER_MARKER, spec, t0_ns),
         (Topic.GT_CONTROLLER_POSE, pose_in_frame(p, Frame.WORLD, t0_ns), t0_ns),
         (Topic.GT_DISPLAY_POSE, pose_in_frame(p, Frame.WORLD, t0_ns), t0_ns),
+        (Topic.GT_BOARD_CONTROLLER_POSE, pose_in_frame(p, Frame.GT_WORLD, t0_ns), t0_ns),
+        (Topic.GT_HEADSET_POSE, pose_in_frame(p.inv(), Frame.GT_WORLD, t0_ns), t0_ns),
         (Topic.GT_CALIBRATION, frame_transform(p, Frame.WORLD, Frame.DISPLAY_VIO, t0_ns), t0_ns),
         (Topic.CALIBRATION_EVENTS, ev, t0_ns),
         (Topic.EXPERIMENT_TARGETS, targets, t0_ns),

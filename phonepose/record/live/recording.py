@@ -1,7 +1,8 @@
 """What a live recording receives, turned into session records: :class:`LiveRecording`.
 
-The server (``server.py``, the page's messages) and the camera thread (``session.py``) report to it;
-it writes the records (camera frames, controller VIO and IMU, anchors, marker size, ``/log``) through
+The server (``server.py``, the pages' messages) and the camera thread (``session.py``) report to it;
+it writes the records (camera frames, controller VIO and IMU, anchors, marker size, ``/log``; the
+headset's ground truth through its :class:`~phonepose.record.live.headset.HeadsetGroundTruth`) through
 the recorder's queue, and resolves anchors against the recent camera frames. It imports neither of
 them, so ``server.py`` and ``session.py`` both depend on it and not on each other.
 """
@@ -23,6 +24,7 @@ from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary
 from phonepose.pipeline.types import CameraModel, MarkerModel
 from phonepose.record.live.camera import Frame
 from phonepose.record.live.clock import RecorderClock
+from phonepose.record.live.headset import HeadsetGroundTruth
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame as F
@@ -50,7 +52,7 @@ class LiveRecording:
     records go through a ``queue.Queue``; server calls all come from the one asyncio thread)."""
 
     def __init__(self, clock: RecorderClock, put: Callable[[Record], None], camera: CameraModel, dictionary: str,
-                 marker_id: int, marker_size_m: float | None, echo: Callable[[str], None]):
+                 marker_id: int, marker_size_m: float | None, echo: Callable[[str], None], gt_hand: str = "right"):
         self.clock = clock
         self._put = put
         self.camera = camera
@@ -75,6 +77,9 @@ class LiveRecording:
         self._marker_seen_ns: int | None = None
         self._next_check_ns = 0
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
+        self.headset = HeadsetGroundTruth(self, gt_hand)
+        # called with SessionInfo.ground_truth_source when a headset names it (LiveSource writes the info again)
+        self.ground_truth_source_changed: Callable[[str], None] = lambda source: None
 
     # ------------------------------------------------------------------ output
     def emit(self, topic: str, msg, log_time_ns: int | None = None) -> None:
@@ -161,7 +166,7 @@ class LiveRecording:
         self.emit(Topic.CONTROLLER_MARKER, spec, t)
         self.marker_spec_written = True
 
-    def _check_order(self, topic: str, capture_ns: int) -> None:
+    def check_order(self, topic: str, capture_ns: int) -> None:
         last = self._last_capture.get(topic)
         if last is not None and capture_ns <= last:
             if not self.backwards[topic]:
@@ -173,13 +178,13 @@ class LiveRecording:
             self._last_capture[topic] = capture_ns
 
     def on_pose(self, capture_ns: int, receipt_ns: int, p, q) -> None:
-        self._check_order(Topic.CONTROLLER_VIO_POSE, capture_ns)
+        self.check_order(Topic.CONTROLLER_VIO_POSE, capture_ns)
         self.stats["poses"] += 1
         self.emit(Topic.CONTROLLER_VIO_POSE, pose_in_frame(Pose.from_xyzw(p, q), F.CONTROLLER_VIO, capture_ns),
                   receipt_ns)
 
     def on_imu(self, capture_ns: int, receipt_ns: int, gyro, accel) -> None:
-        self._check_order(Topic.CONTROLLER_IMU, capture_ns)
+        self.check_order(Topic.CONTROLLER_IMU, capture_ns)
         self.stats["imu"] += 1
         msg = pb.Imu(frame_id=F.CONTROLLER, gyro_x=gyro[0], gyro_y=gyro[1], gyro_z=gyro[2],
                      accel_x=accel[0], accel_y=accel[1], accel_z=accel[2])

@@ -4,14 +4,18 @@ Routes (the protocol, shared with the page in ``static/``; docs/recording-real-s
 
 - ``GET /?token=T`` the page (``static/index.html``); ``/static/...`` its assets;
   ``GET /marker.png?token=T`` the marker; ``GET /config?token=T`` ``{"marker": {"dictionary", "id"}}``.
-- ``GET /ws?token=T`` the WebSocket: JSON text messages ``hello``, ``marker``, ``pose``, ``imu``,
+- ``GET /ws?token=T`` the phone's WebSocket: JSON text messages ``hello``, ``marker``, ``pose``, ``imu``,
   ``anchor``, ``pong`` from the page; ``ping``, ``status``, ``error`` from us.
+- ``GET /headset?token=T`` the headset page (``static/headset.html``, the ground truth: docs/phone-page.md
+  "The headset page"); ``GET /ws?token=T&role=headset`` its WebSocket: ``hello``, ``xrsession``,
+  ``xrframe``, ``pong`` from the page; ``ping``, ``status``, ``error`` from us.
 
 Every route but ``/static/`` needs the recording's token (``secrets.compare_digest``); without it
-the answer is 403 and nothing from that request reaches the session. One phone at a time: a new
-connection replaces the previous one (a reloaded page). A malformed message (not JSON, unknown
-type, missing or non-finite fields, a non-unit quaternion) is counted, logged once per kind and
-connection (terminal, ``/log``, an ``error`` message to the page) and ignored; the connection stays.
+the answer is 403 and nothing from that request reaches the session. One phone and one headset at a
+time (:data:`ROLES`): a new connection replaces the previous one of its role (a reloaded page). A
+malformed message (not JSON, unknown type, one of the other role's types, missing or non-finite fields,
+a non-unit quaternion) is counted, logged once per kind and connection (terminal, ``/log``, an
+``error`` message to the page) and ignored; the connection stays.
 
 Stamping: each connection has its own :class:`~phonepose.record.live.clock.OffsetEstimator`
 (5 pings at connect, then one a second). Samples wait until the 5 connect pings are answered, or
@@ -58,6 +62,13 @@ HANDSHAKE_TIMEOUT_S = 10.0            # TLS handshake deadline
 FIRST_REQUEST_S = 15.0                # a connection silent this long after it opened is closed
 KEEPALIVE_S = 15.0                    # an idle HTTP keep-alive connection is closed after this
 CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
+ROLES = ("phone", "headset")          # one connection of each at a time
+MAX_XR_INPUTS = 8                     # controllers listed in one xrframe (a headset has 2; hands and trackers add some)
+HANDS = ("left", "right", "none")     # XRInputSource.handedness
+# the message types each role may send (samples wait for the clock offset, see Connection.settle)
+MESSAGE_TYPES = {"phone": ("hello", "marker", "pose", "imu", "anchor", "pong"),
+                 "headset": ("hello", "xrsession", "xrframe", "pong")}
+SAMPLE_TYPES = ("pose", "imu", "anchor", "xrframe")
 
 
 class Malformed(ValueError):
@@ -137,7 +148,42 @@ def parse_message(text: str) -> dict:
         if not isinstance(pid, int) or isinstance(pid, bool):
             raise Malformed("pong 'id' is not an integer")
         return {"type": kind, "id": pid, "t": _number(msg, "t")}
+    if kind == "xrsession":
+        state, space = _field(msg, "state"), msg.get("space", "")
+        if state not in ("started", "ended") or not isinstance(space, str):
+            raise Malformed("xrsession 'state' must be 'started' or 'ended' and 'space' a string")
+        return {"type": kind, "state": state, "space": space[:40], "message": str(msg.get("message", ""))[:300]}
+    if kind == "xrframe":
+        return _xrframe(msg)
     raise Malformed("unknown message type", repr(kind)[:40])
+
+
+def _xr_pose(msg: dict, where: str, obj) -> tuple[list[float], list[float]] | None:
+    """``{"p", "q"}`` of an xrframe entry; None when the entry has neither (no pose this frame)."""
+    if not isinstance(obj, dict):
+        raise Malformed(f"xrframe '{where}' is not an object")
+    if "p" not in obj and "q" not in obj:
+        return None
+    sub = {"type": f"xrframe {where}", **obj}
+    return _vector(sub, "p", 3), _quaternion(sub)
+
+
+def _xrframe(msg: dict) -> dict:
+    """One XR frame of the headset page: the viewer's pose (or null: not tracked) and every controller's
+    grip pose (``hand`` and no ``p``/``q``: that controller is not tracked this frame); WebXR's numbers,
+    converted in phonepose/record/live/webxr.py."""
+    t = _number(msg, "t")
+    viewer = msg.get("viewer")
+    controllers = _field(msg, "controllers")
+    if not isinstance(controllers, list) or len(controllers) > MAX_XR_INPUTS:
+        raise Malformed(f"xrframe 'controllers' is not a list of at most {MAX_XR_INPUTS}")
+    out = []
+    for c in controllers:
+        if not isinstance(c, dict) or c.get("hand") not in HANDS:
+            raise Malformed("xrframe controller 'hand' is not one of " + ", ".join(HANDS))
+        out.append((c["hand"], _xr_pose(msg, "controller", c)))
+    return {"type": "xrframe", "t": t, "viewer": None if viewer is None else _xr_pose(msg, "viewer", viewer),
+            "controllers": out}
 
 
 # aiohttp >= 3.13 can hand text over undecoded; older versions close on invalid UTF-8 (1007) themselves
@@ -174,13 +220,14 @@ class _RequestErrors(logging.Handler):
 class Connection:
     """One WebSocket from the page: its clock offset, the samples waiting for it, its counters."""
 
-    def __init__(self, server: LiveServer, sock: PageSocket, peer: str, number: int):
+    def __init__(self, server: LiveServer, sock: PageSocket, peer: str, number: int, role: str = "phone"):
         self.server = server
         self.rec = server.recording
         self.sock = sock
         self.ws = sock.ws
         self.peer = peer
-        self.name = f"phone #{number} ({peer})"
+        self.role = role
+        self.name = f"{role} #{number} ({peer})"
         self.clock = OffsetEstimator()
         self.fallback_offset_ns: int | None = None
         self.settled = False                           # stamping has started (see settle())
@@ -292,6 +339,9 @@ class Connection:
             self.malformed(exc)
             return
         kind = msg["type"]
+        if kind not in MESSAGE_TYPES[self.role]:
+            self.malformed(Malformed(f"{kind} message on the {self.role}'s connection"))
+            return
         if kind == "pong":
             if self.clock.pong(msg["id"], msg["t"], receipt_ns) is None:
                 self.rec.stats["pongs rejected"] += 1
@@ -301,7 +351,7 @@ class Connection:
             elif len(self.clock.exchanges) >= PING_AT_CONNECT or self.connect_wait_over:
                 self.settle()
             return
-        if kind in ("pose", "imu", "anchor") and not self.settled:
+        if kind in SAMPLE_TYPES and not self.settled:
             self.pending.append((msg, receipt_ns))
             if len(self.pending) >= MAX_PENDING:
                 self.settle()
@@ -323,7 +373,7 @@ class Connection:
             if kind == "hello":
                 self.hellos += 1
                 if self.hellos == 1:
-                    self.rec.on_hello(self.name, msg)
+                    (self.rec.headset.on_hello if self.role == "headset" else self.rec.on_hello)(self.name, msg)
                 else:   # a page sends one per connection; more are counted, logged once
                     self.rec.repeated("hello messages after the first on a connection", self.name)
             elif kind == "marker":
@@ -331,7 +381,9 @@ class Connection:
                 if error:
                     self.send_soon({"type": "error", "message": error})
                 self.send_soon(self.rec.status())
-            elif kind in ("pose", "imu", "anchor"):
+            elif kind == "xrsession":
+                self.rec.headset.on_session(self.name, msg)
+            elif kind in SAMPLE_TYPES:
                 capture = self.capture_ns(msg["t"])
                 if abs(capture - receipt_ns) > MAX_CAPTURE_SKEW_NS:
                     raise Malformed(f"{kind} 't' is not on the page's clock",
@@ -340,6 +392,8 @@ class Connection:
                     self.rec.on_pose(capture, receipt_ns, msg["p"], msg["q"])
                 elif kind == "imu":
                     self.rec.on_imu(capture, receipt_ns, msg["gyro"], msg["accel"])
+                elif kind == "xrframe":
+                    self.rec.headset.on_frame(self.name, capture, msg["viewer"], msg["controllers"])
                 else:
                     task = asyncio.ensure_future(self._anchor(capture, msg))
                     self.tasks.add(task)
@@ -392,7 +446,7 @@ class LiveServer:
         self.ssl_context = ssl_context
         self.marker_png = marker_png
         self.static_dir = Path(static_dir)
-        self.current: Connection | None = None
+        self.current: dict[str, Connection] = {}      # role -> its connection being recorded
         self.connections = 0
         self._runner: web.AppRunner | None = None
         self._listener: asyncio.AbstractServer | None = None
@@ -403,6 +457,7 @@ class LiveServer:
     def _make_app(self) -> web.Application:
         app = web.Application(client_max_size=MAX_MESSAGE_BYTES, middlewares=[_no_traceback])
         app.router.add_get("/", self._index)
+        app.router.add_get("/headset", self._headset)
         app.router.add_get("/marker.png", self._marker)
         app.router.add_get("/config", self._config)
         app.router.add_get("/ws", self._websocket)
@@ -417,14 +472,20 @@ class LiveServer:
             self.recording.refused(request.remote or "?", request.path, bool(given))
         return ok
 
-    async def _index(self, request: web.Request) -> web.StreamResponse:
+    def _page(self, request: web.Request, name: str, what: str) -> web.StreamResponse:
         if not self._authorised(request):
             raise web.HTTPForbidden(text="phonepose: this page needs the link printed by `phonepose record live` "
                                          "(its token is new for every recording)\n")
-        index = self.static_dir / "index.html"
-        if not index.is_file():
-            raise web.HTTPServiceUnavailable(text="phonepose: the phone page is not installed (static/index.html)\n")
-        return web.FileResponse(index, headers={"Cache-Control": "no-store"})
+        page = self.static_dir / name
+        if not page.is_file():
+            raise web.HTTPServiceUnavailable(text=f"phonepose: the {what} page is not installed (static/{name})\n")
+        return web.FileResponse(page, headers={"Cache-Control": "no-store"})
+
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        return self._page(request, "index.html", "phone")
+
+    async def _headset(self, request: web.Request) -> web.StreamResponse:
+        return self._page(request, "headset.html", "headset")
 
     async def _marker(self, request: web.Request) -> web.Response:
         if not self._authorised(request):
@@ -435,7 +496,8 @@ class LiveServer:
         if not self._authorised(request):
             raise web.HTTPForbidden(text="wrong token\n")
         d, i = self.recording.marker_dictionary, self.recording.marker_id
-        return web.json_response({"marker": {"dictionary": d, "id": i}}, headers={"Cache-Control": "no-store"})
+        return web.json_response({"marker": {"dictionary": d, "id": i}, "gt_controller": self.recording.headset.gt_hand},
+                                 headers={"Cache-Control": "no-store"})
 
     # ------------------------------------------------------------------ WebSocket
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
@@ -445,10 +507,13 @@ class LiveServer:
         # says) instead of aiohttp closing the connection with 1007
         ws = web.WebSocketResponse(max_msg_size=MAX_FRAME_BYTES, heartbeat=None, timeout=CLOSE_TIMEOUT_S,
                                    **_RAW_TEXT)
+        role = request.query.get("role", "phone")
+        if role not in ROLES:
+            raise web.HTTPBadRequest(text=f"phonepose: role {role[:20]!r}: expected one of {', '.join(ROLES)}\n")
         await ws.prepare(request)
         self.connections += 1
-        conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections)
-        previous, self.current = self.current, conn
+        conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections, role)
+        previous, self.current[role] = self.current.get(role), conn
         if previous is not None and not previous.sock.closed:
             self.recording.log(f"{previous.name}: replaced by {conn.name}", level="warning")
             await previous.send({"type": "error", "message": "another page connected; this one is no longer recorded"})
@@ -463,14 +528,14 @@ class LiveServer:
             await conn.finish()
             why = f"closed (code {ws.close_code})" if ws.close_code is not None else "disconnected"
             self.recording.log(f"{conn.name}: {why} after {conn.received} messages")
-            if self.current is conn:
-                self.current = None
+            if self.current.get(role) is conn:
+                del self.current[role]
         return ws
 
     def _on_message(self, conn: Connection, msg: WSMessage) -> bool:
         """One message of ``conn``; False ends its connection (replaced, or a broken frame)."""
         receipt = self.recording.clock.now_ns()
-        if conn is not self.current:
+        if conn is not self.current.get(conn.role):
             return False
         if msg.type == WSMsgType.TEXT:
             try:
@@ -489,6 +554,22 @@ class LiveServer:
         return True
 
     # ------------------------------------------------------------------ lifetime
+    async def _drain(self, conn: Connection) -> None:
+        if conn.ws.closed:
+            return
+        await conn.send({"type": "status", "recording": False, "anchor": self.recording.anchor_set,
+                         "marker_seen": False})
+        loop = asyncio.get_running_loop()
+        t_end = loop.time() + DRAIN_MAX_S
+        while not conn.ws.closed and loop.time() < t_end:
+            quiet = (self.recording.clock.now_ns() - conn.last_receipt_ns) / 1e9
+            if quiet >= DRAIN_QUIET_S:
+                break
+            await asyncio.sleep(0.02)
+        if conn.pending or not conn.settled:
+            conn.settle()
+        await conn.sock.close(message=b"recording finished")
+
     async def start(self) -> int:
         self._runner = web.AppRunner(self.app, handle_signals=False, access_log=None, shutdown_timeout=2.0,
                                      keepalive_timeout=KEEPALIVE_S, logger=_RequestErrors(self.recording).logger)
@@ -505,22 +586,9 @@ class LiveServer:
         return self.port
 
     async def stop(self) -> None:
-        """Tell the page, let the receive loop take what is already on its way (until the socket has been
+        """Tell the pages, let the receive loops take what is already on its way (until each socket has been
         quiet for :data:`DRAIN_QUIET_S`, at most :data:`DRAIN_MAX_S`), then close."""
-        conn = self.current
-        if conn is not None and not conn.ws.closed:
-            await conn.send({"type": "status", "recording": False, "anchor": self.recording.anchor_set,
-                             "marker_seen": False})
-            loop = asyncio.get_running_loop()
-            t_end = loop.time() + DRAIN_MAX_S
-            while not conn.ws.closed and loop.time() < t_end:
-                quiet = (self.recording.clock.now_ns() - conn.last_receipt_ns) / 1e9
-                if quiet >= DRAIN_QUIET_S:
-                    break
-                await asyncio.sleep(0.02)
-            if conn.pending or not conn.settled:
-                conn.settle()
-            await conn.sock.close(message=b"recording finished")
+        await asyncio.gather(*(self._drain(conn) for conn in list(self.current.values())))
         if self._listener is not None:
             self._listener.close()
             self._listener = None

@@ -1,4 +1,5 @@
-"""``record live``: a webcam (the display camera) and a phone page (the controller) into one session.
+"""``record live``: a webcam (the display camera), a phone page (the controller) and a headset page (the
+ground truth) into one session.
 
 :class:`LiveSession` ties the parts together: the :class:`~phonepose.record.live.camera.Camera`
 runs in a thread, the :class:`~phonepose.record.live.server.LiveServer` in an asyncio loop in
@@ -30,8 +31,11 @@ What is written (docs/format.md topics; docs/recording-real-sessions.md for the 
   in effect at the first anchor (written then; at the end if no anchor was set). The page reports
   a new size whenever its layout changes; a change after the size is fixed is reported (terminal,
   ``/log``, the page) and counted, since playback has one marker size per session.
-- ``/session/info`` and ``/log`` (connections, clock offsets, anchors, refused requests,
-  malformed messages, the closing summary).
+- ``/gt/controller/pose``, ``/gt/board_controller/pose``, ``/gt/headset/pose``: a WebXR headset's
+  controllers and viewer (phonepose/record/live/headset.py), log time = capture time.
+- ``/session/info`` (again when a headset names the ground truth's source: ``ground_truth_source``)
+  and ``/log`` (connections, clock offsets, anchors, refused requests, malformed messages, the
+  closing summary).
 
 Records go through a reorder buffer of :data:`HOLD_NS`: the file's messages are in log-time order
 across topics (its chunks do not overlap in time) although frames, phone samples and anchors come
@@ -114,7 +118,7 @@ class LiveSource:
     def __init__(self, clock: RecorderClock, camera: Camera, calibration: CameraCalibrationFile, calibration_path: str,
                  *, host: str, port: int, ssl_context, token: str, dictionary: str, marker_id: int,
                  marker_size_m: float | None, duration_s: float | None, echo: Callable[[str], None],
-                 static_dir: Path | None = None):
+                 static_dir: Path | None = None, gt_hand: str = "right"):
         self.clock = clock
         self.camera = camera
         self.calibration = calibration
@@ -131,7 +135,9 @@ class LiveSource:
         K, D = calibration.K, calibration.D
         cam_model = CameraModel(K=np.asarray(K, float), D=np.asarray(D, float), width=calibration.width,
                                 height=calibration.height, T_display_camera=T_DISPLAY_CAMERA)
-        self.recording = LiveRecording(clock, self._queue.put, cam_model, dictionary, marker_id, marker_size_m, echo)
+        self.recording = LiveRecording(clock, self._queue.put, cam_model, dictionary, marker_id, marker_size_m, echo,
+                                       gt_hand=gt_hand)
+        self.recording.ground_truth_source_changed = self._info_again
         self.server = LiveServer(self.recording, token, host=host, port=port, ssl_context=ssl_context,
                                  marker_png=_marker_png(dictionary, marker_id),
                                  static_dir=static_dir if static_dir is not None else STATIC_DIR)
@@ -195,11 +201,7 @@ class LiveSource:
         t0 = self.start_ns
         c = self.calibration
         rec = self.recording
-        info = pb.SessionInfo(source="live", scenario="live", phonepose_version=__version__,
-                              config_toml=self._config_toml(),
-                              description=f"live recording: camera {self.camera.spec} ({c.width}x{c.height}), "
-                                          f"marker {rec.marker_dictionary} id {rec.marker_id}")
-        info.timestamp.FromNanoseconds(t0)
+        info = self._info(t0, "")
         K = np.asarray(c.K, float)
         calib = CameraCalibration(frame_id=F.DISPLAY_CAMERA, width=c.width, height=c.height,
                                   distortion_model="plumb_bob", D=[float(v) for v in c.D],
@@ -216,6 +218,21 @@ class LiveSource:
             out.append(Record(Topic.CONTROLLER_MARKER, spec, t0, t0))
         return out
 
+    def _info(self, t_ns: int, ground_truth_source: str) -> pb.SessionInfo:
+        c, rec = self.calibration, self.recording
+        info = pb.SessionInfo(source="live", scenario="live", phonepose_version=__version__,
+                              config_toml=self._config_toml(),
+                              description=f"live recording: camera {self.camera.spec} ({c.width}x{c.height}), "
+                                          f"marker {rec.marker_dictionary} id {rec.marker_id}",
+                              ground_truth_source=ground_truth_source)
+        info.timestamp.FromNanoseconds(t_ns)
+        return info
+
+    def _info_again(self, ground_truth_source: str) -> None:
+        """The session info once more, now naming the ground truth's source (a headset said hello)."""
+        t = self.clock.now_ns()
+        self._queue.put(Record(Topic.SESSION_INFO, self._info(t, ground_truth_source), t, t))
+
     def _config_toml(self) -> str:
         c, rec = self.calibration, self.recording
         q = json.dumps   # a JSON string is a TOML basic string
@@ -226,7 +243,8 @@ class LiveSource:
                  f"calibration_rms_px = {c.reprojection_error_px if np.isfinite(c.reprojection_error_px) else -1.0}",
                  f"marker_dictionary = {q(rec.marker_dictionary)}", f"marker_id = {rec.marker_id}",
                  f"marker_size_from_cli = {'true' if rec.marker_size_from_cli else 'false'}",
-                 f"host = {q(self.host)}", f"port = {self.server.port}"]
+                 f"host = {q(self.host)}", f"port = {self.server.port}",
+                 f"gt_controller = {q(rec.headset.gt_hand)}"]
         return "\n".join(lines) + "\n"
 
     def request_stop(self, reason: str = "interrupted") -> None:
@@ -312,6 +330,7 @@ class LiveSource:
             assert rec.marker_size_m is not None   # counted only once the size was fixed
             lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "
                          f"the session's size ({rec.marker_size_m * 1000:.1f} mm) was fixed")
+        lines += rec.headset.summary()
         if rec.stats["refused"]:
             lines.append(f"requests refused without the right token: {rec.stats['refused']}")
         if self.camera.reencoded:
@@ -365,7 +384,8 @@ class LiveSession:
                  host: str = "0.0.0.0", port: int = 8443, tls_dir: str | os.PathLike | None = None,
                  dictionary: str = "DICT_4X4_50", marker_id: int = 7, marker_size_m: float | None = None,
                  duration_s: float | None = None, pace: bool = True, rerun_path=None, spawn: bool = False,
-                 echo: Callable[[str], None] = print, static_dir: Path | None = None):
+                 echo: Callable[[str], None] = print, static_dir: Path | None = None, gt_controller: str = "right"):
+        from phonepose.record.live.headset import GT_HANDS
         from phonepose.record.live.tls import ensure_certificate
 
         aruco_dictionary(dictionary)
@@ -373,6 +393,8 @@ class LiveSession:
             raise ConfigError(f"--marker-size {marker_size_m:g}: expected the marker's side in metres, in (0, 1)")
         if duration_s is not None and not duration_s > 0:
             raise ConfigError(f"--duration {duration_s:g}: expected > 0 s")
+        if gt_controller not in GT_HANDS:
+            raise ConfigError(f"--gt-controller {gt_controller!r}: expected right or left")
         if not 0 <= port <= 65535:
             raise ConfigError(f"--port {port}: expected 0..65535")
         out = Path(out)
@@ -396,7 +418,7 @@ class LiveSession:
             self.source = LiveSource(clock, cam, calib, os.fspath(calibration), host=host, port=port,
                                      ssl_context=self.certificate.ssl_context(), token=self.token,
                                      dictionary=dictionary, marker_id=marker_id, marker_size_m=marker_size_m,
-                                     duration_s=duration_s, echo=echo, static_dir=static_dir)
+                                     duration_s=duration_s, echo=echo, static_dir=static_dir, gt_hand=gt_controller)
         except BaseException:
             cam.close()
             raise
@@ -414,8 +436,18 @@ class LiveSession:
 
     @property
     def url(self) -> str:
+        """The phone page's link."""
+        return f"{self._origin}/?token={self.token}"
+
+    @property
+    def headset_url(self) -> str:
+        """The headset page's link (opened in the headset's browser: the ground truth)."""
+        return f"{self._origin}/headset?token={self.token}"
+
+    @property
+    def _origin(self) -> str:
         shown = self.host if self.host not in ("0.0.0.0", "::", "") else (self.lan[0] if self.lan else "localhost")
-        return f"https://{shown}:{self.port}/?token={self.token}"
+        return f"https://{shown}:{self.port}"
 
     def run(self) -> LiveResult:
         try:

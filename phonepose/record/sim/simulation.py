@@ -260,7 +260,7 @@ class SimSource:
         t0 = T0_NS
         info = pb.SessionInfo(source="sim", scenario=s.scenario, path=s.path, trial=s.trial, seed=s.seed,
                               phonepose_version=__version__, config_toml=cfg.to_toml(),
-                              description=_describe(s))
+                              description=_describe(s), ground_truth_source="simulator")
         info.timestamp.FromNanoseconds(t0)
         info.task_start.FromNanoseconds(ns(plan.task_start))
         info.task_end.FromNanoseconds(ns(plan.task_end))

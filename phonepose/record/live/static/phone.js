@@ -1,7 +1,8 @@
 // phonepose phone page: shows the fiducial marker full-screen at a known physical size and streams
 // the phone's WebXR 6DoF pose, anchors and DeviceMotion IMU samples to `phonepose record live`
-// over a WebSocket. Plain JavaScript, no build step, no external resources (the phone may be on a
-// network without Internet access). Protocol reference: docs/phone-page.md.
+// over a WebSocket (link.js: the connection, its clock pings, the error line). Plain JavaScript, no
+// build step, no external resources (the phone may be on a network without Internet access).
+// Protocol reference: docs/phone-page.md.
 'use strict';
 
 (function () {
@@ -10,19 +11,11 @@
   const DEG_TO_RAD = Math.PI / 180; // same constant as Python's math.radians
   const RULER_MM = 50;
   const PPI_KEY = 'phonepose.ppi';
-  // Above this many bytes waiting in the socket, pose/imu samples are dropped rather than queued
-  // (a stalled Wi-Fi link must not grow the page's memory without bound).
-  const MAX_BUFFERED = 1 << 20;
   const NOT_AVAILABLE = 'WebXR immersive-ar is not available in this browser';
 
-  const params = new URLSearchParams(location.search);
-  const token = params.get('token') || '';
-  const $ = (id) => document.getElementById(id);
+  const { token, params, $, showError, clearError, nowMs, AccessDenied, fetchChecked } = window.PhoneposeLink;
 
   const state = {
-    ws: null,
-    reconnectDelay: 500,
-    accessDenied: false,
     config: null, // {"marker": {"dictionary": str, "id": int}}
     marker: null, // {bits: 2D array of 0/1 (1 = black) or null, image, bbox}
     markerMsg: null, // the last marker message computed (sent on connect and when it changes)
@@ -35,39 +28,28 @@
     xrGl: null,
     anchorRequested: false,
     anchors: [],
-    counts: { imu: 0, pose: 0, anchor: 0, dropped: 0, motionWithoutData: 0 },
-    errorSource: null,
+    counts: { imu: 0, pose: 0, anchor: 0, motionWithoutData: 0 },
   };
+  const link = new window.PhoneposeLink.Link({
+    role: 'phone',
+    hello: () => ({
+      type: 'hello',
+      user_agent: navigator.userAgent,
+      webxr: Boolean(state.xr && state.xr.ok),
+      message: state.xr ? state.xr.message : '',
+    }),
+    onOpen: () => sendMarker(true),
+    onMessage: onServerMessage,
+    setConn,
+  });
   // For debugging on the phone (chrome://inspect) and for the headless test.
-  window.phonepose = { state };
-
-  // ---------------------------------------------------------------- messages on the page
-  function showError(message, source) {
-    const el = $('error');
-    el.textContent = message;
-    el.hidden = false;
-    state.errorSource = source || 'page';
-  }
-
-  function clearError(source) {
-    if (state.errorSource === source) {
-      $('error').hidden = true;
-      $('error').textContent = '';
-      state.errorSource = null;
-    }
-  }
+  window.phonepose = { state, link };
 
   function setConn(text) {
     $('conn').textContent = text;
   }
 
-  // ---------------------------------------------------------------- time
-  // Every `t` sent is in ms on the page's clock: performance.timeOrigin + a DOMHighResTimeStamp
-  // (performance.now(), an event's timeStamp or an XR frame's time, which share that clock).
-  function nowMs() {
-    return performance.timeOrigin + performance.now();
-  }
-
+  // ---------------------------------------------------------------- time (link.js: nowMs)
   function eventTimeMs(ev) {
     const ts = ev.timeStamp;
     // Chrome gives event.timeStamp relative to timeOrigin; very old engines gave epoch ms.
@@ -75,112 +57,9 @@
     return nowMs();
   }
 
-  // ---------------------------------------------------------------- WebSocket
-  function wsOpen() {
-    return state.ws !== null && state.ws.readyState === WebSocket.OPEN;
-  }
-
-  function send(obj) {
-    if (!wsOpen()) return false;
-    state.ws.send(JSON.stringify(obj));
-    return true;
-  }
-
-  // Streams (pose, imu) are dropped, not queued, when the link is congested.
-  function sendSample(obj) {
-    if (!wsOpen() || state.ws.bufferedAmount > MAX_BUFFERED) {
-      state.counts.dropped += 1;
-      return false;
-    }
-    state.ws.send(JSON.stringify(obj));
-    return true;
-  }
-
-  function wsUrl() {
-    const scheme = location.protocol === 'https:' ? 'wss://' : 'ws://';
-    return scheme + location.host + '/ws?token=' + encodeURIComponent(token);
-  }
-
-  function connect() {
-    if (state.accessDenied) return;
-    setConn('connecting…');
-    let ws;
-    try {
-      ws = new WebSocket(wsUrl());
-    } catch (e) {
-      showError('Cannot open the WebSocket: ' + e.message, 'ws');
-      return;
-    }
-    state.ws = ws;
-    ws.onopen = () => {
-      state.reconnectDelay = 500;
-      setConn('connected');
-      clearError('ws');
-      send({
-        type: 'hello',
-        user_agent: navigator.userAgent,
-        webxr: Boolean(state.xr && state.xr.ok),
-        message: state.xr ? state.xr.message : '',
-      });
-      sendMarker(true);
-    };
-    ws.onmessage = (ev) => onServerMessage(ev.data);
-    ws.onclose = (ev) => {
-      if (state.ws !== ws) return;
-      state.ws = null;
-      if (ev.code === 1000) {
-        // A normal close comes from the server on purpose: the recording finished, or another
-        // page connected and replaced this one. Reconnecting would take the session back from it.
-        setConn('closed by the laptop');
-        showError('The laptop closed this connection' + (ev.reason ? ' (' + ev.reason + ')' : '') +
-          ': the recording finished or another page took over. Reload this page to connect again.', 'ws');
-        return;
-      }
-      const delay = state.reconnectDelay;
-      state.reconnectDelay = Math.min(delay * 2, 8000);
-      setConn('disconnected, retrying in ' + (delay / 1000).toFixed(1) + ' s');
-      showError('Lost the connection to the laptop (is `phonepose record live` still running, and the phone on the same network?); reconnecting…', 'ws');
-      setTimeout(reconnect, delay);
-    };
-  }
-
-  // Before reconnecting, a refused token (a new recording has a new token) ends the attempts.
-  async function reconnect() {
-    try {
-      await fetchChecked('/config');
-    } catch (e) {
-      if (e instanceof AccessDenied) {
-        denyAccess();
-        return;
-      }
-      // laptop unreachable: the WebSocket attempt below fails too and schedules the next one
-    }
-    connect();
-  }
-
-  // The integer fields of a ping are echoed from the raw text, not through a JS number: a
-  // nanosecond clock such as time.time_ns() (~1.7e18) is larger than 2^53 and would lose digits.
-  function rawInt(text, key) {
-    const m = new RegExp('"' + key + '"\\s*:\\s*(-?\\d+)').exec(text);
-    return m ? m[1] : null;
-  }
-
-  function onServerMessage(text) {
-    let msg;
-    try {
-      msg = JSON.parse(text);
-    } catch (e) {
-      return;
-    }
-    if (!msg || typeof msg !== 'object') return;
-    if (msg.type === 'ping') {
-      const id = rawInt(text, 'id');
-      const ns = rawInt(text, 'server_ns');
-      if (id === null || ns === null || !wsOpen()) return;
-      state.ws.send('{"type":"pong","id":' + id + ',"server_ns":' + ns + ',"t":' + nowMs() + '}');
-    } else if (msg.type === 'error') {
-      showError(String(msg.message), 'server');
-    } else if (msg.type === 'status') {
+  // ---------------------------------------------------------------- server messages (link.js: ping, error)
+  function onServerMessage(msg) {
+    if (msg.type === 'status') {
       const yn = (v) => (v ? 'yes' : 'no');
       $('server-status').textContent =
         'recording: ' + yn(msg.recording) + ' · anchor: ' + (msg.anchor ? 'set' : 'not set') +
@@ -247,21 +126,6 @@
   }
 
   // ---------------------------------------------------------------- the marker
-  class AccessDenied extends Error {}
-
-  function denyAccess() {
-    state.accessDenied = true;
-    showError('Access denied (HTTP 403): this link\'s token is wrong or out of date. Open the URL or QR code that `phonepose record live` prints now.', 'access');
-    setConn('not connected');
-  }
-
-  async function fetchChecked(path) {
-    const r = await fetch(path + '?token=' + encodeURIComponent(token), { cache: 'no-store' });
-    if (r.status === 403) throw new AccessDenied(path);
-    if (!r.ok) throw new Error(path + ' answered HTTP ' + r.status);
-    return r;
-  }
-
   async function loadMarker() {
     const blob = await (await fetchChecked('/marker.png')).blob();
     const url = URL.createObjectURL(blob);
@@ -414,7 +278,7 @@
     if (!state.markerMsg) return;
     const text = JSON.stringify(state.markerMsg);
     if (!force && text === state.markerMsgSent) return;
-    if (send(state.markerMsg)) state.markerMsgSent = text;
+    if (link.send(state.markerMsg)) state.markerMsgSent = text;
   }
 
   // ---------------------------------------------------------------- IMU (DeviceMotion)
@@ -435,7 +299,7 @@
       state.counts.motionWithoutData += 1;
       return;
     }
-    const sent = sendSample({
+    const sent = link.sendSample({
       type: 'imu',
       t: eventTimeMs(ev),
       gyro: [r.beta * DEG_TO_RAD, r.gamma * DEG_TO_RAD, r.alpha * DEG_TO_RAD],
@@ -445,26 +309,12 @@
   }
 
   // ---------------------------------------------------------------- WebXR
-  async function checkWebXR() {
-    const hint = ': use Chrome on an ARCore phone; streaming IMU only';
-    if (!window.isSecureContext) {
-      return { ok: false, message: NOT_AVAILABLE + ' (the page is not a secure context: open it over https://)' + hint };
-    }
-    if (!navigator.xr) {
-      return { ok: false, message: NOT_AVAILABLE + hint };
-    }
-    try {
-      const supported = await Promise.race([
-        navigator.xr.isSessionSupported('immersive-ar'),
-        new Promise((resolve) => setTimeout(() => resolve(false), 5000)),
-      ]);
-      if (supported) {
-        return { ok: true, message: 'WebXR immersive-ar is available: tap "Start AR" to stream the 6DoF pose' };
-      }
-      return { ok: false, message: NOT_AVAILABLE + hint };
-    } catch (e) {
-      return { ok: false, message: NOT_AVAILABLE + ' (' + e.message + ')' + hint };
-    }
+  function checkWebXR() {
+    return window.PhoneposeLink.checkWebXR('immersive-ar', {
+      notAvailable: NOT_AVAILABLE,
+      hint: ': use Chrome on an ARCore phone; streaming IMU only',
+      available: 'WebXR immersive-ar is available: tap "Start AR" to stream the 6DoF pose',
+    });
   }
 
   async function startAR() {
@@ -525,11 +375,11 @@
     const q = [tr.orientation.x, tr.orientation.y, tr.orientation.z, tr.orientation.w];
     // `time` is the frame's DOMHighResTimeStamp, on the same clock as performance.now().
     const t = performance.timeOrigin + time;
-    if (sendSample({ type: 'pose', t, p, q })) state.counts.pose += 1;
+    if (link.sendSample({ type: 'pose', t, p, q })) state.counts.pose += 1;
     if (state.anchorRequested) {
       state.anchorRequested = false;
       // The message carries the viewer pose of the first frame after the tap.
-      send({ type: 'anchor', t, p, q });
+      link.send({ type: 'anchor', t, p, q });
       state.counts.anchor += 1;
       if (typeof frame.createAnchor === 'function') {
         frame.createAnchor(new XRRigidTransform(tr.position, tr.orientation), state.xrRefSpace)
@@ -586,7 +436,7 @@
   function updateCounts() {
     const c = state.counts;
     $('counts').textContent = 'imu ' + c.imu + ' · pose ' + c.pose + ' · anchors ' + c.anchor +
-      (c.dropped ? ' · dropped ' + c.dropped : '');
+      (link.dropped ? ' · dropped ' + link.dropped : '');
   }
 
   function wireUi() {
@@ -629,21 +479,14 @@
         layoutMarker();
       } catch (e) {
         if (e instanceof AccessDenied) {
-          denyAccess();
+          link.deny();
         } else {
           showError('Could not load the marker: ' + e.message, 'marker');
         }
       }
     }
     state.xr = await xrCheck;
-    const msg = $('xr-message');
-    msg.textContent = state.xr.message;
-    msg.hidden = false;
-    msg.className = state.xr.ok ? 'status' : 'warning';
-    document.body.dataset.webxr = String(state.xr.ok);
-    $('btn-ar').disabled = !state.xr.ok;
-    if (token && !state.accessDenied) connect();
-    document.body.dataset.ready = 'true';
+    window.PhoneposeLink.finishStart(link, state.xr, 'btn-ar');
   }
 
   main();
