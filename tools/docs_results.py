@@ -10,7 +10,8 @@ and is rendered here from the experiments' own summaries, committed in docs/resu
 numbers the tables show). So a number in the docs cannot drift from the program:
 
     python tools/docs_results.py refresh              # run the experiments (seed 0), write docs/results/, render
-    python tools/docs_results.py refresh --seeds 0 1 2   # also the 18-sequence tables (seeds 0-2; ~15 min on 2 cores)
+    python tools/docs_results.py refresh --seeds 0 1 2 3 4 5   # also the 18-sequence tables (seeds 0-2) and
+                                                      # T8's cells at seeds 0-2 and held-out 3-5 (~15 min on 2 cores)
     python tools/docs_results.py render               # re-render every block from docs/results/ (no experiment)
     python tools/docs_results.py check                # exit 1 if a block differs from its rendering (tests/test_docs.py)
     python tools/docs_results.py check --run          # also re-run the seed-0 experiments and compare (.ci/run)
@@ -18,7 +19,8 @@ numbers the tables show). So a number in the docs cannot drift from the program:
 
 The seed-0 tables are Tables 2, 3, 5 and 6 of the paper beside ours (`phonepose experiment exp1|exp2`,
 default simulator); the 18-sequence tables are the means over exp2's TRI2 and REC2 at seeds 0-2, as recorded
-and with each session's hand-eye offset calibrated from itself (`experiment exp2 --hand-eye`).
+and with each session's hand-eye offset calibrated from itself (`experiment exp2 --hand-eye`); T8's cells
+(tools/exp2_cells.py) use the `--hand-eye` and `--exact-gt` runs of seeds 0-2 and of the held-out seeds 3-5.
 """
 
 from __future__ import annotations
@@ -31,8 +33,13 @@ import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from phonepose.experiments import paper
-from phonepose.experiments.exp2 import PATHS_PARTLY_OUTSIDE, table5_rows, table6_rows
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from exp2_cells import PAPER_ROWS, TIE, mean_cell  # noqa: E402
+from exp2_cells import cells as t8_cells  # noqa: E402
+
+from phonepose.experiments import paper  # noqa: E402
+from phonepose.experiments.exp2 import PATHS_PARTLY_OUTSIDE, table5_rows, table6_rows  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results"
@@ -53,7 +60,8 @@ def _trim_exp2(summary: dict) -> dict:
             trackers[tracker] = {scope: {k: scopes[scope].get(k) for k in KEPT_METRICS if k in scopes[scope]}
                                  for scope in SCOPES if scope in scopes}
         seqs[name] = {"trackers": trackers}
-    return {"seed": summary["seed"], "hand_eye": summary.get("hand_eye", False), "sequences": seqs}
+    return {"seed": summary["seed"], "hand_eye": summary.get("hand_eye", False), "sequences": seqs,
+            **({"exact_gt": True} if summary.get("exact_gt") else {})}
 
 
 def _sequences(*summaries: dict) -> list[dict]:
@@ -217,6 +225,46 @@ def table_rehearsal(r: dict) -> str:
                              for row in r["rows"]]) + "\n"
 
 
+def _cell_sequences(summaries: list[dict]) -> list[dict]:
+    """exp2 summaries as tools/exp2_cells.py reads them (one dict per sequence, with its seed)."""
+    return [{"name": name, "seed": s["seed"], **m} for s in summaries for name, m in s["sequences"].items()]
+
+
+def table_t8_cells(calibrated: list[dict], exact: list[dict]) -> str:
+    """Issue 22's cells (tools/exp2_cells.py): T8, the best of T1-T7 and T7L, their ratio (ok: <= 1.02)."""
+    seeds = ", ".join(str(s["seed"]) for s in calibrated)
+    a, b = _cell_sequences(calibrated), _cell_sequences(exact)
+    ca, cb = t8_cells(a), t8_cells(b)
+    head = [f"| seeds {seeds}: cell (n sequences) | calibrated GT: T8 / best other | ratio | exact GT: T8 / best other "
+            "| ratio |", "|---|---|---:|---|---:|"]
+
+    def cell(r: dict) -> str:
+        return f"{r['t8']:.3f} / {r['best_value']:.3f} {r['best']}"
+
+    def ratio(r: dict) -> str:
+        return f"{r['ratio']:.3f}" if r["ok"] else f"**{r['ratio']:.3f}** (miss)"
+
+    rows = [f"| {x['paths']} {x['scope']} {x['metric']} ({x['n']}) | {cell(x)} | {ratio(x)} | {cell(y)} | {ratio(y)} |"
+            for x, y in zip(ca, cb, strict=True)]
+
+    def r_ate(seqs: list[dict]) -> str:
+        paths = PATHS_PARTLY_OUTSIDE
+        best = min(PAPER_ROWS, key=lambda t: mean_cell(seqs, paths, t, "total", "r_ate_deg") or float("inf"))
+        t8 = mean_cell(seqs, paths, "T8", "total", "r_ate_deg")
+        value = mean_cell(seqs, paths, best, "total", "r_ate_deg")
+        return f"{t8:.2f}° / {value:.2f}° {best}", f"{t8 / value:.3f}"
+
+    def jump(seqs: list[dict]) -> str:
+        return f"{max(s['trackers']['T8']['total'].get('boundary_jump_max_m') or 0.0 for s in seqs) * 100:.2f} cm"
+
+    ra, rb = r_ate(a), r_ate(b)
+    met = (f"| cells met (T8 <= {TIE:.2f}x the best other) | {sum(r['ok'] for r in ca)} of {len(ca)} | | "
+           f"{sum(r['ok'] for r in cb)} of {len(cb)} | |")
+    rows += [met, f"| TRI2+REC2 total r_ATE, T8 / the best of T1-T7 | {ra[0]} | {ra[1]} | {rb[0]} | {rb[1]} |",
+             f"| T8's largest boundary jump | {jump(a)} | | {jump(b)} | |"]
+    return "\n".join(head + rows) + "\n"
+
+
 def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], str]]:
     """Every generated block by name, rendered (when called) from docs/results/ or from ``load``."""
     _load = load or _load_committed
@@ -233,6 +281,9 @@ def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], 
         "exp2-seeds0-2": lambda: table_18(seeds("exp2")),
         "exp2-hand-eye-seeds0-2": lambda: table_18_hand_eye(seeds("exp2"), seeds("exp2-hand-eye")),
         "rehearsal": lambda: table_rehearsal(_load("rehearsal")),
+        "exp2-t8-cells-seeds0-2": lambda: table_t8_cells(seeds("exp2-hand-eye"), seeds("exp2-exact")),
+        "exp2-t8-cells-seeds3-5": lambda: table_t8_cells([_load(f"exp2-hand-eye-seed{s}") for s in (3, 4, 5)],
+                                                         [_load(f"exp2-exact-seed{s}") for s in (3, 4, 5)]),
     }
 
 
@@ -264,16 +315,24 @@ def render() -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------- running
+# the ground truths an exp2 run is scored against: (name part, option, run_exp2 keywords)
+GROUND_TRUTHS = (("", "", {}), ("-hand-eye", " --hand-eye", {"hand_eye": True}), ("-exact", " --exact-gt", {"exact_gt": True}))
+
+
 def run_experiments(seeds: Iterable[int], out: Path, hand_eye_too: bool = True) -> dict[str, dict]:
+    """exp2 at every seed with each ground truth (``hand_eye_too=False``: as recorded only; seeds 3-5: not as
+    recorded), exp1 at seed 0."""
     from phonepose.experiments.exp1 import run_exp1
     from phonepose.experiments.exp2 import run_exp2
 
     results = {}
     for seed in seeds:
-        for hand_eye in (False, True) if hand_eye_too else (False,):
-            name = f"exp2{'-hand-eye' if hand_eye else ''}-seed{seed}"
-            print(f"docs_results: phonepose experiment exp2 --seed {seed}{' --hand-eye' if hand_eye else ''}", flush=True)
-            r = run_exp2(out / name, seed=seed, hand_eye=hand_eye)
+        # the held-out seeds (3-5) only feed T8's cells: no table shows them as recorded
+        kinds = GROUND_TRUTHS if hand_eye_too else GROUND_TRUTHS[:1]
+        for part, option, keywords in kinds if seed in (0, 1, 2) else kinds[1:]:
+            name = f"exp2{part}-seed{seed}"
+            print(f"docs_results: phonepose experiment exp2 --seed {seed}{option}", flush=True)
+            r = run_exp2(out / name, seed=seed, **keywords)
             results[name] = _trim_exp2(json.loads(Path(r.files["exp2.json"]).read_text()))
     if 0 in list(seeds):
         print("docs_results: phonepose experiment exp1 --seed 0", flush=True)  # exp1 has no seed sweep in the docs

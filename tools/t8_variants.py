@@ -1,53 +1,81 @@
-"""T8 with other FusionConfig values on recorded sessions, against the other trackers of an exp2 run.
+"""T8 with other FusionConfig values on recorded sessions, cell by cell against the other trackers.
 
-    python tools/t8_variants.py EXP2_OUT "blend_time_s=0.05" "marker_gain=0.85"
+    python tools/t8_variants.py exp2-ex-s0 exp2-ex-s1 exp2-ex-s2 -- "blend_time_s=0.05" "marker_gain=0.85,blend_time_s=0.05"
 
-Plays each TRI2/REC2 session of EXP2_OUT (an `experiment exp2` output) back with T8 only, once with the
-defaults and once per variant, and prints per cell the variant's mean over the sequences divided by the
-best of T1-T7 and T7L in that run's exp2.json (<= 1.02: best or tied), and T8's largest boundary jump.
-A development tool (docs/pipeline.md, "T8 cell by cell on exp2"): ~40 s per session and variant.
+Plays every session of the given `experiment exp2` outputs back once, with T8 at its defaults and
+one T8 per variant side by side (the shared stages run once per session), scored against the
+ground truth the run used (its hand_eye/ files for a `--hand-eye` run). Prints, per cell of
+tools/exp2_cells.py, each variant's mean over the sequences divided by the best of T1-T7 and T7L in
+the runs' exp2.json (<= 1.02: best or tied), the number of cells met, r_ATE total against the best of
+T1-T7, and T8's largest boundary jump. A development tool (docs/pipeline.md, "T8 cell by cell on
+exp2"): ~3 s per session and variant on one core.
 """
 
 from __future__ import annotations
 
-import json
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig
-from phonepose.playback.engine import run_playback
+from exp2_cells import PAPER_ROWS, TIE, cells, load_sequences, mean_cell  # noqa: E402
 
-OTHERS = ("T1", "T2", "T3", "T4", "T5", "T6", "T7", "T7L")
-KEYS = ("p_ate_m", "r_ate_deg", "p_re_m")
+from phonepose.pipeline.fusion import FusedTracker, FusionConfig  # noqa: E402
+from phonepose.playback.engine import run_playback  # noqa: E402
 
 
-def t8_metrics(session: Path, values: dict) -> dict:
-    config = FusionConfig.from_dict(values)
+def _play(session: Path, variants: dict[str, dict]) -> dict[str, dict]:
+    """One playback of ``session`` with one T8 per variant; their metrics by variant name."""
+    configs = {name: FusionConfig.from_dict(values) for name, values in variants.items()}
+    calibration = session.parent.parent / "hand_eye" / f"{session.stem}.yaml"
     result = run_playback(session, trackers=["T8"], write_outputs=False,
-                          tracker_factory=lambda names, math: [FusedTracker("T8", config)])
-    return result.metrics["trackers"]["T8"]
+                          gt_calibration=calibration if calibration.exists() else None,
+                          tracker_factory=lambda names, math: [FusedTracker(n, c) for n, c in configs.items()])
+    return {name: result.metrics["trackers"][name] for name in variants}
 
 
-def main(argv: list[str]) -> None:
-    out = Path(argv[0])
-    variants = {"defaults": {}}
-    for spec in argv[1:]:
-        variants[spec] = dict(kv.split("=") for kv in spec.split(","))
-    reference = json.loads((out / "exp2.json").read_text())["sequences"]
-    sessions = sorted(p for p in (out / "sessions").glob("*.mcap") if p.stem[:4] in ("TRI2", "REC2"))
-    results = {name: {s.stem: t8_metrics(s, values) for s in sessions} for name, values in variants.items()}
-    names = [s.stem for s in sessions]
-    print("cell".ljust(20) + "".join(n.rjust(22) for n in variants))
-    for scope in ("inside", "outside", "total"):
-        for key in KEYS:
-            best = min(np.mean([reference[n]["trackers"][t][scope][key] for n in names]) for t in OTHERS)
-            print(f"{scope} {key}".ljust(20) + "".join(
-                f"{np.mean([results[v][n][scope][key] for n in names]) / best:22.3f}" for v in variants))
-    print("jump max cm".ljust(20) + "".join(
-        f"{max(results[v][n]['total']['boundary_jump_max_m'] for n in names) * 100:22.2f}" for v in variants))
+def main(argv: list[str]) -> int:
+    if "--" not in argv:
+        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        return 2
+    split = argv.index("--")
+    folders, specs = argv[:split], argv[split + 1:]
+    variants = {"defaults": {}} | {spec: dict(kv.split("=") for kv in spec.split(",")) for spec in specs}
+    for values in variants.values():
+        FusionConfig.from_dict(values)   # a bad name or value stops here, before any playback
+    sequences = load_sequences(folders)
+    sessions = [Path(f) / "sessions" / f"{s['name']}.mcap" for f in folders
+                for s in load_sequences([f])]
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        played = list(pool.map(_play, sessions, [variants] * len(sessions)))
+    table = {}
+    for name in variants:
+        seqs = [{**s, "trackers": {**s["trackers"], "T8": p[name]}} for s, p in zip(sequences, played, strict=True)]
+        table[name] = (cells(seqs), seqs)
+    first = next(iter(table.values()))[0]
+    print("cell".ljust(30) + "".join(f"{i:>9}" for i in range(len(variants))))
+    for k, row in enumerate(first):
+        print(f"{row['paths']} {row['scope']} {row['metric']}".ljust(30)
+              + "".join(f"{table[v][0][k]['ratio']:9.3f}" for v in variants))
+    print("cells met".ljust(30) + "".join(f"{sum(r['ratio'] <= TIE for r in table[v][0]):9d}" for v in variants))
+    paths = ("TRI2", "REC2")
+    r_ate = []
+    jumps = []
+    for v in variants:
+        seqs = table[v][1]
+        best = min(mean_cell(seqs, paths, t, "total", "r_ate_deg") for t in PAPER_ROWS)
+        r_ate.append(mean_cell(seqs, paths, "T8", "total", "r_ate_deg") / best)
+        jumps.append(max(s["trackers"]["T8"]["total"]["boundary_jump_max_m"] or 0.0 for s in seqs
+                         if s["name"][:4] in paths) * 100)
+    print("r_ATE total / best T1-T7".ljust(30) + "".join(f"{x:9.3f}" for x in r_ate))
+    print("largest jump cm".ljust(30) + "".join(f"{x:9.2f}" for x in jumps))
+    print("mean jump RMS cm".ljust(30) + "".join(
+        f"{mean_cell(table[v][1], paths, 'T8', 'total', 'boundary_jump_rms_m') * 100:9.2f}" for v in variants))
+    for i, name in enumerate(variants):
+        print(f"{i}: {name}")
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(main(sys.argv[1:]))

@@ -111,7 +111,7 @@ def exp2(
     if calibrate_gt:
         console.print("ground truth calibrated from each session itself (clock, world, rigid body: calibrate-gt)")
     if exact_gt:
-        console.print("exact ground truth: the phone's true pose ([mocap] exact = true)")
+        console.print("exact ground truth: the phone's true pose (\\[mocap] exact = true)")
     if hand_eye:
         console.print("ground truth in the phone's frame and clock: each session's hand-eye calibrated from itself")
     for table in exp2_summary_tables(result):

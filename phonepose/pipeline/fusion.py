@@ -14,7 +14,9 @@ measurements behind every choice):
   display late; T7's offset absorbs speed × latency). T8 pairs each sighting with VIO
   interpolated at the image's capture time, and estimates the residual time offset ``d`` of the
   VIO stream online as a filter state with the velocity as its Jacobian (Li & Mourikis 2014,
-  "Online temporal calibration for camera-IMU systems", IJRR 33(7)).
+  "Online temporal calibration for camera-IMU systems", IJRR 33(7)); that velocity is a line fit
+  centred on the pair's time, so that it does not share the paired samples' noise (errors in
+  variables: the slope at the newest sample biased ``d`` by +10 ms on 1.5 mm of VIO jitter).
 * **Flipped or outlying marker poses** (IPPE's second solution, motion blur) are rejected by a
   chi-square gate on the innovation; a run of rejections re-initialises the filter (a VIO
   relocalisation jump or a re-resolved anchor).
@@ -25,11 +27,12 @@ measurements behind every choice):
   8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
 * **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
   T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
-  velocity) and carries the difference to the new source as an offset that decays with
-  ``blend_time_s``: no step.
+  velocity; entering it: the VIO velocity carried to the tick by the fit's acceleration) and carries
+  the difference to the new source as an offset that decays with ``blend_time_s``: no step.
 
-Output: inside the view, the marker's position through a complementary filter (``marker_gain``)
-and the predicted VIO orientation through ``C``, corrected by a share of the newest sighting's
+Output: inside the view, the newest sighting's position **moved from its image time to the tick**
+along the corrected VIO velocity (the 30 Hz image is ~17 ms old at a 20 Hz tick; T4-T7 report it where
+it was), and the predicted VIO orientation through ``C``, corrected by a share of the newest sighting's
 difference to it at the image's own time (a Kalman gain: the prediction's error, growing with how
 far past the newest gyro sample the image lies, against the sighting's; ``pull_*``); outside, the
 corrected, predicted VIO.
@@ -94,6 +97,9 @@ class FusionConfig:
     translation_walk_m_per_sqrt_s: float = 0.002     # ~1 cm/min
     translation_per_path_length: float = 0.02        # drift proportional to distance travelled
     time_offset_walk_s_per_sqrt_s: float = 1e-4
+    # the velocity in d's Jacobian: a line fit through the VIO samples of this window centred on the pair's
+    # time (the pair waits half of it for the VIO to arrive; C changes slowly, so the delay costs nothing)
+    offset_velocity_window_s: float = 0.2
     # marker measurement noise (camera frame: lateral, depth) and VIO noise
     marker_lateral_m: float = 0.002
     marker_depth_m: float = 0.006
@@ -111,7 +117,11 @@ class FusionConfig:
     max_prediction_s: float = 0.5                    # never extrapolate further
     history_s: float = 1.0                           # VIO / IMU kept for pairing
     # output
-    marker_gain: float = 0.7                         # inside: weight of a new sighting against the filtered position
+    # inside: weight of a new sighting against the previous output moved by the VIO velocity (a complementary
+    # filter; 1 = the sighting alone). Once the sighting is moved to the tick, its 2 mm lateral noise is less
+    # than what the filter's memory carries (the VIO velocity's error over a tick, the offset after a re-entry):
+    # 0.7 cost 2-8 % in p_ATE / p_RE inside (docs/pipeline.md, "T8 cell by cell")
+    marker_gain: float = 1.0
     # inside: the sighting's orientation corrects the output by P / (P + pull_marker_rotation_deg^2), with
     # P = pull_vio_rotation_deg^2 + (pull_prediction_deg_per_s * h)^2 and h how far the image lies past the
     # newest gyro sample (the held rate's error grows ~13 deg/s: 1.9 deg RMS over 0.15 s on the simulator)
@@ -120,6 +130,14 @@ class FusionConfig:
     pull_prediction_deg_per_s: float = 12.0          # growth of the held-rate prediction's orientation error
     marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
+    # inside: the sighting is moved from its image time to the tick along the corrected VIO velocity (the
+    # 30 Hz image is ~17 ms old at a 20 Hz tick: 5 mm at 0.3 m/s; T4-T7 report it at the image time)
+    marker_to_tick: int = 1
+    # entering the view: the motion over the switching tick is the VIO velocity at the tick (the quadratic
+    # fit's slope plus its acceleration times the ~0.15 s from the newest VIO sample), not at that sample;
+    # the offset carried into the view is then smaller (largest boundary jump 1.09 -> 0.84 cm over exp2
+    # seeds 0-5; docs/pipeline.md, "T8 cell by cell")
+    entry_velocity_at_tick: int = 1
 
     @classmethod
     def from_dict(cls, values: dict) -> FusionConfig:
@@ -369,6 +387,7 @@ class FusedTracker:
         self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
         self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
         self._had_corrected = False                # the last tick had a corrected VIO pose
+        self._accel = np.zeros(3)                  # the newest quadratic VIO fit's acceleration (_velocity)
 
     # ------------------------------------------------------------------ time
     def _s(self, t_ns: int) -> float:
@@ -409,6 +428,8 @@ class FusedTracker:
         lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
         if hi - lo < 2:
             out = (np.zeros(3), self._vio.v[hi - 1, 4:7].copy(), float(ts[hi - 1]))
+            if t_end is None:
+                self._accel = np.zeros(3)
         else:
             tt = ts[lo:hi] - ts[hi - 1]
             pp = self._vio.v[lo:hi, 4:7]
@@ -416,8 +437,24 @@ class FusedTracker:
             degree = self.cfg.velocity_fit_degree if hi - lo > self.cfg.velocity_fit_degree + 1 else 1
             c = _polyfit(tt, pp, degree)
             out = (c[1], c[0], float(ts[hi - 1]))
+            if t_end is None:   # the fit up to the newest sample: its acceleration, for the entry into the view
+                self._accel = 2 * c[2] if degree == 2 else np.zeros(3)
         self._velocity_cache = (key, out)
         return out
+
+    def _velocity_around(self, t_stamp: float) -> np.ndarray:
+        """The VIO velocity at stamp time ``t_stamp`` for the time offset's Jacobian: the slope of a line fit
+        through the samples within ``offset_velocity_window_s`` centred on it. Centred, the slope gives
+        the two samples the pair interpolates (almost) no weight; the slope at the newest sample, which
+        the prediction uses, shares their noise with the residual and biased ``d`` by +10 ms (1.5 mm
+        VIO jitter, a simulated session without any offset; docs/pipeline.md)."""
+        ts = self._vio.t
+        half = self.cfg.offset_velocity_window_s / 2
+        lo = int(np.searchsorted(ts, t_stamp - half, side="left"))
+        hi = int(np.searchsorted(ts, t_stamp + half, side="right"))
+        if hi - lo < 3:
+            return self._velocity(t_stamp)[0]
+        return _polyfit(ts[lo:hi] - t_stamp, self._vio.v[lo:hi, 4:7], 1)[1]
 
     def _vio_predicted(self, t_stamp: float) -> RawPose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
@@ -496,8 +533,8 @@ class FusedTracker:
         while self._pending and len(self._vio):
             t_img, M, R_meas = self._pending[0]
             t_stamp = t_img - f.d
-            if t_stamp > self._vio.last_t:
-                break   # the VIO of that moment has not arrived yet (latency): wait
+            if t_stamp + self.cfg.offset_velocity_window_s / 2 > self._vio.last_t:
+                break   # the VIO of that moment (and half the velocity window after it) has not arrived yet: wait
             self._pending.popleft()
             V = self._vio_at(t_stamp)
             if V is None:
@@ -509,7 +546,7 @@ class FusedTracker:
             if not f.ready:
                 f.initialise(M, V)
                 continue
-            v, _, _ = self._velocity(t_stamp)
+            v = self._velocity_around(t_stamp)
             w = self._angular_rate_at(t_stamp)
             if not f.update(M, V, v, w, R_meas) and f.rejections >= self.cfg.max_rejections:
                 f.initialise(M, V, f.d)   # persistent disagreement: the VIO or the anchor moved
@@ -553,7 +590,7 @@ class FusedTracker:
             t_img, M = self._last_marker
             age = t - t_img
             if 0 <= age <= self.cfg.max_prediction_s:
-                marker_now = M[1]
+                marker_now = M[1] + velocity * age if self.cfg.marker_to_tick else M[1]
         source = "marker" if obs.in_view and marker_now is not None else ("vio" if corrected is not None else None)
         if source is None:
             if obs.marker is not None and is_finite(obs.marker.T_dvio_controller):   # in view
@@ -600,6 +637,9 @@ class FusedTracker:
             # a switch: this tick's output = the last output moved by the estimated motion over the
             # tick, and the difference to the new source is carried and decays
             motion = velocity
+            if self._source == "vio" and self.cfg.entry_velocity_at_tick and self.filter.ready:
+                # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's acceleration
+                motion = velocity + self.filter._Rm @ self._accel * (t - self.filter.d - self._vio.last_t)
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)
