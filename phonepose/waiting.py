@@ -24,6 +24,18 @@ def timed_out(what: str, timeout: float, last: object, *, show_last: bool) -> st
     return f"{message} (last value: {last!r:.200})" if show_last else message
 
 
+class _Deadline:
+    """The clock of one wait: :meth:`check` raises ``error(message)`` once ``timeout`` s have passed."""
+
+    def __init__(self, what: str, timeout: float, error: Callable[[str], Exception], show_last: bool):
+        self.end = time.monotonic() + timeout
+        self.what, self.timeout, self.error, self.show_last = what, timeout, error, show_last
+
+    def check(self, last: object) -> None:
+        if time.monotonic() >= self.end:
+            raise self.error(timed_out(self.what, self.timeout, last, show_last=self.show_last))
+
+
 def wait_until(condition: Callable[[], T], *, what: str, timeout: float, interval: float = POLL_S,
                error: Callable[[str], Exception] = AssertionError, show_last: bool = True) -> T:
     """Call ``condition()`` every ``interval`` s until it returns a truthy value, and return that value.
@@ -31,24 +43,18 @@ def wait_until(condition: Callable[[], T], *, what: str, timeout: float, interva
     After ``timeout`` s without one, raise ``error(message)``; ``what`` says in words what did not
     happen ("the page's hello", "the recording to start").
     """
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() >= deadline:
-            raise error(timed_out(what, timeout, value, show_last=show_last))
+    deadline = _Deadline(what, timeout, error, show_last)
+    while not (value := condition()):
+        deadline.check(value)
         time.sleep(interval)
+    return value
 
 
 async def wait_until_async(condition: Callable[[], T], *, what: str, timeout: float, interval: float = POLL_S,
                            error: Callable[[str], Exception] = AssertionError, show_last: bool = True) -> T:
     """:func:`wait_until` inside an asyncio script: polls with ``asyncio.sleep`` so the loop keeps running."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() >= deadline:
-            raise error(timed_out(what, timeout, value, show_last=show_last))
+    deadline = _Deadline(what, timeout, error, show_last)
+    while not (value := condition()):
+        deadline.check(value)
         await asyncio.sleep(interval)
+    return value
