@@ -10,47 +10,29 @@ test slower, and a condition that never comes fails with a message naming it.
 from __future__ import annotations
 
 import asyncio
-import time
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
+
+from phonepose import waiting
+from phonepose.waiting import POLL_S
 
 T = TypeVar("T")
 
 DEADLINE_S = 120.0   # normally well under a second; generous, because a timeout only costs time when broken
-POLL_S = 0.02
-
-
-def _timed_out(what: str, timeout: float, last: object) -> AssertionError:
-    return AssertionError(f"timed out after {timeout:g} s waiting for {what} (last value: {last!r:.200})")
 
 
 def wait_until(condition: Callable[[], T], *, what: str, timeout: float = DEADLINE_S, interval: float = POLL_S) -> T:
-    """Call ``condition()`` every ``interval`` s until it returns a truthy value, and return that value.
+    """:func:`phonepose.waiting.wait_until` under the suite's deadline, failing with ``AssertionError``.
 
-    After ``timeout`` s without one: ``AssertionError("timed out after … s waiting for <what> …")``.
-    ``what`` says in words what did not happen ("the page's hello", "the recording to start").
+    After ``timeout`` s without a truthy value: ``AssertionError("timed out after … s waiting for <what> …")``.
     """
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() >= deadline:
-            raise _timed_out(what, timeout, value)
-        time.sleep(interval)
+    return waiting.wait_until(condition, what=what, timeout=timeout, interval=interval)
 
 
 async def wait_until_async(condition: Callable[[], T], *, what: str, timeout: float = DEADLINE_S,
                            interval: float = POLL_S) -> T:
     """:func:`wait_until` inside an asyncio script: polls with ``asyncio.sleep`` so the loop keeps running."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() >= deadline:
-            raise _timed_out(what, timeout, value)
-        await asyncio.sleep(interval)
+    return await waiting.wait_until_async(condition, what=what, timeout=timeout, interval=interval)
 
 
 async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLINE_S) -> T:
@@ -58,4 +40,4 @@ async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLIN
     try:
         return await asyncio.wait_for(awaitable, timeout)
     except TimeoutError:
-        raise _timed_out(what, timeout, None) from None
+        raise AssertionError(waiting.timed_out(what, timeout, None, show_last=True)) from None

@@ -86,6 +86,58 @@ def test_noisy_sightings_stay_within_the_tolerances_and_their_sigmas():
     assert cal.warnings == ()
 
 
+def held_still_case(hold_s: float, moving_s: float = 19.0, seed: int = 5):
+    """19 s of motion, then the phone held still for ``hold_s``: the marker's error of that one view (1 deg of
+    tilt, 4 mm in depth) is the same in every frame of the hold, as a real marker's is; fresh noise on top
+    (0.3 deg, 0.5 mm), and a mocap-like ground truth (0.3 mm, 0.05 deg per axis) running 30 ms ahead."""
+    rng = np.random.default_rng(seed)
+    t = 1000.0 + np.arange(0.5, moving_s + hold_s, 1 / 30)
+    still = t - 1000.0 > moving_s
+    rv = rng.normal(size=(len(t), 3)) * np.radians(0.3)
+    tr = rng.normal(size=(len(t), 3)) * 0.0005
+    rv[still] += np.radians([1.0, 0.0, 0.0])
+    tr[still] += T_DVIO_CAMERA.rotation.inv().apply([0.0, 0.0, 0.004])     # along the camera's axis
+    A = phone_in_view(np.minimum(t - 1000.0, moving_s)) @ Pose(Rotation.from_rotvec(rv), tr)
+    stamps = 1000.0 + np.arange(0.0, moving_s + hold_s + 0.5, 1 / 120)
+    jitter = Pose(Rotation.from_rotvec(rng.normal(size=(len(stamps), 3)) * np.radians(0.05)),
+                  rng.normal(size=(len(stamps), 3)) * 0.0003)
+    B = Z_TRUE.inv() @ phone_in_view(np.clip(stamps - 1000.0 - 0.03, 0.0, moving_s)) @ X_TRUE @ jitter
+    cam = Pose(Rotation.concatenate([T_DVIO_CAMERA.rotation] * len(t)), np.tile(T_DVIO_CAMERA.translation, (len(t), 1)))
+    return Sightings(t, A, cam.inv() @ A, cam, len(t), np.zeros(len(t))), GroundTruthSeries(stamps, B, "/gt/controller/pose")
+
+
+def errors(cal) -> tuple[float, float, float, float]:
+    """world->camera and grip->body against the truth: mm, deg, mm, deg."""
+    world = Z_TRUE.inv() @ T_DVIO_CAMERA
+    return (1e3 * cal.T_world_camera.distance_to(world), np.degrees(cal.T_world_camera.angle_to(world)),
+            1e3 * cal.T_controller_gt.distance_to(X_TRUE), np.degrees(cal.T_controller_gt.angle_to(X_TRUE)))
+
+
+def test_a_long_hold_counts_as_one_view_not_as_thirty_a_second(monkeypatch):
+    """A minute's hold after 19 s of motion leaves the calibration where the motion alone puts it; counting
+    every frame of the hold (the thinning switched off) drags it towards the hold's one marker error."""
+    import phonepose.calibration.calibrate_gt as module
+
+    moving = calibrate_gt(*held_still_case(0.0), bootstrap=0)
+    held = calibrate_gt(*held_still_case(60.0), bootstrap=0)
+    assert held.samples < moving.samples + 30                    # the hold's 1800 frames count fewer than 30 times
+    for a, b, tolerance in zip(errors(held), errors(moving), (0.2, 0.05, 0.2, 0.05), strict=True):
+        assert abs(a - b) < tolerance, (errors(held), errors(moving))
+    assert abs(held.time_offset_s - 0.03) < 0.002
+    monkeypatch.setattr(module, "DISTINCT_MM", 0.0)
+    monkeypatch.setattr(module, "DISTINCT_DEG", 0.0)
+    every_frame = calibrate_gt(*held_still_case(60.0), bootstrap=0)
+    assert every_frame.samples > moving.samples + 1700
+    world_deg, body_mm = errors(every_frame)[1], errors(every_frame)[2]       # (measured: 0.41 deg, 3.8 mm)
+    assert world_deg > errors(moving)[1] + 0.2 and body_mm > errors(moving)[2] + 2.0, (errors(every_frame), errors(moving))
+
+
+def test_a_phone_that_never_moved_is_refused_with_its_counts():
+    with pytest.raises(SessionContentError, match=r"^only 1 of the \d+ marker sightings show the phone moved \(by 2 mm "
+                                                  r"or 0\.5 deg; need 30\): the calibration needs the phone moved"):
+        calibrate_gt(*held_still_case(20.0, moving_s=0.0), bootstrap=0)
+
+
 def test_little_motion_is_warned_about_with_numbers():
     sightings, gt = make_case(0.03, noise=(1.2, 0.0015), duration_s=3.0, seed=1)
     cal = calibrate_gt(sightings, gt)

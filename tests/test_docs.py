@@ -30,6 +30,18 @@ def test_every_generated_block_is_what_docs_results_renders():
     assert tool.differences() == []
 
 
+def test_the_real_motion_tables_are_generated_with_one_header_each():
+    # docs/pipeline.md's fr1_xyz / fr2_desk tables were copied by hand once, with their header line twice
+    tool = _tool()
+    text = (ROOT / "docs" / "pipeline.md").read_text()
+    bodies = {m.group("name"): m.group("body") for m in tool.BLOCK.finditer(text) if m.group("name").startswith("motion-")}
+    assert set(bodies) == {f"motion-seed0-{name}-{gt}" for name, *_ in tool.MOTIONS for gt in tool.MOTION_GTS}
+    for body in bodies.values():
+        assert body.count("| tracker |") == 1
+        assert [line.split(" |")[0] for line in body.splitlines()[2:]] == [
+            f"| {t}" for t in ("T1", "T2", "T3", "T4", "T5", "T6", "T7", "T7L", "T8")]
+
+
 def test_a_changed_number_is_found(tmp_path, monkeypatch):
     """The check can fail: a block edited by hand differs from its rendering."""
     tool = _tool()

@@ -9,6 +9,8 @@ the output is the truth.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -160,8 +162,9 @@ def constant_acceleration(t_s: float) -> Pose:
 
 def test_entering_the_view_the_motion_over_the_tick_is_the_velocity_at_the_tick():
     # out of view for 10 ticks, then back in: the output moves by the estimated motion over the switching tick.
-    # The VIO velocity carried to the tick by the quadratic fit's acceleration leaves only the truth's own
-    # curvature, |a| dt^2 / 2; the velocity at the newest VIO sample (~0.13 s old) is |a| (h - dt/2) dt off
+    # The VIO velocity carried to the tick by the quadratic fit's whole acceleration (tau -> inf) leaves only
+    # the truth's own curvature, |a| dt^2 / 2; the velocity at the newest VIO sample (~0.13 s old, tau = 0) is
+    # |a| (h - dt/2) dt off; the default tau (a hand's acceleration does not last the latency) lies between
     visible = lambda i: i < 90 or 100 <= i                                           # noqa: E731
     obs = observations(constant_acceleration, 120, visible=visible)
     t = np.array([o.tick.t_ns / 1e9 for o in obs])
@@ -169,12 +172,13 @@ def test_entering_the_view_the_motion_over_the_tick_is_the_velocity_at_the_tick(
     inside = np.array([visible(i) for i in range(120)])
     dt = TICK_NS / 1e9
 
-    def entry_jump(on: int) -> float:
-        est = run(FusedTracker(config=FusionConfig(entry_velocity_at_tick=on)), obs)
+    def entry_jump(tau: float) -> float:
+        est = run(FusedTracker(config=FusionConfig(entry_acceleration_time_s=tau)), obs)
         return float(boundary_jumps(t, p_gt, np.array([e.translation for e in est]), inside)[1])   # [0]: leaving
 
-    assert entry_jump(1) == pytest.approx(np.linalg.norm(ACCELERATION) * dt ** 2 / 2, rel=1e-3)
-    assert entry_jump(0) > 4 * entry_jump(1)
+    assert entry_jump(math.inf) == pytest.approx(np.linalg.norm(ACCELERATION) * dt ** 2 / 2, rel=1e-3)
+    assert entry_jump(0.0) > 4 * entry_jump(math.inf)
+    assert entry_jump(math.inf) < entry_jump(FusionConfig().entry_acceleration_time_s) < entry_jump(0.0)
 
 
 def test_a_150_ms_vio_time_offset_is_estimated_online():

@@ -20,7 +20,10 @@ numbers the tables show). So a number in the docs cannot drift from the program:
 The seed-0 tables are Tables 2, 3, 5 and 6 of the paper beside ours (`phonepose experiment exp1|exp2`,
 default simulator); the 18-sequence tables are the means over exp2's TRI2 and REC2 at seeds 0-2, as recorded
 and with each session's hand-eye offset calibrated from itself (`experiment exp2 --hand-eye`); T8's cells
-(tools/exp2_cells.py) use the `--hand-eye` and `--exact-gt` runs of seeds 0-2 and of the held-out seeds 3-5.
+(tools/exp2_cells.py) use the `--hand-eye` and `--exact-gt` runs of seeds 0-2 and of the held-out seeds 3-5;
+the real-motion tables (docs/pipeline.md, "Real hand motion") are `record sim --motion` on the TUM windows
+of MOTIONS at seed 0, played back with every tracker against calibrated and exact ground truth, rendered by
+tools/metrics_md.py's table.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from exp2_cells import PAPER_ROWS, TIE, mean_cell  # noqa: E402
 from exp2_cells import cells as t8_cells  # noqa: E402
+from metrics_md import table as metrics_table  # noqa: E402
 
 from phonepose.experiments import paper  # noqa: E402
 from phonepose.experiments.exp2 import PATHS_PARTLY_OUTSIDE, table5_rows, table6_rows  # noqa: E402
@@ -50,6 +54,13 @@ BLOCK = re.compile(r"(<!-- results: (?P<name>[\w.-]+) -->\n)(?P<body>.*?)(<!-- /
 KEPT_METRICS = ("p_ate_m", "r_ate_deg", "p_re_m", "boundary_jump_max_m", "boundary_jump_rms_m")
 SCOPES = ("inside", "outside", "total")
 
+# real hand motion (docs/pipeline.md, "Real hand motion"): `record sim --motion` windows of the TUM RGB-D
+# hand-held sequences, seed 0: (name, file, --motion-start, --motion-duration, --motion-scale)
+MOTIONS = (("fr1_xyz", "tests/data/evo/freiburg1_xyz-groundtruth.txt", 0.0, 20.0, 1.0),
+           ("fr2_desk", "tests/data/evo/fr2_desk_groundtruth.txt", 50.0, 20.0, 0.3))
+MOTION_GTS = ("hand-eye", "exact")   # each session's hand-eye calibrated from itself; the simulator's exact pose
+MOTION_TOTAL = ("boundary_jump_max_m", "lag_s", "availability")   # what tools/metrics_md.py shows beside the RMSEs
+
 
 # ---------------------------------------------------------------------------------------------- data
 def _trim_exp2(summary: dict) -> dict:
@@ -62,6 +73,16 @@ def _trim_exp2(summary: dict) -> dict:
         seqs[name] = {"trackers": trackers}
     return {"seed": summary["seed"], "hand_eye": summary.get("hand_eye", False), "sequences": seqs,
             **({"exact_gt": True} if summary.get("exact_gt") else {})}
+
+
+def _trim_motion(metrics: dict) -> dict:
+    """A playback's metrics.json, trimmed to what tools/metrics_md.py's table shows."""
+    out = {}
+    for tracker, m in metrics["trackers"].items():
+        kept = {scope: {k: m[scope].get(k) for k in ("p_ate_m", "r_ate_deg", "p_re_m")} for scope in SCOPES}
+        kept["total"].update({k: m["total"].get(k) for k in MOTION_TOTAL})
+        out[tracker] = kept
+    return {"trackers": out}
 
 
 def _sequences(*summaries: dict) -> list[dict]:
@@ -265,6 +286,10 @@ def table_t8_cells(calibrated: list[dict], exact: list[dict]) -> str:
     return "\n".join(head + rows) + "\n"
 
 
+def table_motion(doc: dict) -> str:
+    return "\n".join(metrics_table(doc)) + "\n"
+
+
 def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], str]]:
     """Every generated block by name, rendered (when called) from docs/results/ or from ``load``."""
     _load = load or _load_committed
@@ -284,6 +309,8 @@ def blocks(load: Callable[[str], dict] | None = None) -> dict[str, Callable[[], 
         "exp2-t8-cells-seeds0-2": lambda: table_t8_cells(seeds("exp2-hand-eye"), seeds("exp2-exact")),
         "exp2-t8-cells-seeds3-5": lambda: table_t8_cells([_load(f"exp2-hand-eye-seed{s}") for s in (3, 4, 5)],
                                                          [_load(f"exp2-exact-seed{s}") for s in (3, 4, 5)]),
+        **{f"motion-seed0-{name}-{gt}": (lambda name=name, gt=gt: table_motion(_load("motion-seed0")[name][gt]))
+           for name, *_ in MOTIONS for gt in MOTION_GTS},
     }
 
 
@@ -319,9 +346,37 @@ def render() -> list[str]:
 GROUND_TRUTHS = (("", "", {}), ("-hand-eye", " --hand-eye", {"hand_eye": True}), ("-exact", " --exact-gt", {"exact_gt": True}))
 
 
+def run_motion(out: Path) -> dict:
+    """The real-motion sessions (MOTIONS, seed 0) played back with every tracker, against each of MOTION_GTS:
+    what docs/pipeline.md's "Real hand motion" commands do, `record sim --motion` + `calibrate-hand-eye` +
+    `playback --hand-eye`, and the same session simulated with `[mocap] exact = true`."""
+    from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
+    from phonepose.playback.engine import run_playback
+    from phonepose.record.sim import load_config, record_sim
+    from phonepose.record.sim.recorded import MotionSpec
+
+    results: dict = {}
+    for name, file, start, duration, scale in MOTIONS:
+        spec = MotionSpec(str(ROOT / file), start, duration, scale)
+        for gt in MOTION_GTS:
+            print(f"docs_results: phonepose record sim --motion {file} ({name}, {gt} ground truth) + playback",
+                  flush=True)
+            session = out / f"{name}-{gt}.mcap"
+            exact = gt == "exact"
+            record_sim(session, seed=0, config=load_config(overrides={"mocap": {"exact": True}}) if exact else None,
+                       motion=spec)
+            hand_eye = None
+            if not exact:
+                hand_eye = out / f"{name}-hand-eye.yaml"
+                save_hand_eye(hand_eye, hand_eye_from_session(session))
+            r = run_playback(session, trackers=["all"], write_outputs=False, hand_eye=hand_eye)
+            results.setdefault(name, {})[gt] = _trim_motion(r.metrics)
+    return results
+
+
 def run_experiments(seeds: Iterable[int], out: Path, hand_eye_too: bool = True) -> dict[str, dict]:
     """exp2 at every seed with each ground truth (``hand_eye_too=False``: as recorded only; seeds 3-5: not as
-    recorded), exp1 at seed 0."""
+    recorded), exp1 and the real-motion sessions at seed 0."""
     from phonepose.experiments.exp1 import run_exp1
     from phonepose.experiments.exp2 import run_exp2
 
@@ -338,6 +393,7 @@ def run_experiments(seeds: Iterable[int], out: Path, hand_eye_too: bool = True) 
         print("docs_results: phonepose experiment exp1 --seed 0", flush=True)  # exp1 has no seed sweep in the docs
         r1 = run_exp1(out / "exp1-seed0", seed=0)
         results["exp1-seed0"] = json.loads(Path(r1.files["exp1.json"]).read_text())
+        results["motion-seed0"] = run_motion(out)
     return results
 
 

@@ -1,8 +1,9 @@
-"""A Markdown table of playback metrics.json files: p_ATE, r_ATE, p_RE (inside / outside / total), lag, availability.
+"""A Markdown table of playback metrics.json files: p_ATE, r_ATE, p_RE (inside / outside / total), jump, lag, availability.
 
     python tools/metrics_md.py pb_fr1_he/metrics.json pb_fr2_he/metrics.json
 
-One row per tracker and file (docs/pipeline.md, "Real hand motion"); the best total of T1-T8 per file in bold.
+One table per file, one row per tracker, the best total of T1-T8 per column in bold. tools/docs_results.py renders
+docs/pipeline.md's "Real hand motion" tables with the same function, so the two cannot differ.
 """
 
 from __future__ import annotations
@@ -10,17 +11,21 @@ from __future__ import annotations
 import json
 import sys
 
+HEADER = ("| tracker | p_ATE cm in / out / total | r_ATE deg in / out / total | p_RE cm in / out / total "
+          "| jump max cm | lag ms | avail. % |",
+          "|---|---|---|---|---:|---:|---:|")
+
 
 def _f(v, scale: float, digits: int = 2) -> str:
     return "–" if v is None else f"{v * scale:.{digits}f}"
 
 
-def table(path: str) -> list[str]:
-    doc = json.loads(open(path).read())
+def table(doc: dict) -> list[str]:
+    """The whole table (header included: a caller adds nothing) of a metrics.json document's trackers."""
     trackers = doc["trackers"]
     best = {k: min((m["total"][k] for m in trackers.values() if m["total"][k] is not None), default=None)
             for k in ("p_ate_m", "r_ate_deg", "p_re_m")}
-    lines = []
+    lines = list(HEADER)
     for name, m in trackers.items():
         cells = []
         for key, scale in (("p_ate_m", 100), ("r_ate_deg", 1), ("p_re_m", 100)):
@@ -36,10 +41,10 @@ def table(path: str) -> list[str]:
 
 def main(paths: list[str]) -> None:
     for path in paths:
+        with open(path) as f:
+            doc = json.load(f)
         print(f"\n{path}\n")
-        print("| tracker | p_ATE cm in / out / total | r_ATE deg | p_RE cm | jump max cm | lag ms | avail. % |")
-        print("|---|---|---|---|---:|---:|---:|")
-        print("\n".join(table(path)))
+        print("\n".join(table(doc)))
 
 
 if __name__ == "__main__":

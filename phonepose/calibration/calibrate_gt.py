@@ -12,6 +12,8 @@ Method:
 1. The clock: for each δ on a 10 ms grid over ±``max_offset_s``, then a 1 ms grid around the best,
    the closed form below is solved and scored by its median residual (rotation in deg + translation
    in mm; medians, so that the rare flipped IPPE solution does not decide).
+   Then only the sightings that show the phone (or the display) moved count (DISTINCT_MM, DISTINCT_DEG:
+   a phone held still is one view, however many frames it lasts), and the clock is searched again on them.
 2. Closed form (Dornaika & Horaud 1998's linear formulation, as Shah 2013): the rotations solve
    ``R_A R_X = R_Z R_B``, linear in the 18 entries of (R_X, R_Z): the null vector of the stacked
    Kronecker system, each 3x3 half projected onto SO(3); the translations then solve the linear
@@ -52,6 +54,16 @@ GT_MAX_GAP_S = 0.1          # a sighting between ground-truth samples farther ap
 MIN_SIGHTINGS = 30
 MIN_TURN_DEG = 1.0          # the phone's second-largest turn (1σ spread) below this: one axis only, refused
 OUTLIER_FACTOR = 5.0
+# A sighting counts only where the tracked body (the ground truth) or the display camera moved at least
+# DISTINCT_MM or turned DISTINCT_DEG since the last one counted: a phone held still for a minute is one
+# view of one pose, and 1800 copies of it would weigh its own marker error (a few mm in depth, ~1 deg
+# of tilt, the same in every copy) as if it were 1800 views (the rehearsal: 600 still sightings put
+# world->camera 2.0 mm / 0.26 deg off). The thresholds lie above a good ground truth's jitter (the
+# simulator's mocap 0.3 mm / 0.05 deg per axis, a Quest controller's similar) and at the hand's own
+# tremor (0.8 mm / 0.25 deg per axis), so a phone held still counts a few times a second, not 30;
+# a hand moving at 6 cm/s or more moves 2 mm per 30 Hz frame, so a moving phone counts every frame.
+DISTINCT_MM = 2.0
+DISTINCT_DEG = 0.5
 BOOTSTRAP = 200
 BLOCK_S = 3.0
 MIN_BLOCKS = 5
@@ -176,7 +188,25 @@ def _take(A: Stack, idx: np.ndarray) -> Stack:
     return A[0][idx], A[1][idx]
 
 
-def _search_offset(t: np.ndarray, A: Stack, gt: _GtInterpolator, max_offset_s: float) -> float:
+def _distinct(B: Stack, camera: Stack) -> np.ndarray:
+    """Indices of the sightings that count (DISTINCT_MM, DISTINCT_DEG): greedy in time, each compared with
+    the last counted one, its ground truth ``B`` and its display camera pose ``camera``."""
+    cos_min = np.cos(np.radians(DISTINCT_DEG))
+    keep = [0]
+    for i in range(1, len(B[1])):
+        k = keep[-1]
+        for R, tr in (B, camera):
+            # cos of the angle between R_k and R_i: (trace(R_k^T R_i) - 1) / 2
+            moved = np.linalg.norm(tr[i] - tr[k]) * 1e3 >= DISTINCT_MM or \
+                (np.sum(R[k] * R[i]) - 1.0) / 2.0 <= cos_min
+            if moved:
+                keep.append(i)
+                break
+    return np.asarray(keep, dtype=int)
+
+
+def _search_offset(t: np.ndarray, A: Stack, gt: _GtInterpolator, max_offset_s: float, source: str) -> float:
+    """The clock offset (step 1 of the module doc); SessionContentError when no offset puts enough sightings inside."""
     def cost(delta: float) -> float:
         ok = gt.valid(t + delta)
         if np.count_nonzero(ok) < MIN_SIGHTINGS:
@@ -187,7 +217,8 @@ def _search_offset(t: np.ndarray, A: Stack, gt: _GtInterpolator, max_offset_s: f
     coarse = np.arange(-max_offset_s, max_offset_s + 1e-9, COARSE_STEP_S)
     costs = [cost(d) for d in coarse]
     if not np.isfinite(costs).any():
-        return float("nan")
+        raise SessionContentError(f"fewer than {MIN_SIGHTINGS} marker sightings lie inside the ground truth "
+                                  f"({source}) at any clock offset within ±{max_offset_s:g} s")
     best = coarse[int(np.argmin(costs))]
     fine = np.arange(best - COARSE_STEP_S, best + COARSE_STEP_S + 1e-9, FINE_STEP_S)
     return float(fine[int(np.argmin([cost(d) for d in fine]))])
@@ -344,10 +375,17 @@ def calibrate_gt(sightings: Sightings, gt: GroundTruthSeries, *, max_offset_s: f
     _check_overlap(t, gt, max_offset_s)
     interp = _GtInterpolator(gt)
     A = _stack(sightings.T_dvio_body)
-    delta = _search_offset(t, A, interp, max_offset_s)
-    if not np.isfinite(delta):
-        raise SessionContentError(f"fewer than {MIN_SIGHTINGS} marker sightings lie inside the ground truth "
-                                  f"({gt.source}) at any clock offset within ±{max_offset_s:g} s")
+    delta = _search_offset(t, A, interp, max_offset_s, gt.source)
+    # the sightings that count, placed by that clock (a still stretch stays still at any offset near it);
+    # then the clock again from them alone, so that a long hold does not flatten its search either
+    inside = np.flatnonzero(interp.valid(t + delta))
+    distinct = inside[_distinct(interp(t[inside] + delta), _stack(sightings.T_dvio_camera[inside]))]
+    if len(distinct) < MIN_SIGHTINGS:
+        raise SessionContentError(
+            f"only {len(distinct)} of the {len(inside)} marker sightings show the phone moved (by {DISTINCT_MM:g} mm "
+            f"or {DISTINCT_DEG:g} deg; need {MIN_SIGHTINGS}): the calibration needs the phone moved and turned in view")
+    sightings, t, A = sightings[distinct], t[distinct], _take(A, distinct)
+    delta = _search_offset(t, A, interp, max_offset_s, gt.source)
     keep = np.flatnonzero(interp.valid(t + delta - 0.02) & interp.valid(t + delta + 0.02))
     spread = _spread_deg(sightings.T_dvio_body[keep])
     if spread[1] < MIN_TURN_DEG:

@@ -27,7 +27,8 @@ measurements behind every choice):
   8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
 * **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
   T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
-  velocity; entering it: the VIO velocity carried to the tick by the fit's acceleration) and carries
+  velocity; entering it: the VIO velocity carried to the tick by the fit's acceleration, which decays
+  with a hand's acceleration correlation time, ``entry_acceleration_time_s``) and carries
   the difference to the new source as an offset that decays with ``blend_time_s``: no step.
 
 Output: inside the view, the newest sighting's position **moved from its image time to the tick**
@@ -133,11 +134,15 @@ class FusionConfig:
     # inside: the sighting is moved from its image time to the tick along the corrected VIO velocity (the
     # 30 Hz image is ~17 ms old at a 20 Hz tick: 5 mm at 0.3 m/s; T4-T7 report it at the image time)
     marker_to_tick: int = 1
-    # entering the view: the motion over the switching tick is the VIO velocity at the tick (the quadratic
-    # fit's slope plus its acceleration times the ~0.15 s from the newest VIO sample), not at that sample;
-    # the offset carried into the view is then smaller (largest boundary jump 1.09 -> 0.84 cm over exp2
-    # seeds 0-5; docs/pipeline.md, "T8 cell by cell")
-    entry_velocity_at_tick: int = 1
+    # entering the view: the motion over the switching tick is the VIO velocity carried from the newest VIO
+    # sample to the tick (h ~0.15 s) by the quadratic fit's acceleration a, as a first-order Markov (Singer)
+    # acceleration with this correlation time tau: v + a tau (1 - exp(-h / tau)). A hand's acceleration does
+    # not last 0.15 s: carried whole (tau -> inf) it made fr1_xyz's real motion jump 1.78 cm; without it
+    # (tau = 0) exp2 seed 4's REC2_01, speeding up into the view, jumped 1.09 cm. 0.05 s minimises the RMS
+    # velocity error over the 44 entries of exp2 TRI2/REC2 seeds 0-5 and fr1_xyz (tools/entry_velocity.py;
+    # alone, exp2 prefers 0.15 s, fr1_xyz 0.01 s): largest jump 0.90 cm on exp2, 0.70 cm on fr1_xyz
+    # (docs/pipeline.md, "Real hand motion")
+    entry_acceleration_time_s: float = 0.05
 
     @classmethod
     def from_dict(cls, values: dict) -> FusionConfig:
@@ -637,9 +642,13 @@ class FusedTracker:
             # a switch: this tick's output = the last output moved by the estimated motion over the
             # tick, and the difference to the new source is carried and decays
             motion = velocity
-            if self._source == "vio" and self.cfg.entry_velocity_at_tick and self.filter.ready:
-                # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's acceleration
-                motion = velocity + self.filter._Rm @ self._accel * (t - self.filter.d - self._vio.last_t)
+            tau = self.cfg.entry_acceleration_time_s
+            if self._source == "vio" and tau > 0 and self.filter.ready:
+                # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's
+                # acceleration, decaying with tau (FusionConfig.entry_acceleration_time_s)
+                h = min(max(t - self.filter.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
+                carried = h if math.isinf(tau) else tau * -math.expm1(-h / tau)
+                motion = velocity + (self.filter._Rm @ self._accel) * carried
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from phonepose.errors import ConfigError
+from phonepose.waiting import wait_until
 
 DRIVER_JS = Path(__file__).with_name("driver.js")
 IWER_IN_REPO = Path(__file__).resolve().parents[3] / "tests" / "js" / "node_modules" / "iwer" / "build" / "iwer.min.js"
@@ -148,16 +148,10 @@ def browser_failure(exc: Exception) -> ConfigError:
     return ConfigError(f"rehearsal: the browser failed: {first[:200]}")
 
 
-def wait_for(condition: Callable[[], object], what: str, timeout_s: float, interval_s: float = 0.02):
-    """Poll ``condition`` until it is truthy; after ``timeout_s`` a ConfigError naming ``what``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() >= deadline:
-            raise ConfigError(f"rehearsal: timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(interval_s)
+def wait_for(condition: Callable[[], object], what: str, timeout_s: float) -> object:
+    """Poll ``condition`` until it is truthy (:mod:`phonepose.waiting`); after ``timeout_s`` a ConfigError naming ``what``."""
+    return wait_until(condition, what=what, timeout=timeout_s, show_last=False,
+                      error=lambda message: ConfigError(f"rehearsal: {message}"))
 
 
 def grip_offset(page: DevicePage, hand: str = "right"):

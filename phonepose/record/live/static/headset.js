@@ -61,30 +61,17 @@
   }
 
   async function enterVR() {
-    if (state.session) {
-      await state.session.end();
-      return;
-    }
-    let session;
-    try {
-      session = await navigator.xr.requestSession('immersive-vr', { optionalFeatures: ['local-floor'] });
-    } catch (e) {
-      showError('Could not start the VR session: ' + e.message, 'xr');
-      return;
-    }
-    clearError('xr');
-    state.session = session;
-    session.addEventListener('end', () => {
+    const started = await window.PhoneposeLink.startXRSession(state.session, 'immersive-vr', { optionalFeatures: ['local-floor'] }, {}, 'VR', () => {
       state.session = null;
       state.refSpace = null;
       sendSessionState('ended', '');
       $('btn-vr').textContent = 'Enter VR';
       showTracking();
     });
-    const glCanvas = document.createElement('canvas');
-    const gl = glCanvas.getContext('webgl', { xrCompatible: true });
-    state.gl = gl;
-    session.updateRenderState({ baseLayer: new XRWebGLLayer(session, gl) });
+    if (!started) return;
+    const session = started.session;
+    state.session = session;
+    state.gl = started.gl;
     // One stationary space for every pose: 'local-floor' (y = 0 on the floor) where the device has
     // it, else 'local' (origin at the headset's pose at session start), said once.
     let note = '';

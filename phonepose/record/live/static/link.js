@@ -77,6 +77,31 @@
       return { ok: false, message: notAvailable + ' (' + e.message + ')' + hint };
     }
   }
+  // ---------------------------------------------------------------- WebXR session start
+  // Start a WebXR session of `mode` with `init` (its required/optional features), or end the one
+  // running (`running`, the page's current session or null; the button toggles). On success the
+  // session has a WebGL base layer (frames run only with one; `glOptions` for the context) and
+  // `onEnd` is called when it ends: resolves to {session, gl}, or null if it ended one or failed
+  // (then the error line says why, as `label`: "AR", "VR").
+  async function startXRSession(running, mode, init, glOptions, label, onEnd) {
+    if (running) {
+      await running.end();
+      return null;
+    }
+    let session;
+    try {
+      session = await navigator.xr.requestSession(mode, init);
+    } catch (e) {
+      showError('Could not start the ' + label + ' session: ' + e.message, 'xr');
+      return null;
+    }
+    clearError('xr');
+    session.addEventListener('end', onEnd);
+    const gl = document.createElement('canvas').getContext('webgl', Object.assign({ xrCompatible: true }, glOptions));
+    session.updateRenderState({ baseLayer: new XRWebGLLayer(session, gl) });
+    return { session, gl };
+  }
+
 
   // The end of a page's start: the WebXR check's message on the page (#xr-message), the XR button
   // enabled only with WebXR, then the connection (unless the token was refused).
@@ -211,6 +236,6 @@
   }
 
   window.PhoneposeLink = {
-    token, params, $, showError, clearError, nowMs, AccessDenied, fetchChecked, checkWebXR, finishStart, Link,
+    token, params, $, showError, clearError, nowMs, AccessDenied, fetchChecked, checkWebXR, startXRSession, finishStart, Link,
   };
 })();

@@ -318,27 +318,13 @@
   }
 
   async function startAR() {
-    if (state.xrSession) {
-      await state.xrSession.end();
-      return;
-    }
-    let session;
-    try {
-      // The DOM overlay keeps #app (marker and controls) on screen above the camera image during
-      // the immersive-ar session: without it the phone would show only the camera image and the
-      // webcam would lose the marker. 'anchors' lets the anchor button create an XR anchor too.
-      session = await navigator.xr.requestSession('immersive-ar', {
-        requiredFeatures: ['local'],
-        optionalFeatures: ['dom-overlay', 'anchors'],
-        domOverlay: { root: $('app') },
-      });
-    } catch (e) {
-      showError('Could not start the AR session: ' + e.message, 'xr');
-      return;
-    }
-    clearError('xr');
-    state.xrSession = session;
-    session.addEventListener('end', () => {
+    // The DOM overlay keeps #app (marker and controls) on screen above the camera image during
+    // the immersive-ar session: without it the phone would show only the camera image and the
+    // webcam would lose the marker. 'anchors' lets the anchor button create an XR anchor too.
+    // The base layer is cleared to transparent every frame (alpha), so the screen shows the camera
+    // image under the DOM overlay (the marker).
+    const init = { requiredFeatures: ['local'], optionalFeatures: ['dom-overlay', 'anchors'], domOverlay: { root: $('app') } };
+    const started = await window.PhoneposeLink.startXRSession(state.xrSession, 'immersive-ar', init, { alpha: true }, 'AR', () => {
       state.xrSession = null;
       state.xrRefSpace = null;
       state.anchorRequested = false;
@@ -346,15 +332,13 @@
       $('btn-ar').textContent = 'Start AR';
       $('btn-anchor').disabled = true;
     });
+    if (!started) return;
+    const session = started.session;
+    state.xrSession = session;
+    state.xrGl = started.gl;
     if (!session.domOverlayState) {
       showError('This browser started AR without the DOM overlay: the marker is hidden during the AR session.', 'xr');
     }
-    // Frames run only with a base layer; it is cleared to transparent every frame, so the screen
-    // shows the camera image under the DOM overlay (the marker).
-    const glCanvas = document.createElement('canvas');
-    const gl = glCanvas.getContext('webgl', { xrCompatible: true, alpha: true });
-    state.xrGl = gl;
-    session.updateRenderState({ baseLayer: new XRWebGLLayer(session, gl) });
     state.xrRefSpace = await session.requestReferenceSpace('local');
     $('btn-ar').textContent = 'Stop AR';
     $('btn-anchor').disabled = false;
