@@ -420,3 +420,26 @@ def test_rpg_association_dense_irregular_stamps(monkeypatch, max_rounds):
     tr = np.sort(te + rng.normal(0, 0.004, 300))
     i, j = associate_rpg(te, tr, 0.02)
     assert list(zip(i.tolist(), j.tolist(), strict=True)) == rpg_associate_loop(te, tr, 0.02)
+
+
+def test_errors_in_blocks_are_the_whole_arrays_bits(monkeypatch):
+    """Long inputs are computed BLOCK_ROWS rows at a time (bounded temporaries): the same bits as one pass."""
+    from phonepose.evaluation import ate, relative, stats
+    from phonepose.evaluation.paper import relative_translation_pairs
+
+    n = 2 * stats.BLOCK_ROWS + 123
+    gt = random_traj(n, 11)
+    rng = np.random.default_rng(3)
+    est = Pose(gt.rotation * Rotation.from_rotvec(rng.normal(0, 0.01, (n, 3))), gt.translation + rng.normal(0, 0.01, (n, 3)))
+    inside = rng.random(n) < 0.5
+    stamps = np.arange(n) * 0.05
+    blocked = (ate.absolute_errors(gt, est), relative_translation_pairs(gt, est),
+               find_pairs(relative.accumulated_distances(gt.translation), 1.0), paper_metrics(stamps, gt, est, inside))
+    for module in (stats, ate, relative):
+        monkeypatch.setattr(module, "BLOCK_ROWS", 10 * n, raising=False)
+    whole = (ate.absolute_errors(gt, est), relative_translation_pairs(gt, est),
+             find_pairs(relative.accumulated_distances(gt.translation), 1.0), paper_metrics(stamps, gt, est, inside))
+    for b, w in zip(blocked[:3], whole[:3], strict=True):
+        for x, y in zip(b, w, strict=True):
+            assert x.dtype.kind == y.dtype.kind and np.array_equal(x, y)
+    assert blocked[3] == whole[3]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from phonepose.evaluation.stats import BLOCK_ROWS, row_blocks
 from phonepose.geometry import Pose
 
 DEFAULT_PERCENTAGES = (0.1, 0.2, 0.3, 0.4, 0.5)
@@ -50,14 +51,19 @@ def accumulated_distances(positions: np.ndarray) -> np.ndarray:
 
 
 def _nearest_at_or_after(d: np.ndarray, start: np.ndarray, target: np.ndarray):
-    """For each k: the first j ≥ start[k] minimising |d_j − target[k]| (d non-decreasing) and that gap."""
+    """For each k: the first j ≥ start[k] minimising |d_j − target[k]| (d non-decreasing) and that gap
+    (``BLOCK_ROWS`` k at a time: each k is independent, and the (k, 4) temporaries stay one block's)."""
+    if start.size > BLOCK_ROWS:
+        first, best_err = np.empty(start.size, np.intp), np.empty(start.size)
+        for rows in row_blocks(start.size):
+            first[rows], best_err[rows] = _nearest_at_or_after(d, start[rows], target[rows])
+        return first, best_err
     n = d.size
     k = np.searchsorted(d, target, side="left")  # first j with d_j >= target
     cand = np.stack([k - 2, k - 1, k, k + 1], axis=1)
     valid = (cand >= start[:, None]) & (cand < n)
     cand_c = np.clip(cand, 0, n - 1)
-    # in place (the same values as np.where(valid, |d - target|, inf)): a long playback's metrics
-    # peak is these (n, 4) temporaries (docs/performance.md)
+    # in place: the same values as np.where(valid, |d - target|, inf), without its temporaries
     err = d[cand_c]
     err -= target[:, None]
     np.abs(err, out=err)

@@ -264,10 +264,12 @@ def write_in_view(path: str | os.PathLike, stamps, inside, session: str | None =
     flags = np.asarray(inside, dtype=bool).ravel()
     if len(stamps) != len(flags):
         raise ValueError(f"{len(stamps)} stamps for {len(flags)} flags")
-    text = "# timestamp in_view\n" + session_tag_line(session) + "".join(
-        f"{s} {int(f)}\n" for s, f in zip(_format_stamps(stamps), flags, strict=True))
     try:
-        Path(path).write_text(text)
+        with open(path, "w") as f:
+            f.write("# timestamp in_view\n" + session_tag_line(session))
+            for k in range(0, len(stamps), TUM_WRITE_BLOCK):   # in blocks, as write_tum: the same bytes
+                f.write("".join(f"{s} {int(v)}\n" for s, v in zip(_format_stamps(stamps[k:k + TUM_WRITE_BLOCK]),
+                                                                   flags[k:k + TUM_WRITE_BLOCK], strict=True)))
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
