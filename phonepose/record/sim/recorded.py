@@ -12,7 +12,12 @@ recorded motion. Placement (docs/simulation.md, "Recorded motion"):
 * orientation: the recorded rotation since the window start, applied in the body frame to the
   pose facing the display camera at ``centre``;
 * the phone moves from the CM2 hold to the window's first pose in ``MOVE_S`` and holds it
-  ``HOLD_S``; the task is the window; the recorded motion has its own tremor (none is added).
+  ``HOLD_S``; the task is the window; the recorded motion has its own tremor (none is added);
+* the recording is resampled to a uniform grid at its own median rate and low-passed at
+  ``CUTOFF_HZ`` (zero-phase Butterworth, positions and sign-continuous quaternions), and positions
+  between the samples follow a cubic spline: the IMU is the trajectory's derivative, so the motion
+  capture's own jitter must not become the phone's angular rate, nor a piecewise-linear path an
+  accelerometer that reads zero between samples and spikes at them.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
@@ -30,6 +37,13 @@ MOVE_S = 1.2
 HOLD_S = 0.3
 MAX_GAP_S = 0.2          # a window with a longer gap between samples is refused (fr2_desk has a 12 s one)
 DEFAULT_CENTRE = (0.0, 0.03, 0.32)
+# What a hand does lies below this: voluntary motion below ~5 Hz, physiological tremor at 8-12 Hz. Above
+# it a motion-capture recording holds its own jitter: fr2_desk's 300 Hz orientation turns at 25 deg/s RMS
+# sample to sample, 12 deg/s once low-passed at 20 Hz and 11 deg/s at 10 Hz (freiburg1_xyz, 100 Hz: 25,
+# 23 and 22 deg/s); fed to the simulator as motion, that jitter became the gyro's reading and the truth's
+# (docs/simulation.md, "Recorded motion").
+CUTOFF_HZ = 15.0
+FILTER_ORDER = 4
 
 
 @dataclass(frozen=True)
@@ -73,9 +87,28 @@ def load_window(spec: MotionSpec) -> RecordedWindow:
     gap = float(np.diff(t).max())
     if gap > MAX_GAP_S:
         raise ConfigError(f"--motion {spec.file}: a {gap:.1f} s gap in the window (choose another --motion-start)")
+    t, poses = low_passed(t - t[0], poses, CUTOFF_HZ)
     first = poses[0]
     p = first.rotation.inv().apply(poses.translation - poses.translation.mean(axis=0)) * spec.scale
-    return RecordedWindow(t - t[0], Pose(first.rotation.inv() * poses.rotation, p))
+    return RecordedWindow(t, Pose(first.rotation.inv() * poses.rotation, p))
+
+
+def low_passed(t: np.ndarray, poses: Pose, cutoff_hz: float) -> tuple[np.ndarray, Pose]:
+    """``poses`` resampled at their median rate from ``t[0]`` and low-passed at ``cutoff_hz`` (zero phase).
+
+    Quaternions are filtered component-wise after flipping each onto its predecessor's hemisphere, then
+    normalised: at 100 Hz and more a hand turns < 1 deg per sample, where that equals filtering on SO(3)."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    grid = np.minimum(t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate + 1e-6)) + 1) / rate, t[-1])  # (rounding)
+    uniform = interpolate_many(t, poses, grid)
+    sos = butter(FILTER_ORDER, cutoff_hz, fs=rate, output="sos")
+    if cutoff_hz >= rate / 2 or len(grid) <= 3 * (2 * len(sos) + 1):    # nothing above the cutoff, or too short
+        return grid, uniform
+    q = uniform.rotation.as_quat()
+    q[1:] *= np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))[:, None]
+    q = sosfiltfilt(sos, q, axis=0)
+    return grid, Pose(Rotation.from_quat(q / np.linalg.norm(q, axis=1, keepdims=True)),
+                      sosfiltfilt(sos, uniform.translation, axis=0))
 
 
 class MotionTrajectory:
@@ -87,6 +120,7 @@ class MotionTrajectory:
         self.task_start = task_start
         self.t = window.t + task_start
         self.poses = placed(window, facing, centre_world)
+        self._position = CubicSpline(self.t, self.poses.translation, axis=0)   # C2: the accelerometer's path
         self._end = end
 
     @property
@@ -98,7 +132,8 @@ class MotionTrajectory:
         return self._end
 
     def _recorded(self, t: np.ndarray) -> Pose:
-        return interpolate_many(self.t, self.poses, np.clip(t, self.t[0], self.t[-1]))
+        t = np.clip(t, self.t[0], self.t[-1])
+        return Pose(interpolate_many(self.t, self.poses, t).rotation, self._position(t))
 
     def _merge(self, t: np.ndarray, keyed_fn) -> Pose:
         t = np.atleast_1d(np.asarray(t, dtype=float))
