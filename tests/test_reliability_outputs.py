@@ -38,7 +38,7 @@ class Writer:
     option: str                     # the output's option
     name: str                       # a good output name
     kind: str = "file"              # "file" | "dir"
-    input: str | None = None        # "config" | "session" | "video": what {input} is
+    input: str | None = None        # "config" | "session" | "video" | "motion": what {input} is
     what: str = ""                  # the format the name must end in (files)
     wrong: str = ""                 # a name whose extension does not match
     also: list[str] = field(default_factory=list)   # options naming another output the command writes
@@ -46,6 +46,7 @@ class Writer:
     fails: Callable | None = None   # (monkeypatch, d, argv) -> argv of a run that fails after the checks
     missing_input_code: int = 2
     earlier: Callable[[Path], None] | None = None   # writes an earlier run's output (default: a few bytes)
+    title: str = ""                 # the docs matrix's name for it (default: the command's words and the option)
 
 
 def _earlier_table(path: Path) -> None:
@@ -115,6 +116,9 @@ WRITERS = [
            input="config", fails=_fail_rehearsal),
     Writer("record-sim", ["record", "sim", "-q", "--config", "{input}", "--force"], "--out", "s.mcap",
            input="config", what="an MCAP session", wrong="s.bag", fails=_fail_recording, missing_input_code=5),
+    Writer("record-sim-motion", ["record", "sim", "-q", "--motion", "{input}", "--motion-duration", "2", "--force"],
+           "--out", "s.mcap", input="motion", what="an MCAP session", wrong="s.bag", fails=_fail_recording,
+           title="record sim --motion FILE --out"),
     Writer("record-sim-rerun", ["record", "sim", "-q", "--config", "{input}", "--out", "{d}/rec.mcap"], "--rerun",
            "s.rrd", input="config", what="a Rerun recording", wrong="s.txt", also=["{d}/rec.mcap"],
            fails=_fail_recording, missing_input_code=5),
@@ -209,6 +213,11 @@ def make_input(w: Writer, d: Path, good_session: Path) -> Path | None:
     if w.input == "session":
         (d / "good.mcap").write_bytes(good_session.read_bytes())
         return d / "good.mcap"
+    if w.input == "motion":       # a recorded trajectory (TUM): 3 s of a slow line at 100 Hz
+        t = np.arange(0.0, 3.0, 0.01)
+        rows = [f"{1000 + s:.2f} {0.05 * s:.4f} 0 0 0 0 0 1" for s in t]
+        (d / "motion.txt").write_text("\n".join(rows) + "\n")
+        return d / "motion.txt"
     if w.input == "video":
         (d / "board.avi").write_bytes(b"RIFF not really a video")
         return d / "board.avi"
@@ -445,6 +454,8 @@ def test_every_writing_command_is_in_the_table():
 
 # ----------------------------------------------------------------------------- the docs' matrix
 def label(w: Writer) -> str:
+    if w.title:
+        return w.title
     words = []
     for a in w.argv:
         if a.startswith(("-", "{")):

@@ -69,6 +69,17 @@ def test_the_recording_is_low_passed_above_a_hands_band():
     assert np.abs(smooth.translation[middle, 0] - swing[middle]).max() < before * 10 ** (-60 / 20)
 
 
+def test_a_recording_at_twice_the_cutoff_or_slower_is_only_resampled():
+    """25 Hz (nothing above the 15 Hz cutoff to remove), and a window too short to filter: the samples as given."""
+    for rate, n in ((25.0, 250), (300.0, 12)):
+        t = np.arange(n) / rate
+        poses = Pose(Rotation.from_rotvec(np.column_stack([0.3 * np.sin(t), 0 * t, 0 * t])), np.column_stack([t, t, t]))
+        grid, out = low_passed(t, poses, CUTOFF_HZ)
+        np.testing.assert_allclose(grid, t, atol=1e-9)
+        np.testing.assert_allclose(out.translation, poses.translation, atol=1e-9)
+        assert np.degrees((out.rotation.inv() * poses.rotation).magnitude()).max() < 1e-6
+
+
 def test_the_simulated_accelerometer_follows_the_recorded_path_between_its_samples():
     """A C2 path between the window's samples: the true acceleration is continuous (piecewise-linear
     positions gave 0 between samples and spikes at them)."""

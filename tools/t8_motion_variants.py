@@ -16,8 +16,12 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig
-from phonepose.pipeline.trackers import make_trackers
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from t8_variants import parse_variants  # noqa: E402
+
+from phonepose.pipeline.fusion import FusedTracker, FusionConfig  # noqa: E402
+from phonepose.pipeline.trackers import make_trackers  # noqa: E402
 
 OTHERS = ["T6", "T7L"]
 
@@ -41,14 +45,10 @@ def _row(label: str, m: dict) -> str:
 
 
 def main(argv: list[str]) -> int:
-    if "--" not in argv or argv.index("--") == 0:
-        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+    parsed = parse_variants(argv, __doc__)
+    if parsed is None:
         return 2
-    split = argv.index("--")
-    sessions, specs = argv[:split], argv[split + 1:]
-    variants = {"defaults": {}} | {spec: dict(kv.split("=") for kv in spec.split(",")) for spec in specs}
-    for values in variants.values():
-        FusionConfig.from_dict(values)   # a bad name or value stops here, before any playback
+    sessions, variants = parsed
     with ProcessPoolExecutor(max_workers=2) as pool:
         played = list(pool.map(_play, sessions, [variants] * len(sessions)))
     for session, metrics in zip(sessions, played, strict=True):

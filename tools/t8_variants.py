@@ -35,15 +35,24 @@ def _play(session: Path, variants: dict[str, dict]) -> dict[str, dict]:
     return {name: result.metrics["trackers"][name] for name in variants}
 
 
-def main(argv: list[str]) -> int:
-    if "--" not in argv:
-        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
-        return 2
+def parse_variants(argv: list[str], usage: str) -> tuple[list[str], dict[str, dict]] | None:
+    """``INPUT ... -- name=value[,name=value] ...``: the inputs and the variants by name ("defaults" first),
+    each checked by FusionConfig before any playback; None (the usage line printed) without ``--`` or inputs."""
+    if "--" not in argv or argv.index("--") == 0:
+        print(usage.strip().splitlines()[2].strip(), file=sys.stderr)
+        return None
     split = argv.index("--")
-    folders, specs = argv[:split], argv[split + 1:]
-    variants = {"defaults": {}} | {spec: dict(kv.split("=") for kv in spec.split(",")) for spec in specs}
+    variants = {"defaults": {}} | {spec: dict(kv.split("=") for kv in spec.split(",")) for spec in argv[split + 1:]}
     for values in variants.values():
         FusionConfig.from_dict(values)   # a bad name or value stops here, before any playback
+    return argv[:split], variants
+
+
+def main(argv: list[str]) -> int:
+    parsed = parse_variants(argv, __doc__)
+    if parsed is None:
+        return 2
+    folders, variants = parsed
     sequences = load_sequences(folders)
     sessions = [Path(f) / "sessions" / f"{s['name']}.mcap" for f in folders
                 for s in load_sequences([f])]

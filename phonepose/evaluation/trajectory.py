@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -230,6 +231,21 @@ def read_session_tag(path: str | os.PathLike) -> str | None:
 TUM_WRITE_BLOCK = 2048   # rows formatted at a time
 
 
+def _write_rows(path: str | os.PathLike, header: str, session: str | None, n: int,
+                lines: Callable[[slice], Iterable[str]]) -> None:
+    """``header``, the session tag, then ``lines(rows)`` for each block of ``TUM_WRITE_BLOCK`` rows of ``n``.
+
+    In blocks: the text of a 10-minute trajectory at once would be the playback's peak memory
+    (docs/performance.md); each line depends on its row only, so the bytes are the same."""
+    try:
+        with open(path, "w") as f:
+            f.write(header + session_tag_line(session))
+            for k in range(0, n, TUM_WRITE_BLOCK):
+                f.write("".join(line + "\n" for line in lines(slice(k, k + TUM_WRITE_BLOCK))))
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
 def write_tum(path: str | os.PathLike, stamps, poses: Pose | None, session: str | None = None) -> None:
     """Write ``t tx ty tz qx qy qz qw`` lines with a ``#`` header, 9 decimals everywhere.
 
@@ -241,16 +257,8 @@ def write_tum(path: str | os.PathLike, stamps, poses: Pose | None, session: str 
     n = 0 if poses is None else len(stamps)
     if poses is not None and n and len(np.atleast_2d(poses.translation)) != n:
         raise ValueError(f"{n} stamps for {len(np.atleast_2d(poses.translation))} poses")
-    try:
-        with open(path, "w") as f:
-            f.write("# timestamp tx ty tz qx qy qz qw\n" + session_tag_line(session))
-            # in blocks: the text of a 10-minute trajectory at once would be the playback's peak
-            # memory (docs/performance.md); each line depends on its row only, so the bytes are the same
-            for k in range(0, n, TUM_WRITE_BLOCK):
-                block = poses if n == 1 else poses[k:k + TUM_WRITE_BLOCK]   # type: ignore[index]
-                f.write("".join(line + "\n" for line in tum_lines(stamps[k:k + TUM_WRITE_BLOCK], block)))
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    _write_rows(path, "# timestamp tx ty tz qx qy qz qw\n", session, n,
+                lambda rows: tum_lines(stamps[rows], poses if n == 1 else poses[rows]))   # type: ignore[index]
 
 
 # ----------------------------------------------------------------------------- in-view flags
@@ -264,14 +272,8 @@ def write_in_view(path: str | os.PathLike, stamps, inside, session: str | None =
     flags = np.asarray(inside, dtype=bool).ravel()
     if len(stamps) != len(flags):
         raise ValueError(f"{len(stamps)} stamps for {len(flags)} flags")
-    try:
-        with open(path, "w") as f:
-            f.write("# timestamp in_view\n" + session_tag_line(session))
-            for k in range(0, len(stamps), TUM_WRITE_BLOCK):   # in blocks, as write_tum: the same bytes
-                f.write("".join(f"{s} {int(v)}\n" for s, v in zip(_format_stamps(stamps[k:k + TUM_WRITE_BLOCK]),
-                                                                   flags[k:k + TUM_WRITE_BLOCK], strict=True)))
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    _write_rows(path, "# timestamp in_view\n", session, len(stamps),
+                lambda rows: (f"{s} {int(v)}" for s, v in zip(_format_stamps(stamps[rows]), flags[rows], strict=True)))
 
 
 def load_in_view(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

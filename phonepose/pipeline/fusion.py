@@ -166,6 +166,15 @@ def _polyfit(t: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
     return np.linalg.solve(A.T @ A, A.T @ values)
 
 
+def entry_carry_s(h, tau: float):
+    """How long the fit's acceleration acts over ``h`` s (scalar or array) when it decays with correlation time
+    ``tau`` (a first-order Markov, Singer, acceleration): tau (1 - e^(-h / tau)); ``h`` for tau = inf, 0 for
+    tau = 0 (FusionConfig.entry_acceleration_time_s; tools/entry_velocity.py replays it)."""
+    if math.isinf(tau):
+        return h
+    return 0.0 * h if tau <= 0 else tau * -np.expm1(-np.asarray(h) / tau)
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -647,8 +656,7 @@ class FusedTracker:
                 # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's
                 # acceleration, decaying with tau (FusionConfig.entry_acceleration_time_s)
                 h = min(max(t - self.filter.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
-                carried = h if math.isinf(tau) else tau * -math.expm1(-h / tau)
-                motion = velocity + (self.filter._Rm @ self._accel) * carried
+                motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)

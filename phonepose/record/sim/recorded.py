@@ -101,9 +101,10 @@ def low_passed(t: np.ndarray, poses: Pose, cutoff_hz: float) -> tuple[np.ndarray
     rate = 1.0 / float(np.median(np.diff(t)))
     grid = np.minimum(t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate + 1e-6)) + 1) / rate, t[-1])  # (rounding)
     uniform = interpolate_many(t, poses, grid)
-    sos = butter(FILTER_ORDER, cutoff_hz, fs=rate, output="sos")
-    if cutoff_hz >= rate / 2 or len(grid) <= 3 * (2 * len(sos) + 1):    # nothing above the cutoff, or too short
+    # nothing above the cutoff (a recording at 2 x cutoff_hz or slower), or too short for sosfiltfilt's padding
+    if cutoff_hz >= rate / 2 or len(grid) <= 3 * (FILTER_ORDER + 1):
         return grid, uniform
+    sos = butter(FILTER_ORDER, cutoff_hz, fs=rate, output="sos")
     q = uniform.rotation.as_quat()
     q[1:] *= np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))[:, None]
     q = sosfiltfilt(sos, q, axis=0)
