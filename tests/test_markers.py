@@ -12,6 +12,10 @@ from scipy.spatial.transform import Rotation
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import (
+    APRILTAG_MIN_CONTRAST,
+    APRILTAG_SHIFT_PX,
+    DETECTION_MARGIN,
+    TRACKING_MARGIN,
     MarkerRecognizer,
     aruco_dictionary,
     marker_object_points,
@@ -167,3 +171,48 @@ def test_reprojection_rms_is_numpys_to_the_bit(projected, corners):
     c = np.array(corners).reshape(4, 2)
     expected = float(np.sqrt(np.mean(np.sum((p.reshape(4, 2) - c) ** 2, axis=1))))
     assert reprojection_rms_px(p, c) == expected
+
+
+def _low_contrast_copy(rec: MarkerRecognizer) -> cv2.aruco.ArucoDetector:
+    """The recogniser's APRILTAG crop detector at OpenCV's default tile contrast (5 grey levels)."""
+    params = rec._accurate.getDetectorParameters()
+    assert params.aprilTagMinWhiteBlackDiff == APRILTAG_MIN_CONTRAST
+    params.aprilTagMinWhiteBlackDiff = 5
+    return cv2.aruco.ArucoDetector(aruco_dictionary(MARKER.dictionary), params)
+
+
+def test_crop_contrast_threshold_keeps_the_default_corners_on_noisy_renders():
+    # The crop runs with a 30-level tile contrast instead of 5 (4x faster on the simulator's frames):
+    # on a marker of normal contrast its corners must be the default's to the bit.
+    rng = np.random.default_rng(3)
+    rec = MarkerRecognizer(CAMERA, MARKER)
+    default = _low_contrast_copy(rec)
+    for T_true in POSES:
+        img = render_marker(CAMERA, MARKER, T_true, blur_sigma=0.7, noise_sigma=3.0, rng=rng)
+        rec.reset()
+        obs = rec.recognize(img)
+        assert obs is not None and rec.stats["roi"] > 0
+        x0, y0, x1, y1 = rec._roi(project_corners(CAMERA, MARKER, T_true), DETECTION_MARGIN, img.shape)
+        ours = rec._find_expected(rec._accurate, img[y0:y1, x0:x1])
+        theirs = rec._find_expected(default, img[y0:y1, x0:x1])
+        assert ours is not None and theirs is not None
+        assert np.array_equal(ours, theirs)
+
+
+def test_a_low_contrast_marker_is_still_found_through_the_default_contrast():
+    # A washed-out screen: black 118, white 138 after the render (a 20-level edge). The 30-level
+    # pass cannot see it; the crop is searched again at the default and gives the default's corners.
+    T_true = POSES[2]
+    full = render_marker(CAMERA, MARKER, T_true).astype(np.float64)
+    img = np.round(128 + (full - 128) * (20 / 255)).astype(np.uint8)
+    rec = MarkerRecognizer(CAMERA, MARKER)
+    assert rec.recognize(render_marker(CAMERA, MARKER, T_true), t_ns=0) is not None   # seen: track next
+    x0, y0, x1, y1 = rec._roi(rec._last_corners, TRACKING_MARGIN, img.shape)
+    crop = img[y0:y1, x0:x1]
+    assert rec._find_expected(rec._accurate, crop) is None          # the fast pass alone would lose it
+    expected = rec._find_expected(_low_contrast_copy(rec), crop)
+    assert expected is not None
+    obs = rec.recognize(img, t_ns=50_000_000)
+    assert obs is not None and rec.stats["track-roi"] == 1
+    np.testing.assert_array_equal(obs.corners_px, expected + [x0, y0] - APRILTAG_SHIFT_PX)
+    assert np.max(np.linalg.norm(obs.corners_px - project_corners(CAMERA, MARKER, T_true), axis=1)) < 1.0

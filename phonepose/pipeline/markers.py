@@ -12,6 +12,10 @@ Choices (measured; see docs/pipeline.md and ../shared/docs/notes/markers.md §1.
   marker, then the APRILTAG detector runs on a crop around it; if the crop fails, the CONTOUR
   corners (+0.5 px edge fix) are used. When the marker was seen in the previous frame, the
   APRILTAG crop is taken around that position first and the full-frame pass is skipped.
+- The APRILTAG crop first runs with a minimum tile contrast of ``APRILTAG_MIN_CONTRAST`` grey levels
+  (OpenCV's default 5 turns the sensor noise of a flat background into thousands of tiny clusters,
+  each fitted as a candidate quad: ~3/4 of the crop's cost), and again with the default only if the
+  expected marker is not found that way; see the constant.
 - Only the expected id counts; every other id is ignored.
 - Pose: ``solvePnPGeneric(IPPE_SQUARE)`` gives both planar solutions; take the best if its
   reprojection error is clearly lower (ratio > 4), else the one whose rotation is closer to the
@@ -43,6 +47,19 @@ CONTINUITY_MAX_GAP_NS = 500_000_000
 DETECTION_MARGIN = 0.35
 TRACKING_MARGIN = 0.5
 MIN_MARGIN_PX = 12
+# AprilTag's quad detector classifies a pixel black or white only where the grey levels of its
+# tile's 3x3-tile neighbourhood (12x12 px) span at least aprilTagMinWhiteBlackDiff; elsewhere it is
+# left out of every component. At OpenCV's default (5) the noise of flat image areas becomes
+# many tiny components whose boundaries are each fitted as a candidate quad. A marker's own
+# edge spans the black-to-white range of the screen (~190 levels in the simulator's frames), so every
+# tile along it is classified the same at 30 and the marker's quad is fitted from the same pixels:
+# the corners were byte-identical to the default's in all 5 547 crops of nine simulated sessions
+# (exp1, exp2, recorded hand motion: every playback output identical) and on 127 markers of 26 real
+# photos (OpenCV's ArUco tutorial, AprilTag's test images), at 0.9 instead of 3.9 ms per crop
+# (docs/performance.md, issue 23 fourth round). A crop
+# where the marker is not found this way (a dim or washed-out screen) is searched again with the
+# default, so no marker that was found before is lost.
+APRILTAG_MIN_CONTRAST = 30
 # AprilTag convention leaks a +0.5 px shift; CONTOUR edges sit 0.5 px inside the true edge.
 APRILTAG_SHIFT_PX = 0.5
 CONTOUR_EDGE_OFFSET_PX = 0.5
@@ -118,6 +135,8 @@ class MarkerRecognizer:
         accurate.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
         # Built once, reused for every frame.
         self._fast = cv2.aruco.ArucoDetector(dictionary, fast)
+        self._accurate_low_contrast = cv2.aruco.ArucoDetector(dictionary, accurate)
+        accurate.aprilTagMinWhiteBlackDiff = APRILTAG_MIN_CONTRAST
         self._accurate = cv2.aruco.ArucoDetector(dictionary, accurate)
         self._object_points = marker_object_points(self.marker.size_m)
         self._K = np.asarray(self.camera.K, dtype=np.float64)
@@ -152,7 +171,10 @@ class MarkerRecognizer:
 
     def _accurate_in_roi(self, gray: np.ndarray, around: np.ndarray, margin: float) -> np.ndarray | None:
         x0, y0, x1, y1 = self._roi(around, margin, gray.shape)
-        found = self._find_expected(self._accurate, gray[y0:y1, x0:x1])
+        crop = gray[y0:y1, x0:x1]
+        found = self._find_expected(self._accurate, crop)
+        if found is None:
+            found = self._find_expected(self._accurate_low_contrast, crop)
         if found is None:
             return None
         return found + np.array([x0, y0]) - APRILTAG_SHIFT_PX
