@@ -152,8 +152,10 @@ class FusionConfig:
     # m/s^2, which over the window would tilt the line); the prediction is that fit plus the integral up to the
     # newest IMU sample (fresher than the newest VIO sample), then the newest acceleration (mean of its last
     # accel_recent_s) decaying with correlation time accel_carry_time_s. 0: past the newest IMU sample the
-    # velocity is held: carried with 0.05 s (entry_acceleration_time_s), every exp2 cell was worse (outside p_RE
-    # 1.010x T7L against 0.928x; fr1_xyz exact p_ATE 1.05 against 1.14 cm). The acceleration is a centred moving
+    # velocity is held, as the fit's slope is without the accelerometer: carried with 0.05 s, every exp2 cell was
+    # worse (outside p_RE 1.010x T7L against 0.928x; fr1_xyz exact p_ATE 1.05 against 1.14 cm). Entering the
+    # view the motion over the tick still carries it with entry_acceleration_time_s (held, exp2 seeds 3-5 jumped
+    # 1.02 cm). The acceleration is a centred moving
     # average over accel_smooth_s (one-sided at
     # the newest samples, there one period of the 8-12 Hz tremor): unsmoothed, the simulated tremor's ~3 m/s^2
     # put its ~5 cm/s into the velocity held for ~0.15 s (exp2 lost 2 of 12 cells at 0.1 s). Measured
@@ -226,8 +228,9 @@ class AccelMotion:
         self.s_k, self.P_k, self.V_k = s_k, P_k, V_k      # the integral at the IMU samples from t0 on (s_k[0] = 0)
         self.a, self.tau = a, tau
 
-    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """(position, velocity) at stamp time ``t`` >= t0."""
+    def at(self, t: float, tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(position, velocity) at stamp time ``t`` >= t0, the acceleration past the newest IMU sample decaying
+        with correlation time ``tau`` (None: this motion's own)."""
         s = max(t - self.t0, 0.0)
         s_imu = float(self.s_k[-1])
         u = min(s, s_imu)
@@ -238,7 +241,7 @@ class AccelMotion:
         h = s - u   # past the newest IMU sample: the integral's velocity held, the acceleration decaying
         if h > 0:
             position = position + V * h
-            tau = self.tau
+            tau = self.tau if tau is None else tau
             if math.isinf(tau):
                 position = position + 0.5 * self.a * h * h
                 velocity = velocity + self.a * h
@@ -805,11 +808,16 @@ class FusedTracker:
             # tick, and the difference to the new source is carried and decays
             motion = velocity
             tau = self.cfg.entry_acceleration_time_s
-            if self._source == "vio" and tau > 0 and self.filter.ready and self._accel_motion() is None:
+            accel_motion = self._accel_motion()
+            if self._source == "vio" and tau > 0 and self.filter.ready:
                 # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's
-                # acceleration, decaying with tau (FusionConfig.entry_acceleration_time_s)
+                # acceleration (with the accelerometer: the integral to the newest IMU sample, then the newest
+                # acceleration), decaying with tau (FusionConfig.entry_acceleration_time_s)
                 h = min(max(t - self.filter.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
-                motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
+                if accel_motion is not None:
+                    motion = self.filter._Rm @ accel_motion.at(self._vio.last_t + h, tau)[1]
+                else:
+                    motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)
