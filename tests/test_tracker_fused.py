@@ -24,6 +24,7 @@ from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 LATENCY_NS = 120_000_000
 VIO_PERIOD_NS = 33_333_333
 TICK_NS = 50_000_000
+IMU_PERIOD_NS = 5_000_000
 # mostly a heading error, as between two gravity-aligned VIO worlds (tilt 0.2 deg)
 T_ERR = Pose.from_rotvec([0.03, -0.02, 0.04], [0.002, -0.003, 0.04])   # translation, rotation vector
 R0 = Rotation.from_rotvec([0.1, -0.2, 0.3])
@@ -44,10 +45,12 @@ def circle(t_s: float) -> Pose:
 
 
 def observations(truth, n_ticks: int, visible=lambda i: True, stamp_offset_ns: int = 0,
-                 flip_at: int | None = None, image_age_ns: int = 0, vio_jitter_m: float = 0.0) -> list[Observation]:
+                 flip_at: int | None = None, image_age_ns: int = 0, vio_jitter_m: float = 0.0,
+                 imu=None) -> list[Observation]:
     """``stamp_offset_ns``: the VIO stamps are that much earlier than the true capture times;
     ``image_age_ns``: each tick's image (and the marker in it) was captured that long before the tick;
-    ``vio_jitter_m``: white noise (sigma per axis, seeded) on every VIO sample's position."""
+    ``vio_jitter_m``: white noise (sigma per axis, seeded) on every VIO sample's position;
+    ``imu``: t_s -> (gyro, accel) body-frame rows at 200 Hz, received with the VIO's latency (None: no IMU)."""
     captures = range(-10 * VIO_PERIOD_NS, n_ticks * TICK_NS, VIO_PERIOD_NS)
     noise = dict(zip(captures, np.random.default_rng(7).normal(size=(len(captures), 3)) * vio_jitter_m, strict=True))
 
@@ -68,8 +71,12 @@ def observations(truth, n_ticks: int, visible=lambda i: True, stamp_offset_ns: i
             marker = MarkerObservation(corners_px=np.zeros((4, 2)), T_camera_marker=Pose.identity(),
                                        T_dvio_controller=pose, reprojection_error_px=0.1,
                                        chosen_solution=0, ambiguity_ratio=10.0, id=7)
+        rows = np.zeros((0, 7))
+        if imu is not None:
+            stamps = [c for c in range(-10 * VIO_PERIOD_NS, t, IMU_PERIOD_NS) if (i - 1) * TICK_NS < c + LATENCY_NS <= t]
+            rows = np.array([[c / 1e9, *imu(c / 1e9)[0], *imu(c / 1e9)[1]] for c in stamps]).reshape(-1, 7)
         tick = Tick(index=i, t_ns=t, frame=Frame(b"", "jpeg", t_img, is_new=True, T_dvio_display=Pose.identity()),
-                    T_dvio_display=Pose.identity())
+                    T_dvio_display=Pose.identity(), imu=rows)
         out.append(Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio(t - LATENCY_NS),
                                controller_vio_samples_dvio=samples))
     return out
@@ -179,6 +186,56 @@ def test_entering_the_view_the_motion_over_the_tick_is_the_velocity_at_the_tick(
     assert entry_jump(math.inf) == pytest.approx(np.linalg.norm(ACCELERATION) * dt ** 2 / 2, rel=1e-3)
     assert entry_jump(0.0) > 4 * entry_jump(math.inf)
     assert entry_jump(math.inf) < entry_jump(FusionConfig().entry_acceleration_time_s) < entry_jump(0.0)
+
+
+CURVE = np.array([0.2, -0.15, 0.1])   # m/s^2
+
+
+def curving(t_s: float) -> Pose:
+    """A constant acceleration ``CURVE``, turning round at 3 s (within 0.5 m of the start over 5 s)."""
+    return Pose(R0, np.array([0.1, 0.2, 0.4]) + 0.5 * CURVE * (t_s - 3.0) ** 2)
+
+
+def _accelerometer(bias: np.ndarray):
+    """A perfect IMU on ``curving`` (constant orientation R0): specific force R0^T (a - g) plus a constant
+    body-frame ``bias``; no rotation."""
+    force = R0.inv().apply(CURVE - np.array([0.0, 0.0, -9.80665])) + bias
+    return lambda t_s: (np.zeros(3), force)
+
+
+@pytest.mark.parametrize("bias", [np.zeros(3), np.array([0.1, -0.08, 0.05])])
+def test_the_accelerometer_predicts_a_constant_acceleration_exactly(bias):
+    # outside the view the VIO (0.12 s late, in a frame tilted and turned by T_ERR) is predicted to the tick. The
+    # VIO positions less the accelerometer's double integral (gravity removed through the VIO orientation and
+    # the correction's tilt) are a line plus, with a bias, a parabola that the quadratic fit takes up exactly;
+    # past the newest IMU sample the acceleration is carried whole (accel_carry_time_s -> inf): the output is the
+    # truth. The default holds the velocity there and misses by |a| h^2 / 2, h the time from the newest IMU sample
+    # to the tick; with tau = 0.05 s the acceleration decays and the output misses by |a| (h^2 / 2 - tau h +
+    # tau^2 (1 - e^(-h/tau))); without the accelerometer the quadratic fit's slope alone
+    # misses by |a| h_vio^2 / 2 (h_vio from the newest VIO sample). blend_time_s 0.01: no offset left from the exit;
+    # 3e-5 m: the correction filter's own residual here (2e-5 m, the same with and without the accelerometer)
+    visible = lambda i: i < 60                                                       # noqa: E731
+    obs = observations(curving, 100, visible=visible, imu=_accelerometer(bias))
+    outside = np.arange(65, 100)
+    t_ns = np.array([obs[i].tick.t_ns for i in outside])
+    h_imu = np.array([t_ns[k] / 1e9 - max(o.tick.imu[:, 0].max() for o in obs[:i + 1] if len(o.tick.imu))
+                      for k, i in enumerate(outside)])
+    h_vio = np.array([t_ns[k] - max(c for o in obs[:i + 1] for c, _ in o.controller_vio_samples_dvio)
+                      for k, i in enumerate(outside)]) / 1e9
+    a = np.linalg.norm(CURVE)
+
+    def outside_error(**config) -> np.ndarray:
+        est = run(FusedTracker(config=FusionConfig(blend_time_s=0.01, **config)), obs)
+        return errors(est, curving, obs)[0][outside]
+
+    np.testing.assert_allclose(outside_error(accel_carry_time_s=math.inf), 0, atol=3e-5)
+    assert FusionConfig().accel_carry_time_s == 0   # the velocity at the newest IMU sample, held
+    np.testing.assert_allclose(outside_error(), a * h_imu ** 2 / 2, atol=3e-5)
+    tau = 0.05
+    np.testing.assert_allclose(outside_error(accel_carry_time_s=tau),
+                               a * (h_imu ** 2 / 2 - tau * h_imu - tau ** 2 * np.expm1(-h_imu / tau)), atol=3e-5)
+    if not bias.any():
+        np.testing.assert_allclose(outside_error(accel_prediction=0), a * h_vio ** 2 / 2, atol=3e-5)
 
 
 def test_a_150_ms_vio_time_offset_is_estimated_online():

@@ -21,13 +21,15 @@ measurements behind every choice):
   chi-square gate on the innovation; a run of rejections re-initialises the filter (a VIO
   relocalisation jump or a re-resolved anchor).
 * **The VIO is old at every tick**: it is predicted to the tick time, the position along a
-  quadratic fit of the last ``velocity_window_s`` of samples (a line's slope lags behind an
+  fit of the VIO positions less the **accelerometer**'s double integral (gravity removed through the
+  VIO orientation; the fit's curvature takes up the accelerometer's bias), carried on by the
+  integral up to the newest IMU sample (``accel_*``; without IMU, or with ``accel_prediction`` 0: a
+  quadratic fit of the last ``velocity_window_s`` of VIO samples, a line's slope lags behind an
   acceleration), the orientation with the controller's **gyroscope** (the samples received after
-  the newest VIO sample, then their recent mean rate). The accelerometer is not used: the
-  8-12 Hz tremor (~3 m/s²) made the prediction worse in every variant measured.
+  the newest VIO sample, then their recent mean rate).
 * **The output jumps where the marker appears or disappears** (T4-T7 switch source). At a switch
   T8 moves its output by the estimated motion over the tick (leaving the view: the marker's own
-  velocity; entering it: the VIO velocity carried to the tick by the fit's acceleration, which decays
+  velocity; entering it: the VIO velocity carried to the tick by the acceleration, which decays
   with a hand's acceleration correlation time, ``entry_acceleration_time_s``) and carries
   the difference to the new source as an offset that decays with ``blend_time_s``: no step.
 
@@ -143,6 +145,28 @@ class FusionConfig:
     # alone, exp2 prefers 0.15 s, fr1_xyz 0.01 s): largest jump 0.90 cm on exp2, 0.70 cm on fr1_xyz
     # (docs/pipeline.md, "Real hand motion")
     entry_acceleration_time_s: float = 0.05
+    # the accelerometer in the prediction (1; 0: off, the VIO fit alone). The VIO positions of the last
+    # accel_window_s, less the double integral of the measured acceleration (the specific force turned into the
+    # world by the VIO orientation, interpolated, past the newest VIO sample by the gyro; gravity added), are
+    # fitted with a quadratic of degree accel_fit_degree (its curvature takes up the accelerometer's bias, ~0.1
+    # m/s^2, which over the window would tilt the line); the prediction is that fit plus the integral up to the
+    # newest IMU sample (fresher than the newest VIO sample), then the newest acceleration (mean of its last
+    # accel_recent_s) decaying with correlation time accel_carry_time_s. 0: past the newest IMU sample the
+    # velocity is held, as the fit's slope is without the accelerometer: carried with 0.05 s, every exp2 cell was
+    # worse (outside p_RE 1.010x T7L against 0.928x; fr1_xyz exact p_ATE 1.05 against 1.14 cm). Entering the
+    # view the motion over the tick still carries it with entry_acceleration_time_s (held, exp2 seeds 3-5 jumped
+    # 1.02 cm). The acceleration is a centred moving
+    # average over accel_smooth_s (one-sided at
+    # the newest samples, there one period of the 8-12 Hz tremor): unsmoothed, the simulated tremor's ~3 m/s^2
+    # put its ~5 cm/s into the velocity held for ~0.15 s (exp2 lost 2 of 12 cells at 0.1 s). Measured
+    # (docs/pipeline.md, "Real hand motion"): exact p_ATE fr1_xyz 1.39 -> 1.05 cm, fr2_desk 0.54 -> 0.49 cm;
+    # exp2 keeps 12/12 cells with both ground truths at seeds 0-2
+    accel_prediction: int = 1
+    accel_window_s: float = 1.0
+    accel_fit_degree: int = 2
+    accel_recent_s: float = 0.05
+    accel_smooth_s: float = 0.2
+    accel_carry_time_s: float = 0.0
 
     @classmethod
     def from_dict(cls, values: dict) -> FusionConfig:
@@ -173,6 +197,59 @@ def entry_carry_s(h, tau: float):
     if math.isinf(tau):
         return h
     return 0.0 * h if tau <= 0 else tau * -np.expm1(-np.asarray(h) / tau)
+
+
+def _quat_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of quaternions (n, 4) x y z w, normalised here."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=1)
+
+
+GRAVITY = np.array([0.0, 0.0, -9.80665])   # display_vio and the controller's VIO world are gravity aligned, z up
+
+
+class AccelMotion:
+    """The VIO position's motion from its newest sample ``t0`` on, with the accelerometer (FusionConfig.accel_*).
+
+    ``p0, v0, beta``: the fit of the VIO positions less the double integral ``D`` of the measured
+    acceleration (zero with its rate at ``t0``): p0 + v0 s + beta s^2 / 2 + D(s), s = t - t0 (beta: what the
+    integral misses over the window, the accelerometer's bias turned into the world). ``s_imu``: the newest
+    IMU sample's s; ``D``, ``V`` the integral's position and velocity there; ``a``: the newest acceleration,
+    carried past ``s_imu`` decaying with correlation time ``tau`` (a first-order Markov acceleration)."""
+
+    def __init__(self, t0: float, p0: np.ndarray, v0: np.ndarray, beta: np.ndarray, s_k: np.ndarray,
+                 P_k: np.ndarray, V_k: np.ndarray, a: np.ndarray, tau: float):
+        self.t0, self.p0, self.v0, self.beta = t0, p0, v0, beta
+        self.s_k, self.P_k, self.V_k = s_k, P_k, V_k      # the integral at the IMU samples from t0 on (s_k[0] = 0)
+        self.a, self.tau = a, tau
+
+    def at(self, t: float, tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(position, velocity) at stamp time ``t`` >= t0, the acceleration past the newest IMU sample decaying
+        with correlation time ``tau`` (None: this motion's own)."""
+        s = max(t - self.t0, 0.0)
+        s_imu = float(self.s_k[-1])
+        u = min(s, s_imu)
+        D = np.array([np.interp(u, self.s_k, self.P_k[:, j]) for j in range(3)])
+        V = np.array([np.interp(u, self.s_k, self.V_k[:, j]) for j in range(3)])
+        position = self.p0 + self.v0 * s + 0.5 * self.beta * u * u + self.beta * u * (s - u) + D
+        velocity = self.v0 + self.beta * u + V
+        h = s - u   # past the newest IMU sample: the integral's velocity held, the acceleration decaying
+        if h > 0:
+            position = position + V * h
+            tau = self.tau if tau is None else tau
+            if math.isinf(tau):
+                position = position + 0.5 * self.a * h * h
+                velocity = velocity + self.a * h
+            elif tau > 0:
+                carry = tau * -math.expm1(-h / tau)
+                position = position + self.a * (tau * h - tau * carry)
+                velocity = velocity + self.a * carry
+        return position, velocity
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -389,6 +466,8 @@ class FusedTracker:
         self._t0_ns: int | None = None             # time origin (ns) for float seconds
         self._vio = _Ring(7)                       # (stamp s) -> qx qy qz qw x y z in display_vio (anchor-mapped)
         self._gyro = _Ring(3)                      # (stamp s) -> gyro rad/s, body frame
+        self._acc = _Ring(3)                       # (stamp s) -> specific force m/s^2, body frame
+        self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
@@ -456,6 +535,71 @@ class FusedTracker:
         self._velocity_cache = (key, out)
         return out
 
+    def _accel_motion(self) -> AccelMotion | None:
+        """The accelerometer-aided motion from the newest VIO sample (FusionConfig.accel_*), or None (off, or
+        too few VIO or IMU samples)."""
+        c = self.cfg
+        if not c.accel_prediction or len(self._vio) < c.accel_fit_degree + 2 or len(self._acc) < 2:
+            return None
+        ts, tk = self._vio.t, self._acc.t
+        t0 = float(ts[-1])
+        key = (len(ts), t0, ts[0], len(tk), self._acc.last_t, self.filter.ready)
+        if self._accel_cache is not None and self._accel_cache[0] == key:
+            return self._accel_cache[1]
+        self._accel_cache = (key, None)
+        lo = int(np.searchsorted(ts, t0 - c.accel_window_s, side="left"))
+        k_lo = max(int(np.searchsorted(tk, ts[lo], side="right")) - 1, 0)   # the IMU sample at or before ts[lo]
+        lo = int(np.searchsorted(ts, tk[k_lo], side="left"))                 # VIO samples the integral covers
+        if len(ts) - lo < c.accel_fit_degree + 2 or tk[-1] <= t0 or len(tk) - k_lo < 2:
+            return None
+        t_k, f_k = tk[k_lo:], self._acc.v[k_lo:]
+        # orientation at each IMU sample: the VIO's, normalised-linearly interpolated; past t0, turned on by the gyro
+        q = self._vio.v[:, 0:4]
+        i = np.clip(np.searchsorted(ts, t_k), 1, len(ts) - 1)
+        w = np.clip((t_k - ts[i - 1]) / np.maximum(ts[i] - ts[i - 1], 1e-9), 0.0, 1.0)[:, None]
+        q0, q1 = q[i - 1], q[i]
+        q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
+        after = t_k > t0
+        f_world = np.einsum("kij,kj->ki", _quat_matrices((1 - w) * q0 + w * q1), f_k)
+        if after.any() and len(self._gyro):
+            tg, gyro = self._gyro.t, self._gyro.v
+            g_i = np.clip(np.searchsorted(tg, t_k[after]), 0, len(tg) - 1)
+            steps = np.diff(np.concatenate([[t0], t_k[after]]))
+            rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
+            f_after = f_k[after]
+            f_world[after] = (f_after + np.cross(rotvec, f_after)) @ _quat_matrices(q[-1:])[0].T
+        g = self.filter._Rm.T @ GRAVITY if self.filter.ready else GRAVITY
+        a_k = f_world + g
+        if c.accel_smooth_s > 0:
+            # a centred moving average (one-sided at the newest samples): the 8-12 Hz tremor's ~3 m/s^2 would
+            # otherwise put its velocity (~5 cm/s) into the fit's slope, which the prediction holds for ~0.15 s
+            cum = np.concatenate([np.zeros((1, 3)), np.cumsum(a_k, axis=0)])
+            a_lo = np.searchsorted(t_k, t_k - c.accel_smooth_s / 2, side="left")
+            a_hi = np.searchsorted(t_k, t_k + c.accel_smooth_s / 2, side="right")
+            a_k = (cum[a_hi] - cum[a_lo]) / (a_hi - a_lo)[:, None]
+        # double integral (trapezoid velocity, exact for a linear acceleration per step), zero with its rate at t0
+        dt = np.diff(t_k)[:, None]
+        V = np.concatenate([np.zeros((1, 3)), np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0)])
+        P = np.concatenate([np.zeros((1, 3)), np.cumsum(V[:-1] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0)])
+        V0 = np.array([np.interp(t0, t_k, V[:, j]) for j in range(3)])
+        P0 = np.array([np.interp(t0, t_k, P[:, j]) for j in range(3)])
+        P = P - P0 - V0 * (t_k - t0)[:, None]
+        V = V - V0
+        # the fit of the VIO positions less the integral
+        tt = ts[lo:] - t0
+        D_i = np.stack([np.interp(ts[lo:], t_k, P[:, j]) for j in range(3)], axis=1)
+        coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
+        beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
+        fwd = np.concatenate([[t0], t_k[after]])
+        s_k = fwd - t0
+        P_f = np.concatenate([np.zeros((1, 3)), P[after]])
+        V_f = np.concatenate([np.zeros((1, 3)), V[after]])
+        recent = t_k >= t_k[-1] - c.accel_recent_s
+        a_now = a_k[recent].mean(axis=0) + beta
+        out = AccelMotion(t0, coef[0], coef[1], beta, s_k, P_f, V_f, a_now, c.accel_carry_time_s)
+        self._accel_cache = (key, out)
+        return out
+
     def _velocity_around(self, t_stamp: float) -> np.ndarray:
         """The VIO velocity at stamp time ``t_stamp`` for the time offset's Jacobian: the slope of a line fit
         through the samples within ``offset_velocity_window_s`` centred on it. Centred, the slope gives
@@ -481,6 +625,9 @@ class FusedTracker:
         velocity, p_fit, _ = self._velocity()
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
         position = p_fit + velocity * dt
+        motion = self._accel_motion()
+        if motion is not None:
+            position = motion.at(t_last + dt)[0]
         if dt <= 0 or not len(self._gyro) or not self.cfg.use_gyro:
             return q, position
         tg, gyro = self._gyro.t, self._gyro.v
@@ -523,10 +670,13 @@ class FusedTracker:
                 stamps_ns = np.rint(rows[:, 0] * 1e9).astype(np.int64)   # as round(): half to even
                 self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
                 self._gyro.add_many((stamps_ns - self._t0_ns) * _NS, rows[:, 1:4])
+                if self.cfg.accel_prediction:
+                    self._acc.add_many((stamps_ns - self._t0_ns) * _NS, rows[:, 4:7])
         if len(self._vio):
-            horizon = self._vio.last_t - self.cfg.history_s
+            horizon = self._vio.last_t - max(self.cfg.history_s, self.cfg.accel_window_s if self.cfg.accel_prediction else 0.0)
             self._vio.prune(horizon)
             self._gyro.prune(horizon)
+            self._acc.prune(horizon)
         m = obs.marker
         frame = tick.new_frame   # a sighting counts once, on the tick that first carries its frame
         raw = _raw(m.T_dvio_controller) if m is not None and m.T_dvio_controller is not None else None
@@ -596,7 +746,13 @@ class FusedTracker:
         if vio_now is None and obs.T_dvio_controller_vio is not None:
             vio_now = _raw(obs.T_dvio_controller_vio)      # no stamped samples: the received pose
         corrected = f.apply(vio_now) if (vio_now is not None and f.ready) else vio_now
-        velocity = f._Rm @ self._velocity()[0] if f.ready else self._velocity()[0]
+        motion = self._accel_motion()
+        if motion is not None:   # the velocity at the tick, carried by the accelerometer
+            h = min(max(t - f.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
+            v_vio = motion.at(self._vio.last_t + h)[1]
+        else:
+            v_vio = self._velocity()[0]
+        velocity = f._Rm @ v_vio if f.ready else v_vio
 
         # the marker source: the newest sighting (at its image time, as T4-T7 report it)
         marker_now = None
@@ -652,11 +808,16 @@ class FusedTracker:
             # tick, and the difference to the new source is carried and decays
             motion = velocity
             tau = self.cfg.entry_acceleration_time_s
+            accel_motion = self._accel_motion()
             if self._source == "vio" and tau > 0 and self.filter.ready:
                 # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's
-                # acceleration, decaying with tau (FusionConfig.entry_acceleration_time_s)
+                # acceleration (with the accelerometer: the integral to the newest IMU sample, then the newest
+                # acceleration), decaying with tau (FusionConfig.entry_acceleration_time_s)
                 h = min(max(t - self.filter.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
-                motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
+                if accel_motion is not None:
+                    motion = self.filter._Rm @ accel_motion.at(self._vio.last_t + h, tau)[1]
+                else:
+                    motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)
