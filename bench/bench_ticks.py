@@ -61,17 +61,18 @@ def _opencv_timed(stages, clock: _Clock) -> Iterator[None]:
 
     saved = {name: getattr(cv2, name) for name in _OPENCV_CALLS}
     recognizer = stages.recognizer
-    detectors = recognizer._fast, recognizer._accurate
+    detectors = recognizer._fast, recognizer._accurate, recognizer._accurate_low_contrast
     try:
         for name in _OPENCV_CALLS:
             setattr(cv2, name, clock.wrap(saved[name]))
-        recognizer._fast, recognizer._accurate = (_TimedDetector(d, clock) for d in detectors)
+        recognizer._fast, recognizer._accurate, recognizer._accurate_low_contrast = (
+            _TimedDetector(d, clock) for d in detectors)
         assert shared.cv2 is cv2 and markers.cv2 is cv2
         yield
     finally:
         for name, fn in saved.items():
             setattr(cv2, name, fn)
-        recognizer._fast, recognizer._accurate = detectors
+        recognizer._fast, recognizer._accurate, recognizer._accurate_low_contrast = detectors
 
 
 def _shared_stages(session: Path, repeats: int = 3) -> tuple[list, dict]:
