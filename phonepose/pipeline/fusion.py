@@ -622,12 +622,13 @@ class FusedTracker:
             return None
         t_last = self._vio.last_t
         q = tuple(self._vio.v[-1, 0:4].tolist())
-        velocity, p_fit, _ = self._velocity()
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
-        position = p_fit + velocity * dt
         motion = self._accel_motion()
         if motion is not None:
             position = motion.at(t_last + dt)[0]
+        else:
+            velocity, p_fit, _ = self._velocity()
+            position = p_fit + velocity * dt
         if dt <= 0 or not len(self._gyro) or not self.cfg.use_gyro:
             return q, position
         tg, gyro = self._gyro.t, self._gyro.v
@@ -808,12 +809,12 @@ class FusedTracker:
             # tick, and the difference to the new source is carried and decays
             motion = velocity
             tau = self.cfg.entry_acceleration_time_s
-            accel_motion = self._accel_motion()
             if self._source == "vio" and tau > 0 and self.filter.ready:
                 # entering the view: the velocity moved from the newest VIO sample to the tick by the fit's
                 # acceleration (with the accelerometer: the integral to the newest IMU sample, then the newest
                 # acceleration), decaying with tau (FusionConfig.entry_acceleration_time_s)
                 h = min(max(t - self.filter.d - self._vio.last_t, 0.0), self.cfg.max_prediction_s)
+                accel_motion = self._accel_motion()
                 if accel_motion is not None:
                     motion = self.filter._Rm @ accel_motion.at(self._vio.last_t + h, tau)[1]
                 else:
