@@ -193,11 +193,19 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     logs = [m.msg.message for m in by[Topic.LOG]]
     lost = [t for t in logs if "right controller (on the phone) lost tracking " in t]
     assert len(lost) == 1, logs
+    # expected from the frames as sent (a loaded machine can stretch the scripted gap): the recorder stamps them
+    # on its clock through the sync, within a few ms; the log rounds to 0.1 s and the summary to 0.01 s
+    kinds = [k for k, _, _ in headset.sent]
+    first_gap = kinds.index("gap")
+    back = first_gap + kinds[first_gap:].index("right")
+    assert "gap" not in kinds[back:]
     into_s = float(lost[0].split("lost tracking ")[1].split(" s into")[0])     # from the first XR frame to the gap
-    assert abs(into_s - (GAP[0] - (headset.sent[0][2] - start) / 1e9)) < 2 / XR_HZ + 0.1, lost[0]
+    assert abs(into_s - (headset.sent[first_gap][2] - headset.sent[0][2]) / 1e9) < 0.05 + 0.01, lost[0]
     summary = next(t for t in logs if t.startswith("right controller (on the phone): tracking lost 1 time(s), "))
     gap_s = float(summary.split("time(s), ")[1].split(" s in all")[0])
-    assert abs(gap_s - (GAP[1] - GAP[0])) < 2 / XR_HZ + 0.02, summary
+    sent_gap_s = (headset.sent[back][2] - headset.sent[first_gap - 1][2]) / 1e9
+    assert sent_gap_s >= GAP[1] - GAP[0] - 2 / XR_HZ
+    assert abs(gap_s - sent_gap_s) < 0.005 + 0.01, (summary, sent_gap_s)
     assert any("pose message on the headset's connection" in t for t in logs)
     assert any("immersive-vr session started, poses in its 'local-floor' reference space" in t for t in logs)
 
