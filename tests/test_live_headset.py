@@ -206,9 +206,9 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     first_gap = kinds.index("gap")
     back = first_gap + kinds[first_gap:].index("right")
     assert "gap" not in kinds[back:]
-    frames = by[Topic.GT_BOARD_CONTROLLER_POSE]          # the left controller: one per frame sent, gap or not
+    xr_frames = by[Topic.GT_BOARD_CONTROLLER_POSE]       # the left controller: one per frame sent, gap or not
     frame_errs = [m.msg.timestamp.ToNanoseconds() - (true + int(GT_LAG_S * 1e9))
-                  for m, (_, _, true) in zip(frames, headset.sent, strict=True)]
+                  for m, (_, _, true) in zip(xr_frames, headset.sent, strict=True)]
     _assert_stamped_within_the_clock_sync(frame_errs, sides, HEADSET_OFFSET_NS)
 
     def sync_s(*i: int) -> float:      # how far the stamps of frames i may move a difference between them
