@@ -29,6 +29,8 @@ from test_record_live import (
     MARKER_SIZE,
     R_CAM_MARKER0,
     Phone,
+    ServerSide,
+    _assert_stamped_within_the_clock_sync,
     _finish,
     _messages,
     _start,
@@ -40,6 +42,7 @@ from phonepose.calibration.calibrate_gt import calibrate_gt_session
 from phonepose.calibration.gt_calibration import GtCalibration
 from phonepose.geometry import Pose
 from phonepose.playback.engine import run_playback
+from phonepose.playback.scheduler import GT_TOLERANCE_S, MAX_GAP_S
 from phonepose.record.live.recording import T_DISPLAY_CAMERA
 from phonepose.record.live.webxr import gt_world_to_xr, xr_to_gt_world
 from phonepose.schemas.topics import Frame, Topic
@@ -136,6 +139,7 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     phone = TurningPhone(s, s.port, s.token)
     start = _wait_video_start(s)
     statuses: dict = {}
+    sides: list[ServerSide] = []
 
     async def script():
         async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
@@ -154,6 +158,7 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
 
     async def run_headset(http):
         ws, reader = await headset.connect(http)
+        sides.append(await ServerSide.of_new(s, "headset"))
         await ws.send_str(json.dumps({"type": "hello", "user_agent": QUEST_UA, "webxr": True, "message": ""}))
         await ws.send_str(json.dumps({"type": "xrsession", "state": "started", "space": "local-floor",
                                       "message": ""}))
@@ -178,9 +183,10 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     assert len(by[Topic.GT_HEADSET_POSE]) == len(headset.sent)
     assert {m.msg.frame_id for m in gt} == {Frame.GT_WORLD}
     # stamped on the recorder clock (log time = stamp): the true instant + the lag, within the clock sync's error
-    errs = np.array([m.log_time_ns - (true + GT_LAG_S * 1e9) for m, (_, _, true) in zip(gt, sent, strict=True)])
+    # (half the round trip of the exchange used: a few ms on a quiet machine, more on a loaded one)
+    errs = [m.log_time_ns - (true + int(GT_LAG_S * 1e9)) for m, (_, _, true) in zip(gt, sent, strict=True)]
     assert all(m.log_time_ns == m.msg.timestamp.ToNanoseconds() for m in gt)
-    assert np.max(np.abs(errs)) < 3e6, np.max(np.abs(errs))
+    _assert_stamped_within_the_clock_sync(errs, sides, HEADSET_OFFSET_NS)
     first = codec.pose_of(gt[0].msg.pose)
     assert first.allclose(T_world_grip((sent[0][2] - start) / 1e9), atol=1e-6)
     assert codec.pose_of(by[Topic.GT_BOARD_CONTROLLER_POSE][0].msg.pose).allclose(T_WORLD_BOARD, atol=1e-9)
@@ -194,18 +200,27 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     lost = [t for t in logs if "right controller (on the phone) lost tracking " in t]
     assert len(lost) == 1, logs
     # expected from the frames as sent (a loaded machine can stretch the scripted gap): the recorder stamps them
-    # on its clock through the sync, within a few ms; the log rounds to 0.1 s and the summary to 0.01 s
+    # on its clock through the sync, each off by its own measured error (checked above against the sync's bound);
+    # the log rounds to 0.1 s and the summary to 0.01 s
     kinds = [k for k, _, _ in headset.sent]
     first_gap = kinds.index("gap")
     back = first_gap + kinds[first_gap:].index("right")
     assert "gap" not in kinds[back:]
+    xr_frames = by[Topic.GT_BOARD_CONTROLLER_POSE]       # the left controller: one per frame sent, gap or not
+    frame_errs = [m.msg.timestamp.ToNanoseconds() - (true + int(GT_LAG_S * 1e9))
+                  for m, (_, _, true) in zip(xr_frames, headset.sent, strict=True)]
+    _assert_stamped_within_the_clock_sync(frame_errs, sides, HEADSET_OFFSET_NS)
+
+    def sync_s(*i: int) -> float:      # how far the stamps of frames i may move a difference between them
+        return sum(abs(frame_errs[k]) for k in i) / 1e9 + 1e-6
+
     into_s = float(lost[0].split("lost tracking ")[1].split(" s into")[0])     # from the first XR frame to the gap
-    assert abs(into_s - (headset.sent[first_gap][2] - headset.sent[0][2]) / 1e9) < 0.05 + 0.01, lost[0]
+    assert abs(into_s - (headset.sent[first_gap][2] - headset.sent[0][2]) / 1e9) <= 0.05 + sync_s(first_gap, 0), lost[0]
     summary = next(t for t in logs if t.startswith("right controller (on the phone): tracking lost 1 time(s), "))
     gap_s = float(summary.split("time(s), ")[1].split(" s in all")[0])
     sent_gap_s = (headset.sent[back][2] - headset.sent[first_gap - 1][2]) / 1e9
     assert sent_gap_s >= GAP[1] - GAP[0] - 2 / XR_HZ
-    assert abs(gap_s - sent_gap_s) < 0.005 + 0.01, (summary, sent_gap_s)
+    assert abs(gap_s - sent_gap_s) <= 0.005 + sync_s(back, first_gap - 1), (summary, sent_gap_s)
     assert any("pose message on the headset's connection" in t for t in logs)
     assert any("immersive-vr session started, poses in its 'local-floor' reference space" in t for t in logs)
 
@@ -225,10 +240,36 @@ def test_scripted_headset_ground_truth_calibrates_and_scores(headset_media, tmp_
     truth = GtCalibration(T_controller_gt=X_TRUE, time_offset_s=GT_LAG_S, T_world_display_vio=Z_TRUE.inv())
     scored = {name: run_playback(tmp_path / "s.mcap", trackers="T1,T4", write_outputs=False, gt_calibration=c)
               for name, c in (("estimate", cal), ("truth", truth))}
+    # the ticks it can score, from the streams as recorded (a loaded machine sends fewer than XR_HZ frames and
+    # fewer VIO poses than scripted, so no fixed count): the 20 Hz grid from the first camera frame where the
+    # ground truth associates (samples within GT_TOLERANCE_S on both sides, the TUM rule); for T1 also from
+    # the anchor on (its log time) and with a VIO pose to hold (at most MAX_GAP_S old)
+    t0 = by[Topic.CAMERA_IMAGE][0].msg.timestamp.ToNanoseconds()
+    vio = np.array([m.msg.timestamp.ToNanoseconds() for m in by[Topic.CONTROLLER_VIO_POSE]])
+    anchor_log_ns = by[Topic.CONTROLLER_ANCHOR][0].log_time_ns
+    tol_ns, hold_ns = int(GT_TOLERANCE_S * 1e9), int(MAX_GAP_S * 1e9)
+
+    def scoreable(c: GtCalibration) -> tuple[int, int]:
+        gt_ns = np.array([m.msg.timestamp.ToNanoseconds() for m in gt]) - int(round(c.time_offset_s * 1e9))
+        ticks = t0 + np.arange((gt_ns[-1] - t0) // 50_000_000 + 1) * 50_000_000
+        i = np.searchsorted(gt_ns, ticks, side="right") - 1
+        j = np.minimum(i + 1, len(gt_ns) - 1)
+        at = (i >= 0) & (gt_ns[np.maximum(i, 0)] == ticks)
+        around = (i >= 0) & (i + 1 < len(gt_ns)) & (ticks - gt_ns[np.maximum(i, 0)] <= tol_ns) & (gt_ns[j] - ticks <= tol_ns)
+        k = np.searchsorted(vio, ticks, side="right") - 1
+        held = (k >= 0) & (ticks - vio[np.maximum(k, 0)] <= hold_ns)
+        ok = at | around
+        return int(ok.sum()), int((ok & (ticks >= anchor_log_ns) & held).sum())
+
     for tracker in ("T1", "T4"):
         a, b = (scored[n].metrics["trackers"][tracker]["inside"] for n in ("estimate", "truth"))
         assert abs(a["p_ate_m"] - b["p_ate_m"]) < 0.0005 and abs(a["r_ate_deg"] - b["r_ate_deg"]) < 0.1, (tracker, a, b)
-        assert a["frames"] > 100 and a["p_ate_m"] < 0.005 and a["r_ate_deg"] < 2.0, (tracker, a)   # the marker's own noise
+        assert a["p_ate_m"] < 0.005 and a["r_ate_deg"] < 2.0, (tracker, a)   # the marker's own noise
+        for name, c in (("estimate", cal), ("truth", truth)):
+            every, from_anchor = scoreable(c)
+            frames = scored[name].metrics["trackers"][tracker]["inside"]["frames"]
+            # the marker is in view throughout: every tick the ground truth covers (T1: once it has an anchor)
+            assert frames == (every if tracker == "T4" else from_anchor) > 0, (tracker, name, frames, every, from_anchor)
 
 
 def test_a_second_headset_replaces_the_first_and_neither_replaces_the_phone(long_media, tmp_path):

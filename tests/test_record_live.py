@@ -254,6 +254,56 @@ def _messages(path):
         return list(r.messages())
 
 
+STAMP_ROUNDING_NS = 1_000   # a page time in ms as a double (~1.7e12 ms: 0.24 us apart), rounded to ns by the recorder
+
+
+class ServerSide:
+    """The recorder's side of one page connection, and every clock exchange it accounts (also those the
+    estimator's window has dropped since): what its samples were stamped with."""
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.exchanges: list = []
+        pong = conn.clock.pong
+
+        def pong_kept(*args):
+            ex = pong(*args)
+            if ex is not None:
+                self.exchanges.append(ex)
+            return ex
+
+        conn.clock.pong = pong_kept                   # first, then the ones it already had: none is missed
+        self.exchanges.extend(list(conn.clock.exchanges))
+
+    @classmethod
+    async def of_new(cls, s: LiveSession, role: str = "phone", not_these: tuple = ()) -> ServerSide:
+        """The connection the page of ``role`` just opened (the tests open one of a role at a time)."""
+        conn = await wait_until_async(
+            lambda: (c := s.source.server.current.get(role)) is not None and all(c is not o.conn for o in not_these)
+            and c, what=f"the recorder's side of the new {role} connection")
+        return cls(conn)
+
+
+def _assert_stamped_within_the_clock_sync(errs_ns, sides: list[ServerSide], true_offset_ns: int) -> None:
+    """Stamp errors (stamp - true capture time) from the clock offsets the recorder estimated, as they were.
+
+    Each error must be that of an offset one of the connections' exchanges gave (capture = t - offset), and
+    each exchange's offset is within half its own round trip of the page's true offset (NTP's bound: the
+    page stamps its pong between the ping's send and the pong's receipt). A loaded machine lengthens the
+    round trips and widens this bound with them; a fixed few ms would fail there with correct code."""
+    by_err = {}
+    for side in sides:
+        assert side.conn.fallback_offset_ns is None, f"{side.conn.name}: stamped without a pong"
+        for ex in side.exchanges:
+            assert abs(ex.offset_ns - true_offset_ns) <= ex.rtt_ns / 2 + STAMP_ROUNDING_NS, (side.conn.name, ex)
+            by_err[true_offset_ns - ex.offset_ns] = ex
+    assert by_err, "no clock exchange"
+    for e in errs_ns:
+        assert any(abs(e - k) <= STAMP_ROUNDING_NS for k in by_err), \
+            (f"a stamp {e / 1e6:+.3f} ms off: no exchange of the recorder's gives that offset",
+             sorted((k / 1e6, ex.rtt_ns / 1e6) for k, ex in by_err.items()))
+
+
 # ---------------------------------------------------------------------------------------------- whole sessions
 @pytest.mark.slow
 def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
@@ -261,6 +311,7 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     phone = Phone(s, s.port, s.token)
     start = _wait_video_start(s)
     statuses: dict = {}
+    sides: list[ServerSide] = []
 
     async def script():
         async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
@@ -278,6 +329,7 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
 
             # first connection: hello, marker, samples, then it drops mid-session (no close frame)
             ws, reader = await phone.connect(http)
+            sides.append(await ServerSide.of_new(s))
             await ws.send_str(json.dumps({"type": "hello", "user_agent": "scripted phone", "webxr": True, "message": ""}))
             await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_4X4_50", "id": 7, "size_m": MARKER_SIZE,
                                           "ppi": 400.0, "device_pixel_ratio": 2.625}))
@@ -291,10 +343,13 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
             now = phone.clock.now_ns()
             await phone.send_pose(ws, "pose", start, now - 200_000_000)
             await phone.stream(ws, start, 0.8)
+            # its samples are stamped through a pong (a loaded machine can delay the pongs past the 0.8 s)
+            await wait_until_async(lambda: sides[0].conn.settled, what="the first connection's clock offset")
             ws._response.connection.transport.abort()           # the phone vanishes
             reader.cancel()
             # a new connection (the page reloaded) carries on and taps "anchor"
             ws, reader = await phone.connect(http)
+            sides.append(await ServerSide.of_new(s, not_these=tuple(sides)))
             await phone.stream(ws, start, VIDEO_S - 0.3, tap_at_s=TAP_S)
             await ws.close()          # after the samples on the same stream: the server reads them first
             reader.cancel()
@@ -327,11 +382,11 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     assert len(by[Topic.CONTROLLER_IMU]) == len(sent_imu)
     log_times = [m.log_time_ns for m in msgs]
     assert log_times[3:] == sorted(log_times[3:])                # one time order across topics
-    # the page clock offset is recovered: capture stamps = true capture times within a few ms
+    # the page clock offset is recovered: capture stamps = true capture times within the clock sync's error
+    # (half the round trip of the exchange used: a few ms on a quiet machine, more on a loaded one)
     pairs = zip(by[Topic.CONTROLLER_VIO_POSE], sent_poses, strict=True)
     errs = [m.msg.timestamp.ToNanoseconds() - true for m, (_, _, true) in pairs]
-    assert np.median(np.abs(errs)) < 1_000_000 and max(abs(e) for e in errs) < 3_000_000, \
-        (np.median(np.abs(errs)), max(abs(e) for e in errs))
+    _assert_stamped_within_the_clock_sync(errs, sides, OFFSET_NS)
     # out of order: written as received, counted in the summary and /log
     stamps = [m.msg.timestamp.ToNanoseconds() for m in by[Topic.CONTROLLER_VIO_POSE]]
     assert sum(b <= a for a, b in zip(stamps, stamps[1:], strict=False)) == 1
@@ -345,7 +400,11 @@ def test_scripted_phone_session_records_and_plays_back(media, tmp_path):
     (ca,), (da,) = by[Topic.CONTROLLER_ANCHOR], by[Topic.DISPLAY_ANCHOR]
     frame_s = (da.msg.timestamp.ToNanoseconds() - start) / 1e9
     tap_true = next(true for kind, _, true in phone.sent if kind == "anchor")
-    assert abs(da.msg.timestamp.ToNanoseconds() - tap_true) <= 1e9 / FPS / 2 + 3e6
+    tap_ns = ca.msg.timestamp.ToNanoseconds()     # the tap on the recorder clock, through the clock sync
+    _assert_stamped_within_the_clock_sync([tap_ns - tap_true], sides, OFFSET_NS)
+    frame_stamps = [m.msg.timestamp.ToNanoseconds() for m in by[Topic.CAMERA_IMAGE]]
+    assert abs(da.msg.timestamp.ToNanoseconds() - tap_ns) == min(abs(f - tap_ns) for f in frame_stamps)   # the closest
+    assert abs(da.msg.timestamp.ToNanoseconds() - tap_ns) <= 1e9 / FPS / 2 + STAMP_ROUNDING_NS
     drawn = T_dvio_controller(frame_s)
     got = codec.pose_of(da.msg.pose)
     assert np.linalg.norm(got.translation - drawn.translation) < 0.005
