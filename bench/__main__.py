@@ -16,6 +16,7 @@ import pathlib
 import platform
 import sys
 import time
+import timeit
 
 
 def machine() -> dict:
@@ -38,6 +39,9 @@ def machine() -> dict:
         out["load_average"] = [round(v, 2) for v in os.getloadavg()]
     except OSError:
         pass
+    # the interpreter's own speed, to read per-tick figures across machines: VMs differ ~3x here while
+    # OpenCV's floor barely moves (docs/performance.md "Issue 23, fourth round": 16.7 us against ~6 us)
+    out["python_sum_range_1000_us"] = round(min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6, 2)
     return out
 
 
@@ -102,7 +106,8 @@ def main(argv: list[str]) -> int:
     print_summary(results)
     m = results["machine"]
     print(f"\nmachine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m.get('numpy')}, "
-          f"OpenCV {m.get('cv2')}; load average at start {m.get('load_average')}; total {results['total_s']} s")
+          f"OpenCV {m.get('cv2')}; Python speed: sum(range(1000)) {m.get('python_sum_range_1000_us')} us; "
+          f"load average at start {m.get('load_average')}; total {results['total_s']} s")
     # a full run is the record; a partial one must not overwrite it
     out = here / ("results.json" if not argv else "results_partial.json")
     out.write_text(json.dumps(results, indent=2))
