@@ -359,11 +359,9 @@ def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():
     assert (out * R0.inv()).magnitude() == 0.0
 
 
-@given(arrays(np.float64, (5, 4), elements=st.floats(-1, 1)).filter(lambda q: (np.linalg.norm(q, axis=1) > 1e-3).all()),
-       arrays(np.float64, (5, 3), elements=st.floats(-100, 100)), arrays(np.float64, (5, 3), elements=st.floats(-1, 1)))
-def test_the_accelerometer_path_s_array_helpers_match_scipy_and_numpy(q, a, b):
-    """T8 turns each specific force into the VIO frame with its own batched quaternion matrices and cross
-    products (a few array operations instead of ~40 calls per tick): scipy's matrices, np.cross to the bit."""
-    from phonepose.pipeline.fusion import _cross, _quat_matrices
-    assert np.allclose(_quat_matrices(q), Rotation.from_quat(q).as_matrix(), rtol=0, atol=2e-15)   # 7e-16 worst of 800 k
+@given(arrays(np.float64, (5, 3), elements=st.floats(-100, 100)), arrays(np.float64, (5, 3), elements=st.floats(-1, 1)))
+def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
+    """T8 turns the specific forces past the newest VIO sample by the gyro with its own cross products (two
+    gathered products instead of np.cross's argument handling, half the cost on a few rows): np.cross to the bit."""
+    from phonepose.pipeline.fusion import _cross
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()

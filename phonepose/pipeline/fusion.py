@@ -62,6 +62,7 @@ from phonepose.geometry import (
     quat_as_rotvec,
     quat_from_rotvec,
     quat_inv,
+    quat_matrices,
     quat_matrix,
     quat_mul,
     quat_normalised,
@@ -196,26 +197,6 @@ def entry_carry_s(h, tau: float):
     if math.isinf(tau):
         return h
     return 0.0 * h if tau <= 0 else tau * -np.expm1(-np.asarray(h) / tau)
-
-
-# _quat_matrices' entries as 1 - 2 (a + b) on the diagonal and 2 (a -+ b) off it, a and b products of
-# two quaternion components (x y z w = 0 1 2 3): all nine from one outer product in a handful of array
-# operations (the same roundings as the entries written out one by one, which cost ~40 calls per tick)
-_QM_A = ([1, 0, 0, 0, 0, 1, 0, 1, 0], [1, 1, 2, 1, 0, 2, 2, 2, 0])
-_QM_B = ([2, 2, 1, 2, 2, 0, 1, 0, 1], [2, 3, 3, 3, 2, 3, 3, 3, 1])
-_QM_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
-_QM_SCALE = np.array([-2.0, 2.0, 2.0, 2.0, -2.0, 2.0, 2.0, 2.0, -2.0])
-_QM_ONE = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
-
-
-def _quat_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (n, 3, 3) of quaternions (n, 4) x y z w, normalised here: row by row
-    1 - 2(yy + zz), 2(xy - zw), 2(xz + yw); 2(xy + zw), 1 - 2(xx + zz), 2(yz - xw); 2(xz - yw), 2(yz + xw),
-    1 - 2(xx + yy)."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    outer = q[:, :, None] * q[:, None, :]
-    m = outer[:, _QM_A[0], _QM_A[1]] + _QM_SIGN * outer[:, _QM_B[0], _QM_B[1]]
-    return (_QM_ONE + _QM_SCALE * m).reshape(-1, 3, 3)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -584,14 +565,14 @@ class FusedTracker:
         q0, q1 = q[i - 1], q[i]
         q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
         after = t_k > t0
-        f_world = np.einsum("kij,kj->ki", _quat_matrices((1 - w) * q0 + w * q1), f_k)
+        f_world = np.einsum("kij,kj->ki", quat_matrices((1 - w) * q0 + w * q1), f_k)
         if after.any() and len(self._gyro):
             tg, gyro = self._gyro.t, self._gyro.v
             g_i = np.minimum(np.searchsorted(tg, t_k[after]), len(tg) - 1)
             steps = np.diff(np.concatenate([[t0], t_k[after]]))
             rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
             f_after = f_k[after]
-            f_world[after] = (f_after + _cross(rotvec, f_after)) @ _quat_matrices(q[-1:])[0].T
+            f_world[after] = (f_after + _cross(rotvec, f_after)) @ quat_matrices(q[-1:])[0].T
         g = self.filter._Rm.T @ GRAVITY if self.filter.ready else GRAVITY
         a_k = f_world + g
         if c.accel_smooth_s > 0:
