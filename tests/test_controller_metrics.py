@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from phonepose.evaluation.controller import LAG_RESOLUTION_S, availability, controller_metrics, jitter, lag, still_ticks
+from phonepose.evaluation.controller import (
+    LAG_RESOLUTION_S,
+    availability,
+    controller_metrics,
+    jitter,
+    lag,
+    lag_curve,
+    still_ticks,
+)
 from phonepose.geometry import Pose
 
 TICK = 0.05
@@ -31,6 +39,39 @@ def test_a_pure_100_ms_delay_is_a_lag_of_100_ms():
     assert lag(t, _path(t), t, _path(t)) == 0.0
     # a delay between two grid points is found to the resolution
     assert abs(lag(t, _path(t), t, _path(t - 0.1234)) - 0.1234) <= LAG_RESOLUTION_S / 2 + 1e-3
+
+
+def _lag_by_definition(t_gt, p_gt, t_est, p_est) -> tuple[float | None, list[float]]:
+    """The module docstring's lag, one shift at a time: (the argmin, every shift's mean squared error)."""
+    best, best_err, errors = None, np.inf, []
+    steps = round(0.5 / LAG_RESOLUTION_S)
+    for k in range(-steps, steps + 1):
+        tau = k * LAG_RESOLUTION_S
+        q = t_gt + tau
+        use = (q >= t_est[0]) & (q <= t_est[-1])
+        if use.sum() < max(2, t_gt.size // 2):
+            continue
+        moved = np.column_stack([np.interp(q[use], t_est, p_est[:, i]) for i in range(3)])
+        errors.append(float(np.mean(np.sum((moved - p_gt[use]) ** 2, axis=1))))
+        if errors[-1] < best_err:
+            best, best_err = tau, errors[-1]
+    return best, errors
+
+
+@pytest.mark.parametrize("n", [3, 40, 290, 2257])   # one block of shifts up to ~300 stamps, several beyond
+def test_lag_is_its_definition_shift_by_shift(n):
+    """lag_curve() interpolates many shifts per call (a short session's playback spent a fifth of its time in
+    per-shift calls); every shift's error is the definition's to the bit, so lag()'s choice is too."""
+    rng = np.random.default_rng(n)
+    t_gt = np.sort(rng.uniform(0, n * TICK, n))
+    p_gt = _path(t_gt) + rng.normal(0, 0.002, (n, 3))
+    t_est = np.unique(rng.uniform(-0.2, n * TICK + 0.2, max(2, n - 3)))
+    p_est = _path(t_est - 0.12) + rng.normal(0, 0.002, (len(t_est), 3))
+    shifts, errors = lag_curve(t_gt, p_gt, t_est, p_est)
+    want, want_errors = _lag_by_definition(t_gt, p_gt, t_est, p_est)
+    assert np.array(errors).tobytes() == np.array(want_errors).tobytes() and len(shifts) == len(errors)
+    assert lag(t_gt, p_gt, t_est, p_est) == want
+    assert n < 40 or abs(want - 0.12) < 0.02           # and it finds the delay
 
 
 def test_white_noise_while_still_has_jitter_sigma_root_3_and_drift_none():

@@ -31,25 +31,47 @@ STILL_M = 0.01               # ... (hand tremor is ~1 mm; a pointing movement is
 _JITTER_NOISE = 6.0          # E‖Δ²e‖² = 6 σ² per axis for white noise of σ
 
 
-def lag(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.ndarray, est_positions: np.ndarray,
-        resolution_s: float = LAG_RESOLUTION_S, max_shift_s: float = LAG_MAX_SHIFT_S) -> float | None:
-    """The shift (s) of the estimate that best matches the truth (None: fewer than 2 estimates)."""
+LAG_BLOCK_POINTS = 60_000   # shifted stamps interpolated per call: bounded memory (~5 MB) whatever the length
+
+
+def lag_curve(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.ndarray, est_positions: np.ndarray,
+              resolution_s: float = LAG_RESOLUTION_S,
+              max_shift_s: float = LAG_MAX_SHIFT_S) -> tuple[list[float], list[float]]:
+    """The shifts (s) of the grid whose window keeps most of the task, and the mean squared position error
+    (m²) of the estimate moved by each: what :func:`lag` minimises ([] with fewer than 2 estimates)."""
     t_est = np.asarray(est_stamps_s, dtype=float)
     p_est = np.asarray(est_positions, dtype=float).reshape(-1, 3)
     t_gt = np.asarray(stamps_s, dtype=float)
     p_gt = np.asarray(gt_positions, dtype=float).reshape(-1, 3)
     if t_est.size < 2 or t_gt.size == 0:
-        return None
+        return [], []
     steps = int(round(max_shift_s / resolution_s))
-    best, best_err = None, np.inf
-    for k in range(-steps, steps + 1):
-        tau = k * resolution_s
-        q = t_gt + tau
+    taus = [k * resolution_s for k in range(-steps, steps + 1)]
+    shifts, errors = [], []
+    # Several shifts per np.interp call: on a short session the per-shift calls cost 4x the arithmetic.
+    # Each shift's error is the per-shift formula's to the bit: the same interpolations and squared
+    # distances element by element, and its mean over exactly its own window's stamps, in order.
+    per_block = max(1, LAG_BLOCK_POINTS // t_gt.size)
+    for start in range(0, len(taus), per_block):
+        block = taus[start:start + per_block]
+        q = t_gt[None, :] + np.array(block)[:, None]
+        moved = np.stack([np.interp(q.ravel(), t_est, p_est[:, i]) for i in range(3)], axis=-1)
+        sq = np.sum((moved.reshape(len(block), t_gt.size, 3) - p_gt) ** 2, axis=2)
         use = (q >= t_est[0]) & (q <= t_est[-1])
-        if use.sum() < max(2, t_gt.size // 2):      # the shifted window must keep most of the task
-            continue
-        moved = np.column_stack([np.interp(q[use], t_est, p_est[:, i]) for i in range(3)])
-        err = float(np.mean(np.sum((moved - p_gt[use]) ** 2, axis=1)))
+        for tau, row, keep in zip(block, sq, use, strict=True):
+            if int(keep.sum()) < max(2, t_gt.size // 2):     # the shifted window must keep most of the task
+                continue
+            shifts.append(tau)
+            errors.append(float(np.mean(row[keep])))
+    return shifts, errors
+
+
+def lag(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.ndarray, est_positions: np.ndarray,
+        resolution_s: float = LAG_RESOLUTION_S, max_shift_s: float = LAG_MAX_SHIFT_S) -> float | None:
+    """The shift (s) of the estimate that best matches the truth (None: fewer than 2 estimates)."""
+    best, best_err = None, np.inf
+    for tau, err in zip(*lag_curve(stamps_s, gt_positions, est_stamps_s, est_positions, resolution_s, max_shift_s),
+                        strict=True):
         if err < best_err:                          # ties: the earliest (most negative) shift
             best, best_err = tau, err
     return best
