@@ -221,10 +221,18 @@ class AccelMotion:
         self.t0, self.p0, self.v0, self.beta = t0, p0, v0, beta
         self.s_k, self.P_k, self.V_k = s_k, P_k, V_k      # the integral at the IMU samples from t0 on (s_k[0] = 0)
         self.a, self.tau = a, tau
+        self._last: tuple[tuple, tuple[np.ndarray, np.ndarray]] | None = None   # (t, tau) -> the last result
 
     def at(self, t: float, tau: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(position, velocity) at stamp time ``t`` >= t0, the acceleration past the newest IMU sample decaying
-        with correlation time ``tau`` (None: this motion's own)."""
+        with correlation time ``tau`` (None: this motion's own). A tick asks for the same instant twice (the
+        predicted VIO's position, then its velocity): the last answer is kept (callers never modify it)."""
+        if self._last is not None and self._last[0] == (t, tau):
+            return self._last[1]
+        self._last = ((t, tau), self._at(t, tau))
+        return self._last[1]
+
+    def _at(self, t: float, tau: float | None) -> tuple[np.ndarray, np.ndarray]:
         s = max(t - self.t0, 0.0)
         s_imu = float(self.s_k[-1])
         u = min(s, s_imu)
