@@ -196,6 +196,11 @@ def gravity_angle_deg(t_imu_ns: np.ndarray, accel: np.ndarray, t_vio_ns: np.ndar
     seconds; measured 6.5 deg over 5 s bins at 17 samples/s, 2 deg over the session.)"""
     from phonepose.geometry import interpolate_many
 
+    # the recorder writes samples as received: a clock-sync update can stamp one at or before its
+    # predecessor (counted in the session's summary); skipped as playback skips them (scheduler.py), so
+    # the stamps interpolated are ascending and distinct
+    keep = np.flatnonzero(t_vio_ns > np.maximum.accumulate(np.concatenate([[np.iinfo(np.int64).min], t_vio_ns[:-1]])))
+    t_vio_ns, vio = t_vio_ns[keep], vio[keep]
     ok = (t_imu_ns >= t_vio_ns[0]) & (t_imu_ns <= t_vio_ns[-1])
     t = t_imu_ns[ok]
     R = interpolate_many(t_vio_ns / 1e9, vio, t / 1e9).rotation
