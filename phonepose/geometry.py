@@ -395,18 +395,19 @@ def quat_matrix(q: Quat) -> list[list[float]]:
 # components (x y z w = 0 1 2 3) gathered from one outer product: quat_matrix's arithmetic on arrays, in a
 # dozen array operations (written out entry by entry it was ~40 calls, a sixth of T8's time per tick)
 _DIAG_SIGNS = np.array([[1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])   # x², y², z² per diagonal entry
-_OFF_A = ([0, 0, 0, 1, 0, 1], [1, 2, 1, 2, 2, 2])          # xy xz xy yz xz yz
-_OFF_B = ([2, 1, 2, 0, 1, 0], [3, 3, 3, 3, 3, 3])          # zw yw zw xw yw xw
+_OFF_A = (np.array([0, 0, 0, 1, 0, 1]), np.array([1, 2, 1, 2, 2, 2]))          # xy xz xy yz xz yz
+_OFF_B = (np.array([2, 1, 2, 0, 1, 0]), np.array([3, 3, 3, 3, 3, 3]))          # zw yw zw xw yw xw
 _OFF_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, -1.0, 1.0])    # m01 m02 m10 m12 m20 m21
-_DIAG_AT, _OFF_AT = [0, 4, 8], [1, 2, 3, 5, 6, 7]
+_DIAG_AT, _OFF_AT = np.array([0, 4, 8]), np.array([1, 2, 3, 5, 6, 7])   # (index arrays: a list is converted per call)
 
 
 def quat_matrices(q: np.ndarray) -> np.ndarray:
     """``Rotation.from_quat(q).as_matrix()`` of quaternions (n, 4) x y z w, bit for bit (normalised as
-    scipy does, then :func:`quat_matrix`'s entries), without the Rotation object."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    scipy does, then :func:`quat_matrix`'s entries), without the Rotation object. Each row's matrix depends
+    on that row alone, to the bit, however many rows come with it (T8 keeps rows from one tick to the next)."""
+    q = q / np.sqrt(np.add.reduce(q * q, axis=1, keepdims=True))    # np.linalg.norm's sum, without its checks
     outer = q[:, :, None] * q[:, None, :]
-    sq = outer[:, [0, 1, 2, 3], [0, 1, 2, 3]]                                        # x² y² z² w²
+    sq = q * q                                                                        # x² y² z² w²
     m = np.empty((len(q), 9))
     m[:, _DIAG_AT] = ((sq[:, 0:1] * _DIAG_SIGNS[0] + sq[:, 1:2] * _DIAG_SIGNS[1]) + sq[:, 2:3] * _DIAG_SIGNS[2]) \
         + sq[:, 3:4]

@@ -365,3 +365,42 @@ def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     gathered products instead of np.cross's argument handling, half the cost on a few rows): np.cross to the bit."""
     from phonepose.pipeline.fusion import _cross
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()
+
+
+@given(st.lists(st.floats(-50, 50), min_size=2, max_size=40, unique=True),
+       st.integers(0, 2**32 - 1), st.integers(1, 60))
+def test_interpolating_every_column_at_once_is_np_interp_per_column(xp, seed, n_x):
+    """T8's integral interpolates its columns in one call: np.interp per column, to the bit, at a scalar and
+    at fewer and more points than samples (numpy divides by the step, or multiplies by its inverse when it
+    precomputes slopes), the samples themselves and both ends included."""
+    from phonepose.pipeline.fusion import _interp_columns
+    xp = np.sort(np.array(xp))
+    rng = np.random.default_rng(seed)
+    fp = rng.normal(size=(len(xp), 6)) * rng.choice([1e-3, 1.0, 1e3])
+    x = np.sort(np.concatenate([rng.uniform(xp[0], xp[-1], n_x), rng.choice(xp, 2), xp[[0, -1]]]))
+    expected = np.stack([np.interp(x, xp, fp[:, j]) for j in range(6)], axis=1)
+    assert _interp_columns(x, xp, fp).tobytes() == expected.tobytes()
+    for x_one in (float(x[0]), float(x[len(x) // 2]), float(xp[-1])):
+        one = np.array([np.interp(x_one, xp, fp[:, j]) for j in range(6)])
+        assert _interp_columns(x_one, xp, fp).tobytes() == one.tobytes()
+
+
+def test_the_specific_forces_kept_between_ticks_are_those_computed_afresh():
+    """T8 keeps the specific force it turned into the world for IMU samples up to the newest VIO sample (those
+    never change) and turns only the new ones each tick: its outputs are the same, to the bit, as when it turns
+    every sample of the window every tick. A turning, accelerating phone, with gyro and accelerometer."""
+    def imu(t_s: float):
+        rot = (R0 * Rotation.from_rotvec([0, 0, 0.2 * np.sin(t_s)])).inv()
+        return np.array([0.0, 0.0, 0.2 * np.cos(t_s)]), rot.apply(-0.15 * np.array([np.cos(t_s), np.sin(t_s), 0])
+                                                                  - np.array([0.0, 0.0, -9.80665]))
+
+    class Afresh(FusedTracker):
+        def _specific_force_world(self, *args):
+            self._turned = (np.empty(0), np.empty((0, 3)))
+            return super()._specific_force_world(*args)
+
+    obs = observations(circle, 120, visible=lambda i: i < 40 or 70 < i < 90, imu=imu)
+    kept, afresh = run(FusedTracker(), obs), run(Afresh(), obs)
+    assert sum(p is not None for p in kept) > 100
+    rows = lambda poses: np.array([np.r_[p.quat_xyzw, p.translation] for p in poses if p is not None])  # noqa: E731
+    assert rows(kept).tobytes() == rows(afresh).tobytes()

@@ -186,8 +186,23 @@ class FusionConfig:
 def _polyfit(t: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
     """Least-squares polynomial coefficients (constant first) of ``values`` over ``t``, one column per
     axis: the normal equations directly (np.polynomial.polyfit costs more than the rest of a tick)."""
-    A = t[:, None] ** np.arange(degree + 1)
-    return np.linalg.solve(A.T @ A, A.T @ values)
+    A = np.empty((len(t), degree + 1))
+    A[:, 0] = 1.0
+    for k in range(1, degree + 1):
+        A[:, k] = A[:, k - 1] * t     # t ** k as the power's own products (exact for k <= 2: t * t, as pow)
+    return _solve(A.T @ A, A.T @ values)
+
+
+# np.linalg.solve's LAPACK gesv without its wrapper (the checks and an errstate context cost ~5 µs, 3x the
+# solve on 3x3 normal equations, twice a tick): the same routine, so the same bits. T8's systems are never
+# singular (samples on distinct stamps); should numpy drop the private module, the public call is used.
+try:
+    from numpy.linalg import _umath_linalg
+
+    def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return _umath_linalg.solve(a, b, signature="dd->d")
+except ImportError:   # pragma: no cover
+    _solve = np.linalg.solve
 
 
 def entry_carry_s(h, tau: float):
@@ -202,6 +217,31 @@ def entry_carry_s(h, tau: float):
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.cross`` of rows (n, 3), the same products and differences, at half its cost on a few rows."""
     return a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
+
+
+def _interp_columns(x, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp(x, xp, fp[:, j])`` for every column j at once, to the bit (numpy's own formula: the value
+    at a sample is that sample's, else (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) (x - xp[j]) + fp[j]). ``xp``
+    ascending, ``x`` (a float or an array) within [xp[0], xp[-1]]: T8 interpolates inside its own windows.
+    One call instead of a loop over columns (np.interp takes one column; the loops were ~10 % of the
+    accelerometer's work per tick)."""
+    j = np.minimum(xp.searchsorted(x, side="right") - 1, len(xp) - 2)
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])[..., None]
+    out = slope * (x - xp[j])[..., None] + fp[j]
+    at_sample = (x == xp[j]) | (x == xp[-1])
+    if at_sample.any():
+        out = np.where(at_sample[..., None], fp[np.where(x == xp[-1], len(xp) - 1, j)], out)
+    return out
+
+
+def _turned_by_vio(ts: np.ndarray, q: np.ndarray, t: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Vectors ``f`` (n, 3) at stamps ``t`` within the VIO samples' (``ts``, quaternions ``q``) turned by the
+    VIO orientation there, normalised-linearly interpolated (the short way round)."""
+    i = np.minimum(np.maximum(ts.searchsorted(t), 1), len(ts) - 1)   # (np.clip costs 3x more)
+    w = np.minimum(np.maximum((t - ts[i - 1]) / np.maximum(ts[i] - ts[i - 1], 1e-9), 0.0), 1.0)[:, None]
+    q0, q1 = q[i - 1], q[i]
+    q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
+    return np.einsum("kij,kj->ki", quat_matrices((1 - w) * q0 + w * q1), f)
 
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])   # display_vio and the controller's VIO world are gravity aligned, z up
@@ -435,7 +475,7 @@ class _Ring:
 
     def prune(self, horizon: float) -> None:
         """Drop the oldest samples while the second oldest is older than ``horizon`` (at least 2 stay)."""
-        older = int(np.searchsorted(self._t[self._lo:self._hi], horizon, side="left"))
+        older = int(self._t[self._lo:self._hi].searchsorted(horizon, side="left"))
         self._lo += max(0, min(older - 1, self._hi - self._lo - 2))
 
     @property
@@ -479,6 +519,7 @@ class FusedTracker:
         self._acc = _Ring(3)                       # (stamp s) -> specific force m/s^2, body frame
         self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
         self._hold_cache: tuple[tuple, np.ndarray] | None = None   # the gyro's recent mean rate, per gyro samples
+        self._turned = (np.empty(0), np.empty((0, 3)))  # IMU stamps and their specific force in display_vio, final
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
@@ -512,7 +553,7 @@ class FusedTracker:
         n = len(ts)
         if n < 2 or t < ts[0] or t > ts[-1]:
             return None
-        i = int(np.searchsorted(ts, t))
+        i = int(ts.searchsorted(t))
         i = min(max(i, 1), n - 1)
         v = self._vio.v
         return _interpolate(float(ts[i - 1]), v[i - 1].tolist(), float(ts[i]), v[i].tolist(), t)
@@ -527,9 +568,9 @@ class FusedTracker:
         key = (n, ts[-1], ts[0], t_end)
         if self._velocity_cache is not None and self._velocity_cache[0] == key:
             return self._velocity_cache[1]
-        hi = n if t_end is None else int(np.searchsorted(ts, t_end, side="right"))
+        hi = n if t_end is None else int(ts.searchsorted(t_end, side="right"))
         hi = max(hi, 1)
-        lo = int(np.searchsorted(ts, ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
+        lo = int(ts.searchsorted(ts[hi - 1] - self.cfg.velocity_window_s, side="left"))
         if hi - lo < 2:
             out = (np.zeros(3), self._vio.v[hi - 1, 4:7].copy(), float(ts[hi - 1]))
             if t_end is None:
@@ -560,51 +601,36 @@ class FusedTracker:
         self._accel_cache = (key, None)
         if tk[-1] <= t0:    # no IMU sample past the newest VIO one yet (about half the computations)
             return None
-        lo = int(np.searchsorted(ts, t0 - c.accel_window_s, side="left"))
-        k_lo = max(int(np.searchsorted(tk, ts[lo], side="right")) - 1, 0)   # the IMU sample at or before ts[lo]
-        lo = int(np.searchsorted(ts, tk[k_lo], side="left"))                 # VIO samples the integral covers
+        lo = int(ts.searchsorted(t0 - c.accel_window_s, side="left"))
+        k_lo = max(int(tk.searchsorted(ts[lo], side="right")) - 1, 0)   # the IMU sample at or before ts[lo]
+        lo = int(ts.searchsorted(tk[k_lo], side="left"))                 # VIO samples the integral covers
         if len(ts) - lo < c.accel_fit_degree + 2 or len(tk) - k_lo < 2:
             return None
         t_k, f_k = tk[k_lo:], self._acc.v[k_lo:]
-        # orientation at each IMU sample: the VIO's, normalised-linearly interpolated; past t0, turned on by the gyro
-        q = self._vio.v[:, 0:4]
-        i = np.minimum(np.maximum(np.searchsorted(ts, t_k), 1), len(ts) - 1)   # (np.clip costs 3x more)
-        w = np.minimum(np.maximum((t_k - ts[i - 1]) / np.maximum(ts[i] - ts[i - 1], 1e-9), 0.0), 1.0)[:, None]
-        q0, q1 = q[i - 1], q[i]
-        q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
-        after = t_k > t0
-        f_world = np.einsum("kij,kj->ki", quat_matrices((1 - w) * q0 + w * q1), f_k)
-        if after.any() and len(self._gyro):
-            tg, gyro = self._gyro.t, self._gyro.v
-            g_i = np.minimum(np.searchsorted(tg, t_k[after]), len(tg) - 1)
-            steps = np.diff(np.concatenate([[t0], t_k[after]]))
-            rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
-            f_after = f_k[after]
-            f_world[after] = (f_after + _cross(rotvec, f_after)) @ quat_matrices(q[-1:])[0].T
+        f_world = self._specific_force_world(ts, t_k, f_k, t0)
         g = self.filter._Rm.T @ GRAVITY if self.filter.ready else GRAVITY
         a_k = f_world + g
         if c.accel_smooth_s > 0:
             # a centred moving average (one-sided at the newest samples): the 8-12 Hz tremor's ~3 m/s^2 would
             # otherwise put its velocity (~5 cm/s) into the fit's slope, which the prediction holds for ~0.15 s
             cum = np.concatenate([np.zeros((1, 3)), np.cumsum(a_k, axis=0)])
-            a_lo = np.searchsorted(t_k, t_k - c.accel_smooth_s / 2, side="left")
-            a_hi = np.searchsorted(t_k, t_k + c.accel_smooth_s / 2, side="right")
+            a_lo = t_k.searchsorted(t_k - c.accel_smooth_s / 2, side="left")
+            a_hi = t_k.searchsorted(t_k + c.accel_smooth_s / 2, side="right")
             a_k = (cum[a_hi] - cum[a_lo]) / (a_hi - a_lo)[:, None]
         # double integral (trapezoid velocity, exact for a linear acceleration per step), zero with its rate at t0
-        dt = np.diff(t_k)[:, None]
+        dt = (t_k[1:] - t_k[:-1])[:, None]
         V = np.concatenate([np.zeros((1, 3)), np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0)])
         P = np.concatenate([np.zeros((1, 3)), np.cumsum(V[:-1] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0)])
-        V0 = np.array([np.interp(t0, t_k, V[:, j]) for j in range(3)])
-        P0 = np.array([np.interp(t0, t_k, P[:, j]) for j in range(3)])
+        V0, P0 = np.split(_interp_columns(t0, t_k, np.concatenate([V, P], axis=1)), 2)
         P = P - P0 - V0 * (t_k - t0)[:, None]
         V = V - V0
         # the fit of the VIO positions less the integral
         tt = ts[lo:] - t0
-        D_i = np.stack([np.interp(ts[lo:], t_k, P[:, j]) for j in range(3)], axis=1)
+        D_i = _interp_columns(ts[lo:], t_k, P)
         coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
         beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
-        fwd = np.concatenate([[t0], t_k[after]])
-        s_k = fwd - t0
+        after = t_k > t0
+        s_k = np.concatenate([[t0], t_k[after]]) - t0
         P_f = np.concatenate([np.zeros((1, 3)), P[after]])
         V_f = np.concatenate([np.zeros((1, 3)), V[after]])
         recent = t_k >= t_k[-1] - c.accel_recent_s
@@ -612,6 +638,41 @@ class FusedTracker:
         out = AccelMotion(t0, coef[0], coef[1], beta, s_k, P_f, V_f, a_now, c.accel_carry_time_s)
         self._accel_cache = (key, out)
         return out
+
+    def _specific_force_world(self, ts: np.ndarray, t_k: np.ndarray, f_k: np.ndarray, t0: float) -> np.ndarray:
+        """The IMU samples' specific force ``f_k`` (at stamps ``t_k``) turned into display_vio: up to the newest
+        VIO sample ``t0`` by the VIO orientation, normalised-linearly interpolated; past it by the newest VIO
+        orientation turned on by the gyro. A sample's value up to t0 is final once the two VIO samples around
+        it are in (they are kept in order and never change): those rows are kept from one tick to the next and
+        each tick turns only the samples new since (turning the window's ~200 every tick was a fifth of T8)."""
+        kt, kf = self._turned
+        drop = int(kt.searchsorted(t_k[0], side="left"))       # kept rows older than the window
+        kt, kf = kt[drop:], kf[drop:]
+        upto = int(t_k.searchsorted(t0, side="right"))          # the samples at or before t0
+        a = int(t_k.searchsorted(kt[0], side="left")) if len(kt) else 0
+        n_kept = len(kt)
+        if not (n_kept and a + n_kept <= upto and t_k[a] == kt[0] and t_k[a + n_kept - 1] == kt[-1]):
+            a = n_kept = 0
+        f_world = np.empty((len(t_k), 3))
+        f_world[a:a + n_kept] = kf
+        q = self._vio.v[:, 0:4]
+        for lo, hi in ((0, a), (a + n_kept, upto)):
+            if hi > lo:
+                f_world[lo:hi] = _turned_by_vio(ts, q, t_k[lo:hi], f_k[lo:hi])
+        first = int(t_k.searchsorted(ts[0], side="left"))       # rows before the oldest VIO sample can change
+        self._turned = (t_k[first:upto].copy(), f_world[first:upto])
+        if upto < len(t_k):
+            if len(self._gyro):
+                tg, gyro = self._gyro.t, self._gyro.v
+                g_i = np.minimum(tg.searchsorted(t_k[upto:]), len(tg) - 1)
+                steps = np.diff(np.concatenate([[t0], t_k[upto:]]))
+                rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
+                f_after = f_k[upto:]
+                turned = f_after + _cross(rotvec, f_after)
+            else:
+                turned = f_k[upto:]
+            f_world[upto:] = turned @ np.array(quat_matrix(quat_normalised(q[-1]))).T
+        return f_world
 
     def _velocity_around(self, t_stamp: float) -> np.ndarray:
         """The VIO velocity at stamp time ``t_stamp`` for the time offset's Jacobian: the slope of a line fit
@@ -621,8 +682,8 @@ class FusedTracker:
         VIO jitter, a simulated session without any offset; docs/pipeline.md)."""
         ts = self._vio.t
         half = self.cfg.offset_velocity_window_s / 2
-        lo = int(np.searchsorted(ts, t_stamp - half, side="left"))
-        hi = int(np.searchsorted(ts, t_stamp + half, side="right"))
+        lo = int(ts.searchsorted(t_stamp - half, side="left"))
+        hi = int(ts.searchsorted(t_stamp + half, side="right"))
         if hi - lo < 3:
             return self._velocity(t_stamp)[0]
         return _polyfit(ts[lo:hi] - t_stamp, self._vio.v[lo:hi, 4:7], 1)[1]
@@ -647,13 +708,13 @@ class FusedTracker:
         tg, gyro = self._gyro.t, self._gyro.v
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
-        a, b = int(np.searchsorted(tg, t_last, side="right")), int(np.searchsorted(tg, t_last + dt, side="right"))
+        a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
         steps = np.diff(np.concatenate([[t_last], tg[a:b]]))
         rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
         t_prev = tg[b - 1] if b > a else t_last
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
         if self._hold_cache is None or self._hold_cache[0] != key:
-            recent = int(np.searchsorted(tg, tg[-1] - self.cfg.gyro_window_s, side="left"))
+            recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
             self._hold_cache = (key, gyro[recent:].mean(axis=0))   # the recent mean rate
         hold = self._hold_cache[1]
         return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev))), position
@@ -745,7 +806,7 @@ class FusedTracker:
         ts = self._vio.t
         if len(ts) < 2:
             return np.zeros(3)
-        i = int(np.searchsorted(ts, t_stamp))
+        i = int(ts.searchsorted(t_stamp))
         i = min(max(i, 1), len(ts) - 1)
         dt = ts[i] - ts[i - 1]
         if dt <= 0:
