@@ -544,7 +544,8 @@ class FusedTracker:
     def _add_vio(self, t: float, pose: RawPose) -> None:
         q, p = pose
         if len(self._vio) and t > self._vio.last_t:
-            self._path_since_predict += float(np.linalg.norm(p - self._vio.v[-1, 4:7]))
+            step = p - self._vio.v[-1, 4:7]
+            self._path_since_predict += math.sqrt(step.dot(step))   # np.linalg.norm's own sum, without its checks
         self._vio.add(t, (*q, *p.tolist()))
 
     def _vio_at(self, t: float) -> RawPose | None:
@@ -613,28 +614,32 @@ class FusedTracker:
         if c.accel_smooth_s > 0:
             # a centred moving average (one-sided at the newest samples): the 8-12 Hz tremor's ~3 m/s^2 would
             # otherwise put its velocity (~5 cm/s) into the fit's slope, which the prediction holds for ~0.15 s
-            cum = np.concatenate([np.zeros((1, 3)), np.cumsum(a_k, axis=0)])
+            cum = np.zeros((len(t_k) + 1, 3))
+            np.cumsum(a_k, axis=0, out=cum[1:])
             a_lo = t_k.searchsorted(t_k - c.accel_smooth_s / 2, side="left")
             a_hi = t_k.searchsorted(t_k + c.accel_smooth_s / 2, side="right")
             a_k = (cum[a_hi] - cum[a_lo]) / (a_hi - a_lo)[:, None]
-        # double integral (trapezoid velocity, exact for a linear acceleration per step), zero with its rate at t0
+        # double integral (trapezoid velocity, exact for a linear acceleration per step), zero with its rate at t0;
+        # V and P side by side (one interpolation for both), zero at the window's first sample
         dt = (t_k[1:] - t_k[:-1])[:, None]
-        V = np.concatenate([np.zeros((1, 3)), np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0)])
-        P = np.concatenate([np.zeros((1, 3)), np.cumsum(V[:-1] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0)])
-        V0, P0 = np.split(_interp_columns(t0, t_k, np.concatenate([V, P], axis=1)), 2)
-        P = P - P0 - V0 * (t_k - t0)[:, None]
-        V = V - V0
+        VP = np.zeros((len(t_k), 6))
+        np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0, out=VP[1:, 0:3])
+        np.cumsum(VP[:-1, 0:3] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0, out=VP[1:, 3:6])
+        VP0 = _interp_columns(t0, t_k, VP)
+        P = VP[:, 3:6] - VP0[3:6] - VP0[0:3] * (t_k - t0)[:, None]
+        V = VP[:, 0:3] - VP0[0:3]
         # the fit of the VIO positions less the integral
         tt = ts[lo:] - t0
         D_i = _interp_columns(ts[lo:], t_k, P)
         coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
         beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
-        after = t_k > t0
-        s_k = np.concatenate([[t0], t_k[after]]) - t0
-        P_f = np.concatenate([np.zeros((1, 3)), P[after]])
-        V_f = np.concatenate([np.zeros((1, 3)), V[after]])
-        recent = t_k >= t_k[-1] - c.accel_recent_s
-        a_now = a_k[recent].mean(axis=0) + beta
+        # from t0 on (t_k[0] <= t0 < t_k[-1]): the integral at t0 (zero) and at the samples after it
+        upto = int(t_k.searchsorted(t0, side="right"))
+        s_k, P_f, V_f = t_k[upto - 1:] - t0, P[upto - 1:], V[upto - 1:]
+        s_k[0] = 0.0
+        P_f[0] = V_f[0] = 0.0
+        recent = int(t_k.searchsorted(t_k[-1] - c.accel_recent_s, side="left"))
+        a_now = a_k[recent:].mean(axis=0) + beta
         out = AccelMotion(t0, coef[0], coef[1], beta, s_k, P_f, V_f, a_now, c.accel_carry_time_s)
         self._accel_cache = (key, out)
         return out
@@ -709,7 +714,9 @@ class FusedTracker:
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
-        steps = np.diff(np.concatenate([[t_last], tg[a:b]]))
+        steps = tg[a:b] - tg[a - 1:b - 1] if a > 0 else np.diff(tg[:b], prepend=t_last)
+        if b > a:
+            steps[0] = tg[a] - t_last    # np.diff(np.concatenate([[t_last], tg[a:b]])), without building it
         rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
         t_prev = tg[b - 1] if b > a else t_last
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
@@ -727,7 +734,7 @@ class FusedTracker:
         cov = _I3 * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
         if camera_position is not None:
             u = marker_position - camera_position
-            n = np.linalg.norm(u)
+            n = math.sqrt(u.dot(u))   # np.linalg.norm(u), its own dot product
             if n > 1e-6:
                 u = u / n
                 cov = cov + u[:, None] * u[None, :] * (c.marker_depth_m ** 2 - c.marker_lateral_m ** 2)   # np.outer
@@ -924,7 +931,7 @@ class FusedTracker:
             return rotation
         q_at = (f.apply(at_img) if f.ready else at_img)[0]
         pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
-        if np.linalg.norm(pull) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull
+        if math.sqrt(pull.dot(pull)) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull (the norm)
             return rotation
         t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
