@@ -453,8 +453,9 @@ class _Ring:
 
     def add_many(self, t: np.ndarray, values: np.ndarray) -> None:
         """``add`` for each row in order: a row is kept if its stamp is newer than every earlier one."""
-        keep = t > np.maximum.accumulate(np.concatenate([[self.last_t], t[:-1]]))
-        t, values = t[keep], values[keep]
+        if not (len(t) and t[0] > self.last_t and (t[1:] > t[:-1]).all()):   # (in order: every row kept)
+            keep = t > np.maximum.accumulate(np.concatenate([[self.last_t], t[:-1]]))
+            t, values = t[keep], values[keep]
         while self._hi + len(t) > len(self._t):
             self._make_room()
         self._t[self._hi:self._hi + len(t)] = t
@@ -750,13 +751,16 @@ class FusedTracker:
         imu = tick.imu
         if imu is not None and len(imu):
             rows = np.asarray(imu, dtype=float)
-            rows = rows[np.isfinite(rows).all(axis=1)]
+            finite = np.isfinite(rows)
+            if not finite.all():
+                rows = rows[finite.all(axis=1)]
             if len(rows):
                 stamps_ns = np.rint(rows[:, 0] * 1e9).astype(np.int64)   # as round(): half to even
                 self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
-                self._gyro.add_many((stamps_ns - self._t0_ns) * _NS, rows[:, 1:4])
+                stamps = (stamps_ns - self._t0_ns) * _NS
+                self._gyro.add_many(stamps, rows[:, 1:4])
                 if self.cfg.accel_prediction:
-                    self._acc.add_many((stamps_ns - self._t0_ns) * _NS, rows[:, 4:7])
+                    self._acc.add_many(stamps, rows[:, 4:7])
         if len(self._vio):
             horizon = self._vio.last_t - max(self.cfg.history_s, self.cfg.accel_window_s if self.cfg.accel_prediction else 0.0)
             self._vio.prune(horizon)
