@@ -404,3 +404,19 @@ def test_the_specific_forces_kept_between_ticks_are_those_computed_afresh():
     assert sum(p is not None for p in kept) > 100
     rows = lambda poses: np.array([np.r_[p.quat_xyzw, p.translation] for p in poses if p is not None])  # noqa: E731
     assert rows(kept).tobytes() == rows(afresh).tobytes()
+
+
+@given(st.lists(st.lists(st.integers(0, 30), max_size=8), max_size=6))
+def test_adding_a_batch_of_samples_is_adding_each_in_turn(batches):
+    """T8's sample rings keep a row only if its stamp is newer than every earlier one, whether the rows come one
+    by one or a batch at a time (in order, with repeats, out of order, older than what is kept)."""
+    from phonepose.pipeline.fusion import _Ring
+    one, many = _Ring(3, capacity=4), _Ring(3, capacity=4)
+    for stamps in batches:
+        t = np.array(stamps, dtype=float)
+        values = np.stack([t, -t, 2 * t], axis=1)
+        for ti, v in zip(t, values, strict=True):
+            one.add(float(ti), v)
+        many.add_many(t, values)
+        assert many.t.tobytes() == one.t.tobytes() and many.v.tobytes() == one.v.tobytes()
+        assert many.last_t == one.last_t
