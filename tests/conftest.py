@@ -13,6 +13,8 @@ import asyncio
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
+import pytest
+
 from phonepose import waiting
 from phonepose.waiting import POLL_S
 
@@ -41,3 +43,14 @@ async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLIN
         return await asyncio.wait_for(awaitable, timeout)
     except TimeoutError:
         raise AssertionError(waiting.timed_out(what, timeout, None, show_last=True)) from None
+
+
+@pytest.fixture
+def short_exp1(monkeypatch) -> list[tuple[float, float, float]]:
+    """``experiment exp1`` with 4 of its 16 targets: one inside and one outside the view at each depth (a ~27 s
+    session instead of 112 s), for tests of what exp1 does with its session, not of its numbers (CI checks those
+    on the whole session: ``tools/docs_results.py check --run``). In-process runs only."""
+    from phonepose.record.sim import scenarios
+    targets = [scenarios._exp1_targets_cam()[i] for i in (0, 4, 8, 12)]
+    monkeypatch.setattr(scenarios, "_exp1_targets_cam", lambda: list(targets))
+    return targets

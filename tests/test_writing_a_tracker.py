@@ -122,8 +122,9 @@ def test_experiments_refuse_a_builtin_as_an_extra_tracker_before_any_work(tmp_pa
 
 
 @pytest.mark.slow
-def test_example_in_experiment_1_beside_t1_t8(on_path, tmp_path):
-    """`experiment exp1 -t my_tracker:LastSightingTracker`: its rows join Tables 2 and 3 (no paper values)."""
+def test_example_in_experiment_1_beside_t1_t8(on_path, tmp_path, short_exp1):
+    """`experiment exp1 -t my_tracker:LastSightingTracker`: its rows join Tables 2 and 3 (no paper values); on
+    4 of exp1's targets, inside and outside the view."""
     from phonepose.experiments.exp1 import run_exp1
 
     result = run_exp1(tmp_path / "e1", trackers=[REF])
