@@ -757,6 +757,7 @@ class FusedTracker:
             if len(rows):
                 stamps_ns = np.rint(rows[:, 0] * 1e9).astype(np.int64)   # as round(): half to even
                 self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
+                assert self._t0_ns is not None
                 stamps = (stamps_ns - self._t0_ns) * _NS
                 self._gyro.add_many(stamps, rows[:, 1:4])
                 if self.cfg.accel_prediction:
