@@ -27,6 +27,7 @@ from phonepose.record.rehearse.score import (
     STREAM_MAX_MM,
     check_stream,
     gravity_angle_deg,
+    imu_lag_s,
 )
 
 
@@ -58,6 +59,28 @@ def test_check_stream_finds_a_known_lag():
     assert check.median_mm > 0.3 and check.after_lag_max_mm < 0.01
     exact = check_stream(sim0 + np.rint(s * 1e9).astype(np.int64), _waving(s), _waving, sim0, (0.0, 11.0))
     assert exact.max_mm < 1e-6 and abs(exact.lag_ms) < 1e-3
+
+
+def test_the_imu_s_own_lag_is_found_and_a_wrong_sign_survives_it():
+    """Gyro samples stamped 12 ms late (the VIO's lag 4 ms): the shift that explains them is 12 ms, to the
+    0.5 ms grid, and what is left is the noise; with one axis's sign wrong no shift brings the difference under
+    the goal."""
+    rng = np.random.default_rng(3)
+    t_sim = np.arange(0.0, 14.0, 1 / 200)
+    gyro_sim = np.column_stack([0.8 * np.sin(2.1 * t_sim), 0.5 * np.cos(3.3 * t_sim), 0.3 * np.sin(5.0 * t_sim + 1)])
+    s = np.sort(rng.uniform(0.5, 13.5, 2500))            # the page's irregular event times
+    truth = np.column_stack([np.interp(s, t_sim, gyro_sim[:, k]) for k in range(3)])
+    recorded = truth + rng.normal(0, 0.002, truth.shape)
+    lag = imu_lag_s(s + 0.012, recorded, t_sim, gyro_sim, 0.004)
+    assert lag == pytest.approx(0.012, abs=0.00025)
+    at = s + 0.012 - lag
+    rms = np.sqrt(np.mean((recorded - np.column_stack([np.interp(at, t_sim, gyro_sim[:, k]) for k in range(3)])) ** 2))
+    assert rms < 0.003
+    flipped = recorded * [1, -1, 1]
+    lag = imu_lag_s(s + 0.012, flipped, t_sim, gyro_sim, 0.004)
+    at = s + 0.012 - lag
+    rms = np.sqrt(np.mean((flipped - np.column_stack([np.interp(at, t_sim, gyro_sim[:, k]) for k in range(3)])) ** 2))
+    assert rms > 4 * IMU_MAX_GYRO
 
 
 def test_gravity_check_fails_on_a_wrong_sign_or_axis():
