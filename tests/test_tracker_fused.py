@@ -330,9 +330,10 @@ def test_a_recognised_marker_without_display_pose_and_no_vio_keeps_the_last_sigh
     assert est[0].allclose(pose, atol=1e-12) and est[1].allclose(pose, atol=1e-12)
 
 
-def _pull_case(data_until_s: float, sighting_error_deg: float) -> tuple[Rotation, Rotation, float]:
+def _pull_case(data_until_s: float, sighting_error_deg: float, ambiguity: float = 13.0) -> tuple[Rotation, Rotation, float]:
     """A T8 whose filter is not yet ready (no correction), a still phone at R0 whose VIO and gyro samples
-    end at ``data_until_s``, and one sighting at 0.9 s turned ``sighting_error_deg`` about x from R0."""
+    end at ``data_until_s``, and one sighting at 0.9 s turned ``sighting_error_deg`` about x from R0, with IPPE
+    ambiguity ratio ``ambiguity`` (13: FusionConfig.rotation_ambiguity_ref, the sighting's noise as configured)."""
     t8 = FusedTracker("T8")
     q0 = tuple(R0.as_quat().tolist())
     for k in range(int(round(data_until_s * 30)) + 1):
@@ -340,7 +341,7 @@ def _pull_case(data_until_s: float, sighting_error_deg: float) -> tuple[Rotation
     for k in range(int(round(data_until_s * 200)) + 1):
         t8._gyro.add(k / 200, np.zeros(3))
     delta = Rotation.from_rotvec([np.radians(sighting_error_deg), 0, 0])
-    t8._last_marker = (0.9, (tuple((delta * R0).as_quat().tolist()), np.zeros(3)))
+    t8._add_sighting(0.9, (tuple((delta * R0).as_quat().tolist()), np.zeros(3)), None, ambiguity)
     return Rotation.from_quat(t8._pulled_by_sighting(q0)), delta, t8.cfg
 
 
@@ -359,6 +360,19 @@ def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():
     assert (out * R0.inv()).magnitude() == 0.0
 
 
+@pytest.mark.parametrize("ambiguity, noise_factor", [(13.0 / 4, 2.0), (52.0, 0.5), (0.25, math.sqrt(13.0)), (0.0, 1.0)])
+def test_a_sighting_nearer_facing_the_camera_pulls_less(ambiguity, noise_factor):
+    """A sighting's orientation noise scales with sqrt(13 / its IPPE ambiguity ratio) (the ratio clipped to >= 1;
+    0: not known, as configured): a quarter of the ratio doubles it in the pull's Kalman share and in the filter's
+    measurement noise, four times the ratio halves it."""
+    out, _, c = _pull_case(data_until_s=1.0, sighting_error_deg=2.0, ambiguity=ambiguity)
+    s_m = c.pull_marker_rotation_deg * noise_factor
+    gain = c.pull_vio_rotation_deg ** 2 / (c.pull_vio_rotation_deg ** 2 + s_m ** 2)
+    assert np.degrees((out * R0.inv()).magnitude()) == pytest.approx(2.0 * gain, abs=1e-9)
+    R_meas = FusedTracker()._measurement_noise(np.zeros(3), None, ambiguity)
+    np.testing.assert_allclose(np.sqrt(np.diag(R_meas)[:3]), np.radians(c.marker_rotation_deg * noise_factor), rtol=1e-12)
+
+
 @given(arrays(np.float64, (5, 3), elements=st.floats(-100, 100)), arrays(np.float64, (5, 3), elements=st.floats(-1, 1)))
 def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     """T8 turns the specific forces past the newest VIO sample by the gyro with its own cross products (two
@@ -367,14 +381,14 @@ def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()
 
 
-@given(st.lists(st.floats(-50, 50), min_size=2, max_size=40, unique=True),
+@given(st.lists(st.integers(-5_000_000, 5_000_000), min_size=2, max_size=40, unique=True),
        st.integers(0, 2**32 - 1), st.integers(1, 60))
-def test_interpolating_every_column_at_once_is_np_interp_per_column(xp, seed, n_x):
+def test_interpolating_every_column_at_once_is_np_interp_per_column(xp_us, seed, n_x):
     """T8's integral interpolates its columns in one call: np.interp per column, to the bit, at a scalar and
-    at fewer and more points than samples (numpy divides by the step, or multiplies by its inverse when it
-    precomputes slopes), the samples themselves and both ends included."""
+    at fewer and more points than samples, the samples themselves and both ends included. Stamps at least a
+    microsecond apart, as T8's are (np.interp's fallback for an infinite slope is not repeated)."""
     from phonepose.pipeline.fusion import _interp_columns
-    xp = np.sort(np.array(xp))
+    xp = np.sort(np.array(xp_us)) * 1e-5
     rng = np.random.default_rng(seed)
     fp = rng.normal(size=(len(xp), 6)) * rng.choice([1e-3, 1.0, 1e3])
     x = np.sort(np.concatenate([rng.uniform(xp[0], xp[-1], n_x), rng.choice(xp, 2), xp[[0, -1]]]))
@@ -420,3 +434,21 @@ def test_adding_a_batch_of_samples_is_adding_each_in_turn(batches):
         many.add_many(t, values)
         assert many.t.tobytes() == one.t.tobytes() and many.v.tobytes() == one.v.tobytes()
         assert many.last_t == one.last_t
+
+
+def test_a_burst_of_imu_samples_larger_than_the_rings_room_is_taken_whole():
+    """A tick that brings seconds of IMU samples at once (a stalled stream catching up) made T8 loop for ever: its
+    ring slid rows that were already at the front to make room. Now it grows, and every sample is kept."""
+    import dataclasses
+
+    def imu(t_s: float):
+        return np.zeros(3), np.array([0.0, 0.0, 9.80665])
+
+    obs = observations(static, 4, imu=imu)
+    stamps = 0.2 + np.arange(600) / 200                  # 3 s at 200 Hz, newer than every sample before
+    burst = np.column_stack([stamps, np.zeros((600, 3)), np.tile([0.0, 0.0, 9.80665], (600, 1))])
+    obs.append(dataclasses.replace(obs[-1], tick=dataclasses.replace(obs[-1].tick, index=4, t_ns=int(3.3e9), imu=burst)))
+    t8 = FusedTracker()
+    run(t8, obs)
+    kept = t8._acc.t[t8._acc.t >= stamps[0] - t8._t0_ns / 1e9 - 1e-9]
+    np.testing.assert_allclose(kept[-len(stamps):] - kept[-len(stamps)], stamps - stamps[0], atol=1e-9)

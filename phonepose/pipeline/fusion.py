@@ -131,6 +131,12 @@ class FusionConfig:
     pull_marker_rotation_deg: float = 1.0            # a sighting's orientation error in the output (notes: 0.4 deg median)
     pull_vio_rotation_deg: float = 0.3               # the corrected VIO orientation's error where it has data
     pull_prediction_deg_per_s: float = 12.0          # growth of the held-rate prediction's orientation error
+    # a sighting's orientation error grows as the marker faces the camera, where IPPE's two solutions come close:
+    # its RMS is ~4.3 deg / sqrt(ambiguity ratio) (measured on exp1 seed 7, exact ground truth, 1226 sightings,
+    # ratios 1-50; docs/pipeline.md "The sighting's ambiguity"). The orientation noise of a sighting, in the filter
+    # and in the pull, is scaled by sqrt(ref / ratio) (the ratio clipped to >= 1; 0: unknown, not scaled): ref 13,
+    # that session's median ratio, keeps a typical sighting at the defaults above. 0: off
+    rotation_ambiguity_ref: float = 13.0
     marker_velocity_window_s: float = 0.2            # the marker's velocity (used when it leaves the view)
     blend_time_s: float = 0.1                        # decay of the offset carried across a source switch
     # inside: the sighting is moved from its image time to the tick along the corrected VIO velocity (the
@@ -445,7 +451,7 @@ class _Ring:
         if t <= self.last_t:
             return
         if self._hi == len(self._t):
-            self._make_room()
+            self._make_room(1)
         self._t[self._hi] = t
         self._v[self._hi] = value
         self._hi += 1
@@ -456,18 +462,22 @@ class _Ring:
         if not (len(t) and t[0] > self.last_t and (t[1:] > t[:-1]).all()):   # (in order: every row kept)
             keep = t > np.maximum.accumulate(np.concatenate([[self.last_t], t[:-1]]))
             t, values = t[keep], values[keep]
-        while self._hi + len(t) > len(self._t):
-            self._make_room()
+        if self._hi + len(t) > len(self._t):
+            self._make_room(len(t))
         self._t[self._hi:self._hi + len(t)] = t
         self._v[self._hi:self._hi + len(t)] = values
         self._hi += len(t)
         if len(t):
             self.last_t = float(t[-1])
 
-    def _make_room(self) -> None:
+    def _make_room(self, extra: int) -> None:
+        """Room for ``extra`` more rows at the end: the kept rows slid to the front, or the arrays grown
+        (amortised) when the rows kept fill half of them or the new ones would not fit even after the slide
+        (a batch larger than the free room once looped here for ever, sliding rows already at the front)."""
         n = self._hi - self._lo
-        if 2 * n >= len(self._t):   # half full or more: grow (amortised), else slide to the front
-            t, v = np.empty(2 * len(self._t)), np.empty((2 * len(self._t), self._v.shape[1]))
+        if 2 * n >= len(self._t) or n + extra > len(self._t):
+            size = max(2 * len(self._t), n + extra)
+            t, v = np.empty(size), np.empty((size, self._v.shape[1]))
         else:
             t, v = self._t, self._v
         t[:n] = self._t[self._lo:self._hi].copy()
@@ -530,6 +540,7 @@ class FusedTracker:
         self._last_out: np.ndarray | None = None   # the last output's position
         self._last_t: float | None = None
         self._last_marker: tuple[float, RawPose] | None = None   # (image s, marker pose) of the newest sighting
+        self._last_marker_rotation_scale = 1.0                   # its orientation noise factor (_rotation_scale)
         self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
         self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
         self._had_corrected = False                # the last tick had a corrected VIO pose
@@ -728,10 +739,16 @@ class FusedTracker:
         return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev))), position
 
     # ------------------------------------------------------------------ measurements
-    def _measurement_noise(self, marker_position: np.ndarray, camera_position: np.ndarray | None) -> np.ndarray:
+    def _rotation_scale(self, ambiguity: float) -> float:
+        """The factor on a sighting's orientation noise for its IPPE ambiguity ratio (rotation_ambiguity_ref)."""
+        ref = self.cfg.rotation_ambiguity_ref
+        return math.sqrt(ref / max(ambiguity, 1.0)) if ref > 0 and ambiguity > 0 else 1.0
+
+    def _measurement_noise(self, marker_position: np.ndarray, camera_position: np.ndarray | None,
+                           ambiguity: float = 0.0) -> np.ndarray:
         c = self.cfg
         R_meas = np.zeros((6, 6))
-        R_meas[0:3, 0:3] = _I3 * math.radians(c.marker_rotation_deg) ** 2
+        R_meas[0:3, 0:3] = _I3 * (math.radians(c.marker_rotation_deg) * self._rotation_scale(ambiguity)) ** 2
         cov = _I3 * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
         if camera_position is not None:
             u = marker_position - camera_position
@@ -772,11 +789,13 @@ class FusedTracker:
         raw = _raw(m.T_dvio_controller) if m is not None and m.T_dvio_controller is not None else None
         if raw is not None and frame is not None:
             cam = tick.T_dvio_display.translation if tick.T_dvio_display is not None else None
-            self._add_sighting(self._s(frame.t_ns), raw, cam)
+            self._add_sighting(self._s(frame.t_ns), raw, cam, m.ambiguity_ratio if m is not None else 0.0)
 
-    def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None) -> None:
-        self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position)))
+    def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None,
+                      ambiguity: float = 0.0) -> None:
+        self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position, ambiguity)))
         self._last_marker = (t_img, marker)
+        self._last_marker_rotation_scale = self._rotation_scale(ambiguity)
         self._sightings.append((t_img, marker[1]))
         while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
             self._sightings.popleft()
@@ -941,7 +960,7 @@ class FusedTracker:
         t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
         P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * h) ** 2
-        gain = P / (P + c.pull_marker_rotation_deg ** 2)
+        gain = P / (P + (c.pull_marker_rotation_deg * self._last_marker_rotation_scale) ** 2)
         return quat_mul(quat_from_rotvec(gain * pull), rotation)
 
     def __repr__(self) -> str:
