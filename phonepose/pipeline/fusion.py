@@ -682,7 +682,7 @@ class FusedTracker:
             if len(self._gyro):
                 tg, gyro = self._gyro.t, self._gyro.v
                 g_i = np.minimum(tg.searchsorted(t_k[upto:]), len(tg) - 1)
-                steps = np.diff(np.concatenate([[t0], t_k[upto:]]))
+                steps = np.diff(t_k[upto:], prepend=t0)
                 rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
                 f_after = f_k[upto:]
                 turned = f_after + _cross(rotvec, f_after)
@@ -726,9 +726,7 @@ class FusedTracker:
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
-        steps = tg[a:b] - tg[a - 1:b - 1] if a > 0 else np.diff(tg[:b], prepend=t_last)
-        if b > a:
-            steps[0] = tg[a] - t_last    # np.diff(np.concatenate([[t_last], tg[a:b]])), without building it
+        steps = np.diff(tg[a:b], prepend=t_last)
         rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
         t_prev = tg[b - 1] if b > a else t_last
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
