@@ -190,3 +190,40 @@ def test_duplicated_messages_are_used_once(tmp_path):
     he_twice = hand_eye_from_session(doubled, bootstrap=0)
     assert he_twice.T_controller_mocap.allclose(he_once.T_controller_mocap, atol=1e-12)
     assert (he_twice.pairs, he_twice.time_offset_s) == (he_once.pairs, he_once.time_offset_s)
+
+
+def test_the_batched_bootstrap_fits_what_align_vectors_fits():
+    """_uncertainty's batched SVD against a resample-by-resample refit with scipy's align_vectors (the code it
+    replaced): the same 1σ to rounding, on a long and on a short (warned-about) recording."""
+    from phonepose.calibration import hand_eye as module
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.2, 12.0, 1 / 30)
+    stamps, body = mocap_of(t, 0.030)
+    for tt in (t, t[(t > 10) & (t < 12.5)]):
+        P = phone_motion(tt)
+        P = Pose(P.rotation * Rotation.from_rotvec(rng.normal(size=(len(tt), 3)) * np.radians(0.3)), P.translation)
+        he = estimate_hand_eye(tt, P, stamps, body, bootstrap=0)
+        delta, R_X = he.time_offset_s, he.T_controller_mocap.rotation
+        grid = np.round(np.arange(delta - 0.01, delta + 0.01 + 1e-9, 0.001), 6)
+        sets = []
+        for d in grid:
+            _, _, a, b, tm = module._motions(tt, P, stamps, body, float(d), module.STEP_S, module.MIN_ANGLE_DEG,
+                                             with_times=True)
+            sets.append((a, b, np.floor((tm - tt[0]) / min(module.BLOCK_S, (tt[-1] - tt[0]) / 5)).astype(int)))
+        n_blocks = max(int(s[2].max()) for s in sets) + 1
+        angles, shifts = [], []
+        for counts in module._bootstrap_counts(n_blocks, 12, seed=0):
+            best = (np.inf, R_X, delta)
+            for d, (a, b, blocks) in zip(grid, sets, strict=True):
+                w = counts[blocks]
+                R, _ = Rotation.align_vectors(a[w > 0], b[w > 0], weights=w[w > 0])
+                cost = float(np.sum(w * np.sum((a - R.apply(b)) ** 2, axis=1)) / np.sum(w))
+                if cost < best[0]:
+                    best = (cost, R, float(d))
+            angles.append(np.degrees((best[1].inv() * R_X).magnitude()))
+            shifts.append(1e3 * (best[2] - delta))
+        expected = (np.sqrt(np.mean(np.square(angles))), np.sqrt(np.mean(np.square(shifts))))
+        got = module._uncertainty(tt, P, stamps, body, delta, R_X, module.STEP_S, module.MIN_ANGLE_DEG, n=12)
+        assert expected[0] > 0.02 and expected[1] > 0.1           # a spread to compare, not zeros
+        assert got == pytest.approx(expected, rel=1e-9, abs=1e-12)

@@ -88,10 +88,23 @@ TOLERANCE_DEG = 0.5      # 1σ above these is warned about
 TOLERANCE_MS = 5.0
 
 
+def _bootstrap_counts(n_blocks: int, n: int, seed: int) -> np.ndarray:
+    """(n, n_blocks): how many times each block is drawn in each of ``n`` moving-block resamples."""
+    rng = np.random.default_rng(seed)
+    return np.stack([np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks) for _ in range(n)]
+                    ).astype(float)
+
+
 def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, step_s: float, min_angle_deg: float,
                  n: int = BOOTSTRAP, seed: int = 0) -> tuple[float, float]:
     """1σ of the rotation (deg) and of the clock offset (ms): a moving-block bootstrap over the motions,
-    each resample refitting the rotation at every offset of the 1 ms grid around ``delta``."""
+    each resample refitting the rotation at every offset of the 1 ms grid around ``delta``.
+
+    A resample weighs each motion by how often its block was drawn. The weighted Wahba fit
+    (``Rotation.align_vectors(a, b, weights)``) and its cost need only the weighted sums of the outer
+    products a bᵀ and of |a|² + |b|², so these are summed per block once, and all resamples at all offsets
+    are fitted in one batched SVD: the same rotations as align_vectors (to rounding), ~100x faster than
+    2100 calls of it (test_hand_eye compares the two)."""
     grid = np.round(np.arange(delta - 0.01, delta + 0.01 + 1e-9, 0.001), 6)
     sets = []
     for d in grid:
@@ -99,21 +112,27 @@ def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, st
         block_s = min(BLOCK_S, max(t_phone[-1] - t_phone[0], 1e-3) / 5)   # at least 5 blocks
         sets.append((a, b, np.floor((tm - t_phone[0]) / block_s).astype(int)))
     n_blocks = int(max(s[2].max(initial=0) for s in sets)) + 1
-    rng = np.random.default_rng(seed)
-    angles, shifts = [], []
-    for _ in range(n):
-        counts = np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks).astype(float)
-        best = (np.inf, R_X, delta)
-        for d, (a, b, blocks) in zip(grid, sets, strict=True):
-            w = counts[blocks]
-            if np.count_nonzero(w) < 3:
-                continue
-            R, _ = Rotation.align_vectors(a[w > 0], b[w > 0], weights=w[w > 0])
-            cost = float(np.sum(w * np.sum((a - R.apply(b)) ** 2, axis=1)) / np.sum(w))
-            if cost < best[0]:
-                best = (cost, R, float(d))
-        angles.append(np.degrees((best[1].inv() * R_X).magnitude()))
-        shifts.append(1e3 * (best[2] - delta))
+    outer = np.zeros((len(grid), n_blocks, 3, 3))      # Σ a bᵀ per offset and block
+    squares = np.zeros((len(grid), n_blocks))         # Σ |a|² + |b|²
+    sizes = np.zeros((len(grid), n_blocks))           # motions
+    for g, (a, b, blocks) in enumerate(sets):
+        np.add.at(outer[g], blocks, a[:, :, None] * b[:, None, :])
+        np.add.at(squares[g], blocks, np.sum(a * a, axis=1) + np.sum(b * b, axis=1))
+        sizes[g] = np.bincount(blocks, minlength=n_blocks)
+    counts = _bootstrap_counts(n_blocks, n, seed)
+    H = np.einsum("rk,gkij->rgij", counts, outer)      # (resample, offset, 3, 3)
+    U, _, Vt = np.linalg.svd(H)
+    U[..., :, 2] *= np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)[..., None]     # a rotation, not a reflection
+    R = U @ Vt
+    weight = counts @ sizes.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cost = (counts @ squares.T - 2.0 * np.sum(R * H, axis=(2, 3))) / weight      # Σ w |a - R b|² / Σ w
+    cost[(counts > 0) @ sizes.T < 3] = np.inf                # fewer than 3 motions drawn
+    best = np.argmin(cost, axis=1)
+    found = np.isfinite(cost[np.arange(n), best])
+    R_best = R[np.arange(n), best]
+    angles = np.where(found, np.degrees((Rotation.from_matrix(R_best).inv() * R_X).magnitude()), 0.0)
+    shifts = np.where(found, 1e3 * (grid[best] - delta), 0.0)
     return float(np.sqrt(np.mean(np.square(angles)))), float(np.sqrt(np.mean(np.square(shifts))))
 
 
