@@ -59,17 +59,19 @@ def sim(
 
     Ctrl-C or SIGTERM stop the recording and still leave a valid file.
     """
-    from phonepose.record.sim import load_config, record_sim  # here: keeps `phonepose --help` fast
-
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
+    if motion is not None:          # the options' own mistakes before the simulator's imports (~1 s)
+        from phonepose.files import check_input
+        check_input(motion, "trajectory file")
+        centre = _centre(motion_centre)
+    from phonepose.record.sim import load_config, record_sim  # here: keeps `phonepose --help` fast
+
     cfg = load_config(config)       # a bad config fails before anything is written
     spec = None
     if motion is not None:
-        from phonepose.files import check_input
         from phonepose.record.sim.recorded import MotionSpec, load_window
-        check_input(motion, "trajectory file")
-        spec = MotionSpec(str(motion), motion_start, motion_duration, motion_scale, _centre(motion_centre))
+        spec = MotionSpec(str(motion), motion_start, motion_duration, motion_scale, centre)
         load_window(spec)           # a bad file or window fails before anything is written
     t0 = time.perf_counter()
     with ProgressBar(TextColumn("[bold]recording[/bold] {task.description}"), BarColumn(),

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
@@ -104,6 +103,8 @@ def low_passed(t: np.ndarray, poses: Pose, cutoff_hz: float) -> tuple[np.ndarray
     # nothing above the cutoff (a recording at 2 x cutoff_hz or slower), or too short for sosfiltfilt's padding
     if cutoff_hz >= rate / 2 or len(grid) <= 3 * (FILTER_ORDER + 1):
         return grid, uniform
+    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal takes ~0.7 s to import
+
     sos = butter(FILTER_ORDER, cutoff_hz, fs=rate, output="sos")
     q = uniform.rotation.as_quat()
     q[1:] *= np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))[:, None]
