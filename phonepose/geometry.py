@@ -24,6 +24,8 @@ from typing import TypeGuard
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from phonepose.series import interp_columns
+
 # A quaternion whose norm is further than this from 1 is not a rotation: inputs carrying one are
 # skipped (or refused), never normalised into something plausible (docs/format.md, docs/reliability.md).
 QUAT_NORM_TOL = 1e-3
@@ -287,7 +289,7 @@ def interpolate_many(times: np.ndarray, poses: Pose, query: np.ndarray) -> Pose:
     """Poses at ``query`` times from a stamped stack (times ascending, query within range)."""
     slerp = Slerp(np.asarray(times, dtype=float), poses.rotation)
     q = np.asarray(query, dtype=float)
-    trans = np.column_stack([np.interp(q, times, poses.translation[:, k]) for k in range(3)])
+    trans = np.atleast_2d(interp_columns(q, times, np.atleast_2d(poses.translation)))
     return Pose(slerp(q), trans)
 
 

@@ -381,24 +381,6 @@ def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()
 
 
-@given(st.lists(st.integers(-5_000_000, 5_000_000), min_size=2, max_size=40, unique=True),
-       st.integers(0, 2**32 - 1), st.integers(1, 60))
-def test_interpolating_every_column_at_once_is_np_interp_per_column(xp_us, seed, n_x):
-    """T8's integral interpolates its columns in one call: np.interp per column, to the bit, at a scalar and
-    at fewer and more points than samples, the samples themselves and both ends included. Stamps at least a
-    microsecond apart, as T8's are (np.interp's fallback for an infinite slope is not repeated)."""
-    from phonepose.pipeline.fusion import _interp_columns
-    xp = np.sort(np.array(xp_us)) * 1e-5
-    rng = np.random.default_rng(seed)
-    fp = rng.normal(size=(len(xp), 6)) * rng.choice([1e-3, 1.0, 1e3])
-    x = np.sort(np.concatenate([rng.uniform(xp[0], xp[-1], n_x), rng.choice(xp, 2), xp[[0, -1]]]))
-    expected = np.stack([np.interp(x, xp, fp[:, j]) for j in range(6)], axis=1)
-    assert _interp_columns(x, xp, fp).tobytes() == expected.tobytes()
-    for x_one in (float(x[0]), float(x[len(x) // 2]), float(xp[-1])):
-        one = np.array([np.interp(x_one, xp, fp[:, j]) for j in range(6)])
-        assert _interp_columns(x_one, xp, fp).tobytes() == one.tobytes()
-
-
 def test_the_specific_forces_kept_between_ticks_are_those_computed_afresh():
     """T8 keeps the specific force it turned into the world for IMU samples up to the newest VIO sample (those
     never change) and turns only the new ones each tick: its outputs are the same, to the bit, as when it turns

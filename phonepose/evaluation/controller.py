@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from phonepose.geometry import Pose
+from phonepose.series import interp_columns
 
 LAG_RESOLUTION_S = 0.005     # the lag grid: finer than a tick (50 ms), coarser than the stamps' jitter
 LAG_MAX_SHIFT_S = 0.5        # > any latency of the simulated or real streams (~0.15 s)
@@ -55,7 +56,7 @@ def lag_curve(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.n
     for start in range(0, len(taus), per_block):
         block = taus[start:start + per_block]
         q = t_gt[None, :] + np.array(block)[:, None]
-        moved = np.stack([np.interp(q.ravel(), t_est, p_est[:, i]) for i in range(3)], axis=-1)
+        moved = interp_columns(q.ravel(), t_est, p_est)
         sq = np.sum((moved.reshape(len(block), t_gt.size, 3) - p_gt) ** 2, axis=2)
         use = (q >= t_est[0]) & (q <= t_est[-1])
         for tau, row, keep in zip(block, sq, use, strict=True):
@@ -85,8 +86,7 @@ def still_ticks(stamps_s: np.ndarray, gt_positions: np.ndarray, window_s: float 
     if t.size < 2:
         return np.zeros(t.size, bool)
     inside = (t - window_s / 2 >= t[0]) & (t + window_s / 2 <= t[-1])
-    a = np.column_stack([np.interp(t - window_s / 2, t, p[:, i]) for i in range(3)])
-    b = np.column_stack([np.interp(t + window_s / 2, t, p[:, i]) for i in range(3)])
+    a, b = interp_columns(t - window_s / 2, t, p), interp_columns(t + window_s / 2, t, p)
     return inside & (np.linalg.norm(b - a, axis=1) < still_m)
 
 

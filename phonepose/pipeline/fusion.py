@@ -68,6 +68,7 @@ from phonepose.geometry import (
     quat_normalised,
 )
 from phonepose.pipeline.types import Observation
+from phonepose.series import interp_columns, newer_than_before
 
 # Per tick, T8 works on single poses as (quaternion tuple, translation array) pairs with the closed-form
 # math of phonepose.geometry: scipy's Rotation costs tens of microseconds per single-rotation operation
@@ -225,21 +226,6 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
 
 
-def _interp_columns(x, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """``np.interp(x, xp, fp[:, j])`` for every column j at once, to the bit (numpy's own formula: the value
-    at a sample is that sample's, else (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) (x - xp[j]) + fp[j]). ``xp``
-    ascending, ``x`` (a float or an array) within [xp[0], xp[-1]]: T8 interpolates inside its own windows.
-    One call instead of a loop over columns (np.interp takes one column; the loops were ~10 % of the
-    accelerometer's work per tick)."""
-    j = np.minimum(xp.searchsorted(x, side="right") - 1, len(xp) - 2)
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])[..., None]
-    out = slope * (x - xp[j])[..., None] + fp[j]
-    at_sample = (x == xp[j]) | (x == xp[-1])
-    if at_sample.any():
-        out = np.where(at_sample[..., None], fp[np.where(x == xp[-1], len(xp) - 1, j)], out)
-    return out
-
-
 def _turned_by_vio(ts: np.ndarray, q: np.ndarray, t: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Vectors ``f`` (n, 3) at stamps ``t`` within the VIO samples' (``ts``, quaternions ``q``) turned by the
     VIO orientation there, normalised-linearly interpolated (the short way round)."""
@@ -285,8 +271,7 @@ class AccelMotion:
         if u == s_imu:   # the usual case (the tick is past the newest IMU sample): np.interp's own end value
             D, V = self.P_k[-1].copy(), self.V_k[-1].copy()
         else:
-            D = np.array([np.interp(u, self.s_k, self.P_k[:, j]) for j in range(3)])
-            V = np.array([np.interp(u, self.s_k, self.V_k[:, j]) for j in range(3)])
+            D, V = interp_columns(u, self.s_k, self.P_k), interp_columns(u, self.s_k, self.V_k)
         position = self.p0 + self.v0 * s + 0.5 * self.beta * u * u + self.beta * u * (s - u) + D
         velocity = self.v0 + self.beta * u + V
         h = s - u   # past the newest IMU sample: the integral's velocity held, the acceleration decaying
@@ -460,7 +445,7 @@ class _Ring:
     def add_many(self, t: np.ndarray, values: np.ndarray) -> None:
         """``add`` for each row in order: a row is kept if its stamp is newer than every earlier one."""
         if not (len(t) and t[0] > self.last_t and (t[1:] > t[:-1]).all()):   # (in order: every row kept)
-            keep = t > np.maximum.accumulate(np.concatenate([[self.last_t], t[:-1]]))
+            keep = newer_than_before(t, self.last_t)
             t, values = t[keep], values[keep]
         if self._hi + len(t) > len(self._t):
             self._make_room(len(t))
@@ -637,12 +622,12 @@ class FusedTracker:
         VP = np.zeros((len(t_k), 6))
         np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0, out=VP[1:, 0:3])
         np.cumsum(VP[:-1, 0:3] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0, out=VP[1:, 3:6])
-        VP0 = _interp_columns(t0, t_k, VP)
+        VP0 = interp_columns(t0, t_k, VP)
         P = VP[:, 3:6] - VP0[3:6] - VP0[0:3] * (t_k - t0)[:, None]
         V = VP[:, 0:3] - VP0[0:3]
         # the fit of the VIO positions less the integral
         tt = ts[lo:] - t0
-        D_i = _interp_columns(ts[lo:], t_k, P)
+        D_i = interp_columns(ts[lo:], t_k, P)
         coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
         beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
         # from t0 on (t_k[0] <= t0 < t_k[-1]): the integral at t0 (zero) and at the samples after it

@@ -24,6 +24,7 @@ import numpy as np
 from phonepose.geometry import Pose
 from phonepose.record.rehearse.scene import Scene
 from phonepose.record.rehearse.session import RecordedRun
+from phonepose.series import interp_columns, newer_than_before
 
 SCORED_TRACKERS = ("T4", "T5", "T6", "T7", "T7L", "T8")
 # the goals of issue 20
@@ -199,7 +200,7 @@ def imu_lag_s(s: np.ndarray, gyro: np.ndarray, t_sim: np.ndarray, gyro_sim: np.n
         ok = (at >= t_sim[0]) & (at <= t_sim[-1])
         if np.count_nonzero(ok) < 2:
             continue
-        sim = np.column_stack([np.interp(at[ok], t_sim, gyro_sim[:, k]) for k in range(3)])
+        sim = interp_columns(at[ok], t_sim, gyro_sim)
         rms = float(np.sqrt(np.mean((gyro[ok] - sim) ** 2)))
         if rms < best_rms:
             best, best_rms = float(shift), rms
@@ -221,7 +222,7 @@ def gravity_angle_deg(t_imu_ns: np.ndarray, accel: np.ndarray, t_vio_ns: np.ndar
     # the recorder writes samples as received: a clock-sync update can stamp one at or before its
     # predecessor (counted in the session's summary); skipped as playback skips them (scheduler.py), so
     # the stamps interpolated are ascending and distinct
-    keep = np.flatnonzero(t_vio_ns > np.maximum.accumulate(np.concatenate([[np.iinfo(np.int64).min], t_vio_ns[:-1]])))
+    keep = np.flatnonzero(newer_than_before(t_vio_ns))
     t_vio_ns, vio = t_vio_ns[keep], vio[keep]
     ok = (t_imu_ns >= t_vio_ns[0]) & (t_imu_ns <= t_vio_ns[-1])
     t = t_imu_ns[ok]
@@ -314,8 +315,8 @@ def score(scene: Scene, run: RecordedRun, calibration_out: Path | None = None, e
     imu_lag = imu_lag_s(s_imu, gyro, scene.session.t_imu, scene.session.gyro, vio_check.lag_ms / 1e3)
     s_imu = s_imu - imu_lag
     ok = (s_imu >= scene.session.t_imu[0]) & (s_imu <= scene.session.t_imu[-1])
-    sim_g = np.column_stack([np.interp(s_imu[ok], scene.session.t_imu, scene.session.gyro[:, k]) for k in range(3)])
-    sim_a = np.column_stack([np.interp(s_imu[ok], scene.session.t_imu, scene.session.accel[:, k]) for k in range(3)])
+    sim_g = interp_columns(s_imu[ok], scene.session.t_imu, scene.session.gyro)
+    sim_a = interp_columns(s_imu[ok], scene.session.t_imu, scene.session.accel)
     n_imu = int(np.count_nonzero(ok))
     span = s_imu[ok][-1] - s_imu[ok][0] if n_imu > 1 else float("nan")
 

@@ -31,6 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError
 from phonepose.geometry import Pose, interpolate_many
+from phonepose.series import newer_than_before
 
 MOVE_S = 1.2
 HOLD_S = 0.3
@@ -76,7 +77,7 @@ def load_window(spec: MotionSpec) -> RecordedWindow:
         raise ConfigError(f"--motion {spec.file}: needs a timestamped trajectory with 2 or more poses")
     t = np.asarray(traj.stamps, dtype=float)
     # a duplicate or out-of-order stamp (fr2_desk has one) is dropped: the motion needs increasing times
-    keep = np.flatnonzero(t > np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]])))
+    keep = np.flatnonzero(newer_than_before(t))
     t, traj_poses = t[keep] - t[keep][0], traj.poses[keep]
     use = (t >= spec.start_s) & (t <= spec.start_s + spec.duration_s)
     if use.sum() < 2 or t[use][-1] - t[use][0] < 0.9 * spec.duration_s:

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.geometry import Pose
+from phonepose.series import interp_columns
 
 GRID_HZ = 100.0
 
@@ -66,7 +67,7 @@ class VioErrorModel:
     def _interp(self, t: np.ndarray, values: np.ndarray) -> np.ndarray:
         if values.ndim == 1:
             return np.interp(t, self.grid, values)
-        return np.column_stack([np.interp(t, self.grid, values[:, k]) for k in range(values.shape[1])])
+        return interp_columns(t, self.grid, values)
 
     def apply(self, t: np.ndarray, T_vio_body_true: Pose, white: np.ndarray | None = None) -> Pose:
         """VIO estimates of ``T_vio_body_true`` (a stack) sampled at times ``t`` (seconds)."""
