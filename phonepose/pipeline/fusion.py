@@ -524,8 +524,8 @@ class FusedTracker:
         self._source: str | None = None
         self._last_out: np.ndarray | None = None   # the last output's position
         self._last_t: float | None = None
-        self._last_marker: tuple[float, RawPose] | None = None   # (image s, marker pose) of the newest sighting
-        self._last_marker_rotation_scale = 1.0                   # its orientation noise factor (_rotation_scale)
+        # the newest sighting: (image s, marker pose, its orientation noise factor from _rotation_scale)
+        self._last_marker: tuple[float, RawPose, float] | None = None
         self._inside: np.ndarray | None = None     # the filtered marker position (marker_gain < 1)
         self._sightings: deque = deque()           # (image s, marker position) of the last marker_velocity_window_s
         self._had_corrected = False                # the last tick had a corrected VIO pose
@@ -777,8 +777,7 @@ class FusedTracker:
     def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None,
                       ambiguity: float = 0.0) -> None:
         self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position, ambiguity)))
-        self._last_marker = (t_img, marker)
-        self._last_marker_rotation_scale = self._rotation_scale(ambiguity)
+        self._last_marker = (t_img, marker, self._rotation_scale(ambiguity))
         self._sightings.append((t_img, marker[1]))
         while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
             self._sightings.popleft()
@@ -849,7 +848,7 @@ class FusedTracker:
         # the marker source: the newest sighting (at its image time, as T4-T7 report it)
         marker_now = None
         if self._last_marker is not None:
-            t_img, M = self._last_marker
+            t_img, M, _ = self._last_marker
             age = t - t_img
             if 0 <= age <= self.cfg.max_prediction_s:
                 marker_now = M[1] + velocity * age if self.cfg.marker_to_tick else M[1]
@@ -930,7 +929,7 @@ class FusedTracker:
         """
         c, f = self.cfg, self.filter
         assert self._last_marker is not None   # called with the marker as the source
-        t_img, M = self._last_marker
+        t_img, M, rotation_scale = self._last_marker
         at_img = self._vio_at(t_img - f.d)
         if at_img is None:                  # the image is newer than the newest VIO sample (usual)
             at_img = self._vio_predicted(t_img - f.d)
@@ -943,7 +942,7 @@ class FusedTracker:
         t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
         P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * h) ** 2
-        gain = P / (P + (c.pull_marker_rotation_deg * self._last_marker_rotation_scale) ** 2)
+        gain = P / (P + (c.pull_marker_rotation_deg * rotation_scale) ** 2)
         return quat_mul(quat_from_rotvec(gain * pull), rotation)
 
     def __repr__(self) -> str:
