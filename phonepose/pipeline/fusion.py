@@ -226,6 +226,16 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
 
 
+def _steps(t_before: float, t: np.ndarray) -> np.ndarray:
+    """``np.diff(t, prepend=t_before)``: the same differences, without np.diff's concatenation (~9 µs a call,
+    twice a tick: 5 % of T8)."""
+    out = np.empty(len(t))
+    if len(t):
+        out[0] = t[0] - t_before
+        np.subtract(t[1:], t[:-1], out=out[1:])
+    return out
+
+
 def _turned_by_vio(ts: np.ndarray, q: np.ndarray, t: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Vectors ``f`` (n, 3) at stamps ``t`` within the VIO samples' (``ts``, quaternions ``q``) turned by the
     VIO orientation there, normalised-linearly interpolated (the short way round)."""
@@ -667,7 +677,7 @@ class FusedTracker:
             if len(self._gyro):
                 tg, gyro = self._gyro.t, self._gyro.v
                 g_i = np.minimum(tg.searchsorted(t_k[upto:]), len(tg) - 1)
-                steps = np.diff(t_k[upto:], prepend=t0)
+                steps = _steps(t0, t_k[upto:])
                 rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
                 f_after = f_k[upto:]
                 turned = f_after + _cross(rotvec, f_after)
@@ -711,7 +721,7 @@ class FusedTracker:
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
-        steps = np.diff(tg[a:b], prepend=t_last)
+        steps = _steps(t_last, tg[a:b])
         rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
         t_prev = tg[b - 1] if b > a else t_last
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
