@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable, Callable
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import pytest
 
@@ -54,3 +54,34 @@ def short_exp1(monkeypatch) -> list[tuple[float, float, float]]:
     targets = [scenarios._exp1_targets_cam()[i] for i in (0, 4, 8, 12)]
     monkeypatch.setattr(scenarios, "_exp1_targets_cam", lambda: list(targets))
     return targets
+
+
+class CliResult(NamedTuple):      # as subprocess.CompletedProcess names them; unpacks as (code, out, err)
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def cli(capsys, monkeypatch) -> Callable[..., CliResult]:
+    """``phonepose ARGS`` run in this process, through the console script's own entry point
+    (``phonepose.cli.main``: the same one-line errors and exit codes), with ``env`` set for the call.
+
+    A spawned interpreter spends ~1 s importing numpy, scipy and the CLI before the command starts, ~30
+    times in the fast tests. The tests that need a real process (signals, a killed command, the entry
+    point's own wiring: test_evaluation's ``test_cli_error_in_a_real_process``) still spawn one."""
+    from phonepose.cli import main
+
+    def run(*args, env: dict[str, str] | None = None) -> CliResult:
+        for key, value in (env or {}).items():
+            monkeypatch.setenv(key, value)
+        capsys.readouterr()
+        try:
+            main([str(a) for a in args])
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        out = capsys.readouterr()
+        return CliResult(code, out.out, out.err)
+
+    return run

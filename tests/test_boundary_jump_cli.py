@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -12,10 +10,6 @@ import pytest
 from phonepose.evaluation.trajectory import load_in_view, read_session_tag, write_in_view
 from phonepose.playback.engine import run_playback
 from phonepose.testing.playback_session import write_test_session
-
-
-def phonepose(*args):
-    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
 
 
 @pytest.fixture(scope="module")
@@ -41,9 +35,9 @@ def test_in_view_file_matches_the_ticks_and_round_trips(played, tmp_path):
 
 
 @pytest.mark.parametrize("tracker", ["T4", "T8"])
-def test_evaluate_paper_from_files_gives_playbacks_metrics(played, tracker):
+def test_evaluate_paper_from_files_gives_playbacks_metrics(played, tracker, cli):
     out, result = played
-    r = phonepose("evaluate", "--metric", "paper", "--gt", str(out / "groundtruth.tum"),
+    r = cli("evaluate", "--metric", "paper", "--gt", str(out / "groundtruth.tum"),
                   "--est", str(out / "trajectories" / f"{tracker}.tum"), "--in-view", str(out / "in_view.txt"), "--json")
     assert r.returncode == 0, r.stderr
     from_files = json.loads(r.stdout)
@@ -64,13 +58,13 @@ def test_t4_jumps_where_t8_does_not(played):
     assert total["T8"]["boundary_jump_max_m"] < 0.5 * total["T4"]["boundary_jump_max_m"]
 
 
-def test_evaluate_paper_needs_in_view_and_reads_it_strictly(played, tmp_path):
+def test_evaluate_paper_needs_in_view_and_reads_it_strictly(played, tmp_path, cli):
     out, _ = played
     args = ["evaluate", "--metric", "paper", "--gt", str(out / "groundtruth.tum"),
             "--est", str(out / "trajectories" / "T8.tum")]
-    r = phonepose(*args)
+    r = cli(*args)
     assert r.returncode == 5 and "--in-view" in r.stderr and "Traceback" not in r.stderr
     bad = tmp_path / "bad.txt"
     bad.write_text("# timestamp in_view\n1.0 yes\n")
-    r = phonepose(*args, "--in-view", str(bad))
+    r = cli(*args, "--in-view", str(bad))
     assert r.returncode == 2 and "bad.txt:2" in r.stderr and "Traceback" not in r.stderr

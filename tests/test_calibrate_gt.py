@@ -216,25 +216,25 @@ def mocap_file(session, out, offset_s: float) -> Pose:
     return W
 
 
-def test_bad_input_is_one_line(tmp_path):
+def test_bad_input_is_one_line(tmp_path, cli):
     from phonepose.testing.playback_session import write_test_session
 
     session = tmp_path / "s.mcap"
     write_test_session(session)     # 1.5 s of a marker that tilts by 15 deg: written, with one warning line
-    r = _run("calibrate-gt", str(session), "--out", str(tmp_path / "cal.yaml"))
+    r = cli("calibrate-gt", str(session), "--out", str(tmp_path / "cal.yaml"))
     assert r.returncode == 0 and r.stderr.count("\n") == 1, r.stderr
     assert r.stderr.startswith("phonepose: warning: the motion does not determine the calibration well: ")
     assert "grip->body translation ±" in r.stderr
     (tmp_path / "cal.yaml").unlink()
     far = tmp_path / "far.tum"
     mocap_file(session, far, 100.0)
-    r = _run("calibrate-gt", str(session), "--gt", str(far), "--out", str(tmp_path / "cal.yaml"))
+    r = cli("calibrate-gt", str(session), "--gt", str(far), "--out", str(tmp_path / "cal.yaml"))
     assert r.returncode == 4 and r.stderr.count("\n") == 1, r.stderr
     assert f"the ground truth ({far}: 1700000100.00-1700000103.00 s) does not overlap the marker sightings" in r.stderr
     assert not (tmp_path / "cal.yaml").exists()
-    r = _run("calibrate-gt", str(session), "--out", str(session))
+    r = cli("calibrate-gt", str(session), "--out", str(session))
     assert r.returncode != 0 and r.stderr.count("\n") == 1, r.stderr
-    r = _run("calibrate-gt", str(session), "--gt-format", "kitti", "--gt", str(far), "--out", str(tmp_path / "c.yaml"))
+    r = cli("calibrate-gt", str(session), "--gt-format", "kitti", "--gt", str(far), "--out", str(tmp_path / "c.yaml"))
     assert r.returncode == 5 and "--gt-format 'kitti': expected one of tum, euroc" in r.stderr
 
 
@@ -283,7 +283,7 @@ def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_
         assert doc["plain"]["trackers"][tracker]["inside"]["r_ate_deg"] > 9 and a["r_ate_deg"] < 3
 
 
-def test_evaluate_applies_the_calibration_to_its_ground_truth_file(tmp_path):
+def test_evaluate_applies_the_calibration_to_its_ground_truth_file(tmp_path, cli):
     """The estimate is the phone's true pose in display_vio; the mocap file is 0.3 s late, in its own world, of
     the grip: after --gt-calibration they agree to the calibration's accuracy (here exact)."""
     import json
@@ -296,8 +296,8 @@ def test_evaluate_applies_the_calibration_to_its_ground_truth_file(tmp_path):
     write_tum(tmp_path / "est.tum", sightings.stamps_s, sightings.T_dvio_body)
     args = ("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "est.tum"), "--metric", "ape",
             "--json")
-    plain = json.loads(_run(*args).stdout)
-    moved = _run(*args, "--gt-calibration", str(tmp_path / "cal.yaml"))
+    plain = json.loads(cli(*args).stdout)
+    moved = cli(*args, "--gt-calibration", str(tmp_path / "cal.yaml"))
     assert moved.returncode == 0, moved.stderr
     moved = json.loads(moved.stdout)
     assert plain["ape"]["rmse"] > 0.5 and moved["ape"]["rmse"] < 1e-5
@@ -326,7 +326,7 @@ def test_batch_calibrate_gt_rows(tmp_path):
     assert expected.metrics["ground_truth"]["calibration_file"] == "calibrate-gt"
 
 
-def test_playback_reads_a_sidecar_ground_truth_through_its_calibration(tmp_path):
+def test_playback_reads_a_sidecar_ground_truth_through_its_calibration(tmp_path, cli):
     """--gt FILE in another world and 50 ms late, with the calibration that undoes both, scores exactly as the
     session's own ground truth; without a calibration that places its world, there is no ground truth."""
     from phonepose.playback.engine import run_playback
@@ -351,7 +351,7 @@ def test_playback_reads_a_sidecar_ground_truth_through_its_calibration(tmp_path)
         "ground_truth_file": str(tmp_path / "mocap.tum")}
     bare = tmp_path / "bare.mcap"      # a live session: no /gt topics, no /gt/calibration
     write_test_session(bare, gt=False)
-    r = _run("playback", str(bare), "-q", "-t", "T1", "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "p"))
+    r = cli("playback", str(bare), "-q", "-t", "T1", "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "p"))
     assert r.returncode == 0, r.stderr
     assert ("no usable ground truth (needs /gt/controller/pose and /gt/calibration within the task window, or with "
             "--gt FILE a --gt-calibration from `phonepose calibrate-gt SESSION --gt FILE`)") in " ".join(r.stdout.split())

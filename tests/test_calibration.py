@@ -162,15 +162,6 @@ def synthetic_video(synthetic, tmp_path_factory):
     return path
 
 
-def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
-    from phonepose.cli import main
-
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return (0 if exc.value.code is None else exc.value.code), out.out, out.err
-
-
 # --- the synthetic views are right ---------------------------------------------------------------
 
 def test_detected_corners_are_where_the_known_camera_projects_them(synthetic):
@@ -206,10 +197,10 @@ def test_calibrate_views_recovers_the_known_camera(synthetic):
     assert np.all(result.std_intrinsics[:4] < 1.0)      # OpenCV's own uncertainty agrees: well constrained
 
 
-def test_cli_images_recovers_the_known_camera_and_writes_the_file(synthetic, tmp_path, capsys):
+def test_cli_images_recovers_the_known_camera_and_writes_the_file(synthetic, tmp_path, cli):
     _, _, folder = synthetic
     out = tmp_path / "cam.yaml"
-    code, stdout, err = run_cli(["calibrate-camera", "--images", str(folder), "--out", str(out), "-q"], capsys)
+    code, stdout, err = cli("calibrate-camera", "--images", str(folder), "--out", str(out), "-q")
     assert code == 0, err
     calib = load_calibration(out)
     assert (calib.width, calib.height) == SIZE
@@ -219,9 +210,9 @@ def test_cli_images_recovers_the_known_camera_and_writes_the_file(synthetic, tmp
     assert "warning" not in err
 
 
-def test_cli_video_recovers_the_known_camera(synthetic_video, tmp_path, capsys):
+def test_cli_video_recovers_the_known_camera(synthetic_video, tmp_path, cli):
     out = tmp_path / "cam.yaml"
-    code, stdout, err = run_cli(["calibrate-camera", "--video", str(synthetic_video), "--out", str(out), "-q"], capsys)
+    code, stdout, err = cli("calibrate-camera", "--video", str(synthetic_video), "--out", str(out), "-q")
     assert code == 0, err
     calib = load_calibration(out)
     assert_recovered(calib.K, calib.D, calib.reprojection_error_px, jpeg=True)
@@ -241,15 +232,14 @@ def test_device_path_with_a_stand_in_camera(synthetic_video, monkeypatch):
     assert abs(e["fx_%"]) < 1.0 and abs(e["cx_px"]) < 3.0
 
 
-def test_unreadable_image_is_a_warning_and_few_views_are_flagged(synthetic, tmp_path, capsys):
+def test_unreadable_image_is_a_warning_and_few_views_are_flagged(synthetic, tmp_path, cli):
     images, _, _ = synthetic
     folder = tmp_path / "five"
     folder.mkdir()
     for i in range(5):
         cv2.imwrite(str(folder / f"v{i}.png"), images[i])
     (folder / "broken.png").write_bytes(b"not a png")
-    code, stdout, err = run_cli(["calibrate-camera", "-q", "--images", str(folder), "--out", str(tmp_path / "c.yaml")],
-                                capsys)
+    code, stdout, err = cli("calibrate-camera", "-q", "--images", str(folder), "--out", str(tmp_path / "c.yaml"))
     assert code == 0, err
     lines = err.strip().splitlines()
     assert "phonepose: warning: broken.png: not an image OpenCV can read" in lines
@@ -341,12 +331,12 @@ def test_board_png_has_the_true_size(dpi):
     assert square_px == pytest.approx(30 / 25.4 * dpi, abs=0.5)
 
 
-def test_board_does_not_fit(tmp_path, capsys):
-    code, _, err = run_cli(["board", "--board", "squares=12x8 square_mm=30 marker_mm=22",
-                            "--out", str(tmp_path / "b.png")], capsys)
+def test_board_does_not_fit(tmp_path, cli):
+    code, _, err = cli("board", "--board", "squares=12x8 square_mm=30 marker_mm=22",
+                       "--out", str(tmp_path / "b.png"))
     assert code == 5 and err.count("\n") == 1 and "does not fit" in err
-    code, _, err = run_cli(["board", "--board", "squares=12x8 square_mm=30 marker_mm=22", "--paper", "a3",
-                            "--out", str(tmp_path / "b.png")], capsys)
+    code, _, err = cli("board", "--board", "squares=12x8 square_mm=30 marker_mm=22", "--paper", "a3",
+                       "--out", str(tmp_path / "b.png"))
     assert code == 0 and (tmp_path / "b.png").stat().st_size > 0
 
 
@@ -379,8 +369,8 @@ def test_marker_defaults_are_the_simulators():
         marker_image(side_px=5)
 
 
-def test_marker_cli(tmp_path, capsys):
-    code, stdout, _ = run_cli(["marker", "--out", str(tmp_path / "m.png"), "--id", "3", "--pixels", "200"], capsys)
+def test_marker_cli(tmp_path, cli):
+    code, stdout, _ = cli("marker", "--out", str(tmp_path / "m.png"), "--id", "3", "--pixels", "200")
     assert code == 0 and "id 3" in stdout
     img = cv2.imread(str(tmp_path / "m.png"), cv2.IMREAD_GRAYSCALE)
     assert cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)).detectMarkers(img)[1] \
@@ -389,8 +379,8 @@ def test_marker_cli(tmp_path, capsys):
 
 # --- errors: one line, documented exit code -------------------------------------------------------
 
-def test_marker_cli_bad_id(tmp_path, capsys):
-    code, _, err = run_cli(["marker", "--id", "99", "--out", str(tmp_path / "m.png")], capsys)
+def test_marker_cli_bad_id(tmp_path, cli):
+    code, _, err = cli("marker", "--id", "99", "--out", str(tmp_path / "m.png"))
     assert code == 5 and err == "phonepose: error: marker id 99: DICT_4X4_50 has ids 0..49\n"
     assert not (tmp_path / "m.png").exists()
 
@@ -439,24 +429,23 @@ def _text(p: pathlib.Path) -> pathlib.Path:
 
 
 @pytest.mark.parametrize("case", ERROR_CASES, ids=[c[0] for c in ERROR_CASES])
-def test_errors_are_one_line(case, tmp_path, capsys):
+def test_errors_are_one_line(case, tmp_path, cli):
     _, argv, code, text = case
     args = argv(tmp_path)
     if "--out" not in args:
         args += ["--out", str(tmp_path / "cam.yaml")]
-    got, _, err = run_cli(["calibrate-camera", "-q", *args], capsys)
+    got, _, err = cli("calibrate-camera", "-q", *args)
     assert got == code, err
     assert err.count("\n") == 1 and err.startswith("phonepose: error: ") and text in err, err
     assert not (tmp_path / "cam.yaml").exists()
 
 
-def test_too_few_views_is_one_line(synthetic, tmp_path, capsys):
+def test_too_few_views_is_one_line(synthetic, tmp_path, cli):
     images, _, _ = synthetic
     folder = _mk(tmp_path / "three")
     for i in range(3):
         cv2.imwrite(str(folder / f"v{i}.png"), images[i])
-    code, _, err = run_cli(["calibrate-camera", "-q", "--images", str(folder), "--out", str(tmp_path / "c.yaml")],
-                           capsys)
+    code, _, err = cli("calibrate-camera", "-q", "--images", str(folder), "--out", str(tmp_path / "c.yaml"))
     assert code == 4 and err.count("\n") == 1 and "need at least 4" in err, err
 
 

@@ -11,21 +11,18 @@ import pytest
 from phonepose.testing.sample import sample_messages, write_sample
 
 
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
-
-
 def test_version():
+    """In a real process: the console script's entry point (``python -m phonepose``) itself."""
     from phonepose import __version__
 
-    r = run("--version")
+    r = subprocess.run([sys.executable, "-m", "phonepose", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.strip() == f"phonepose {__version__}"
 
 
-def test_info_json(tmp_path):
+def test_info_json(tmp_path, cli):
     path = tmp_path / "s.mcap"
     write_sample(path)
-    r = run("info", str(path), "--json")
+    r = cli("info", str(path), "--json")
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["messages"] == len(sample_messages())
@@ -37,33 +34,33 @@ def test_info_json(tmp_path):
 
 @pytest.mark.parametrize("content,message", [(None, "no such file"), (b"", "empty file"),
                                              (b"not mcap at all", "not an MCAP file")])
-def test_info_bad_file_is_one_line_and_nonzero(tmp_path, content, message):
+def test_info_bad_file_is_one_line_and_nonzero(tmp_path, content, message, cli):
     path = tmp_path / "bad.mcap"
     if content is not None:
         path.write_bytes(content)
-    r = run("info", str(path))
+    r = cli("info", str(path))
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0
     assert message in r.stderr and "Traceback" not in r.stderr
 
 
-def test_info_truncated_file_points_to_recover(tmp_path):
+def test_info_truncated_file_points_to_recover(tmp_path, cli):
     path = tmp_path / "s.mcap"
     write_sample(path)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
-    r = run("info", str(path))
+    r = cli("info", str(path))
     assert r.returncode == 3
     assert "recover" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_info_shows_the_task_window(tmp_path):
+def test_info_shows_the_task_window(tmp_path, cli):
     """What playback scores, and what --start/--end must overlap (seconds after the session start)."""
     from phonepose.testing.playback_session import write_test_session
 
     path = tmp_path / "s.mcap"
     write_test_session(path, duration_s=2.0, camera=False)
-    r = run("info", str(path))
+    r = cli("info", str(path))
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[1] == "task window 0.30-1.80 s (seconds after the start)"
-    assert json.loads(run("info", str(path), "--json").stdout)["task_window_s"] == [0.3, 1.8]
+    assert json.loads(cli("info", str(path), "--json").stdout)["task_window_s"] == [0.3, 1.8]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 import signal
 import subprocess
@@ -62,39 +61,35 @@ def test_choice_enums_list_what_the_implementations_accept():
     assert [c.value for c in options.TrajectoryFormat] == list(FORMATS)
 
 
-def _run(*args, **kw):
-    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True, **kw)
-
-
 # ----------------------------------------------------------------------------- --help
 HELP = [["playback"], ["record", "sim"], ["batch"], ["experiment", "exp2"], ["evaluate"], ["board"],
         ["calibrate-camera"], ["demo"]]
 
 
 @pytest.mark.parametrize("command", HELP, ids=" ".join)
-def test_flags_read_as_flags_in_help(command):
-    r = _run(*command, "--help", env={**os.environ, "COLUMNS": "120"})
+def test_flags_read_as_flags_in_help(command, cli):
+    r = cli(*command, "--help", env={"COLUMNS": "120"})
     assert r.returncode == 0, r.stderr
     assert "<bool>" not in r.stdout
     assert re.search(r"--help\s+Show this message and exit\.", r.stdout), r.stdout
 
 
-def test_help_shows_defaults_choices_and_paper():
-    r = _run("playback", "--help", env={**os.environ, "COLUMNS": "160"})
+def test_help_shows_defaults_choices_and_paper(cli):
+    r = cli("playback", "--help", env={"COLUMNS": "160"})
     assert "[default: (./playback-<session>)]" in r.stdout          # rich markup no longer eats it
     assert "<paper|se3>" in r.stdout                                 # --correction-math is a choice
     assert "'paper' (T1-T7)" in r.stdout                             # --tracker lists paper
-    r = _run("evaluate", "--help", env={**os.environ, "COLUMNS": "160"})
+    r = cli("evaluate", "--help", env={"COLUMNS": "160"})
     for choice in ("<rpg|ape|rpe|paper>", "<posyaw|se3|sim3|none>", "<tum|euroc|kitti>"):
         assert choice in r.stdout, r.stdout
 
 
 # ----------------------------------------------------------------------------- piped output
-def test_info_does_not_cut_topic_names_when_piped(tmp_path):
+def test_info_does_not_cut_topic_names_when_piped(tmp_path, cli):
     from phonepose.testing.playback_session import write_test_session
 
     write_test_session(tmp_path / "s.mcap", duration_s=1.0)
-    r = _run("info", str(tmp_path / "s.mcap"), env={**os.environ, "COLUMNS": "40"})   # a pipe, 40 columns
+    r = cli("info", str(tmp_path / "s.mcap"), env={"COLUMNS": "40"})   # not a terminal, 40 columns
     assert r.returncode == 0, r.stderr
     for topic in ("/controller/vio/pose", "/display/camera/calibration", "foxglove.CameraCalibration"):
         assert topic in r.stdout, r.stdout

@@ -341,21 +341,8 @@ def test_paper_metrics_empty_and_none():
 
 
 # ----------------------------------------------------------------------------- CLI
-def run_cli(capsys, *args):
-    """In process (the command modules import once per test session); returns (code, stdout, stderr)."""
-    from phonepose.cli import main
-
-    try:
-        main(["evaluate", *args])
-        code = 0
-    except SystemExit as e:
-        code = e.code or 0
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
-def test_cli_json_layout(capsys):
-    code, out, err = run_cli(capsys, "--gt", str(DATA / "rpg/MH_04_stamped_groundtruth.txt"),
+def test_cli_json_layout(cli):
+    code, out, err = cli("evaluate", "--gt", str(DATA / "rpg/MH_04_stamped_groundtruth.txt"),
                              "--est", str(DATA / "rpg/MH_04_stamped_ba_estimate0.txt"), "--json")
     assert code == 0, err
     d = json.loads(out)
@@ -364,28 +351,28 @@ def test_cli_json_layout(capsys):
     assert list(d["re"]) == ["9.17", "18.34", "27.52", "36.69", "45.87"]
     assert set(d["re"]["9.17"]) >= {"trans_m", "trans_perc", "rot_deg", "yaw_deg", "gravity_deg"}
     assert d["ate"]["trans_m"]["rmse"] == pytest.approx(0.105614372, abs=5e-10)
-    code, out, err = run_cli(capsys, "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
+    code, out, err = cli("evaluate", "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
                              str(DATA / "evo/V102.txt"), "--format", "euroc", "--metric", "rpe", "--delta", "1",
                              "--delta-unit", "m", "--json")
     d = json.loads(out)
     assert d["rpe"]["num_samples"] == 72 and d["rpe"]["rmse"] == pytest.approx(0.060284, abs=5e-7)
 
 
-def test_cli_rpg_quirks(capsys):
+def test_cli_rpg_quirks(cli):
     args = ["--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est", str(DATA / "evo/fr2_desk_ORB.txt"),
             "--align", "se3", "--lengths", "2.03", "--json"]
-    _, out, _ = run_cli(capsys, *args)
+    _, out, _ = cli("evaluate", *args)
     assert json.loads(out)["re"]["2.03"]["trans_m"]["rmse"] == pytest.approx(0.015502644, abs=5e-10)
-    _, out, _ = run_cli(capsys, *args, "--rpg-quirks")
+    _, out, _ = cli("evaluate", *args, "--rpg-quirks")
     assert json.loads(out)["re"]["2.03"]["trans_m"]["rmse"] == pytest.approx(0.016630469, abs=5e-10)
 
 
-def test_cli_table(capsys):
-    code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
+def test_cli_table(cli):
+    code, out, _ = cli("evaluate", "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
                            str(DATA / "evo/fr2_desk_ORB.txt"), "--metric", "ape", "--align", "se3")
     assert code == 0 and "2174 matched poses" in out and "0.00811898" in out
     # a .csv estimate with --format euroc is read as EuRoC too: GT against itself
-    code, out, _ = run_cli(capsys, "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
+    code, out, _ = cli("evaluate", "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
                            str(DATA / "evo/V102_groundtruth.csv"), "--format", "euroc", "--metric", "ape", "--json")
     assert code == 0 and json.loads(out)["ape"]["max"] == 0.0
 
@@ -397,8 +384,8 @@ def test_cli_table(capsys):
     (["--gt", "{evo}/V102.txt", "--est", "{evo}/V102.txt", "--align", "sim3", "--align-frames", "1"], 5, "sim3"),
     (["--gt", "{evo}/V102_groundtruth.csv", "--est", "{evo}/V102.txt"], 2, "V102_groundtruth.csv:2"),
 ])
-def test_cli_errors_are_one_line(capsys, args, code, text):
-    got, _, err = run_cli(capsys, *[a.format(evo=DATA / "evo") for a in args])
+def test_cli_errors_are_one_line(cli, args, code, text):
+    got, _, err = cli("evaluate", *[a.format(evo=DATA / "evo") for a in args])
     assert got == code
     assert text in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
 

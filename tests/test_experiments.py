@@ -139,10 +139,10 @@ def test_exp2_hand_eye_sequence_scores_in_the_phone_frame(tmp_path):
     assert HAND_EYE_NOTE in md.read_text()
 
 
-def test_experiment_bad_options_are_one_line():
-    r = run("experiment", "exp2", "--trials", "7")
+def test_experiment_bad_options_are_one_line(cli):
+    r = cli("experiment", "exp2", "--trials", "7")
     assert r.returncode == 5 and "--trials 7: expected an integer in [1, 3]" in r.stderr and "Traceback" not in r.stderr
-    r = run("experiment", "exp2", "--correction-math", "quaternion")
+    r = cli("experiment", "exp2", "--correction-math", "quaternion")
     assert r.returncode == 5 and "Traceback" not in r.stderr
 
 

@@ -8,8 +8,6 @@ most about one second.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -242,19 +240,15 @@ def test_recover_errors(session, tmp_path):
     assert path.read_bytes() == data  # the input is never touched
 
 
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
-
-
-def test_cli_recover_truncated(session, tmp_path):
+def test_cli_recover_truncated(session, tmp_path, cli):
     path, data, chunks, _ = session
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: chunks[3].chunk_start_offset + 5000])
-    r = run("recover", str(cut), "--out", str(tmp_path / "fixed.mcap"))
+    r = cli("recover", str(cut), "--out", str(tmp_path / "fixed.mcap"))
     assert r.returncode == 0, r.stderr
     assert "/controller/imu" in r.stdout and "1204" in r.stdout  # IMU of chunks 1-3: 0 .. 3.0075 s at 400 Hz
     assert "lost: 1 damaged chunk(s)" in r.stdout and "ends before its footer" in r.stdout
-    info = run("info", str(tmp_path / "fixed.mcap"), "--json")
+    info = cli("info", str(tmp_path / "fixed.mcap"), "--json")
     assert info.returncode == 0, info.stderr
     topics = {c["topic"]: c["messages"] for c in json.loads(info.stdout)["channels"]}
     assert topics["/controller/imu"] == 1204 and topics["/display/camera/image"] == 91
@@ -262,15 +256,15 @@ def test_cli_recover_truncated(session, tmp_path):
         assert sum(1 for _ in reader.messages()) == 1204 + 91 + 181 + 181
 
 
-def test_cli_recover_json_and_errors(session, tmp_path):
+def test_cli_recover_json_and_errors(session, tmp_path, cli):
     path, _, _, _ = session
-    r = run("recover", str(path), "--out", str(tmp_path / "fixed.mcap"), "--json")
+    r = cli("recover", str(path), "--out", str(tmp_path / "fixed.mcap"), "--json")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["messages"] == 3300 and rep["chunks_skipped"] == 0 and rep["time_lost_s"] == 0
-    r = run("recover", str(path), "--out", str(path))
+    r = cli("recover", str(path), "--out", str(path))
     assert r.returncode == 2 and "writing it would destroy the input" in r.stderr and r.stderr.count("\n") == 1
-    r = run("recover", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
+    r = cli("recover", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o.mcap"))
     assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
-    r = run("recover", str(path), "--out", str(tmp_path / "nodir" / "o.mcap"))
+    r = cli("recover", str(path), "--out", str(tmp_path / "nodir" / "o.mcap"))
     assert r.returncode == 6 and "does not exist" in r.stderr and "Traceback" not in r.stderr

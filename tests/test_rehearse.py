@@ -177,14 +177,12 @@ def test_rehearsal_end_to_end(tmp_path):
                                  "gt-calibration.yaml"}
 
 
-def test_cli_refuses_before_any_work(tmp_path):
+def test_cli_refuses_before_any_work(tmp_path, cli, monkeypatch):
     """A missing --iwer file, an --out folder of the user's: one line, the exit code, nothing written."""
-    import subprocess
-    import sys
+    monkeypatch.chdir(tmp_path)
 
-    def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run([sys.executable, "-m", "phonepose", "record", "rehearse", *args], capture_output=True,
-                              text=True, cwd=tmp_path, timeout=DEADLINE_S)
+    def run(*args: str):
+        return cli("record", "rehearse", *args)
 
     r = run("--out", "r", "--iwer", "missing.js")
     assert r.returncode == 5 and r.stderr.strip().splitlines() == [

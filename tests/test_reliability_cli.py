@@ -526,19 +526,9 @@ def good(tmp_path_factory) -> Path:
     return path
 
 
-def run_inprocess(argv: list[str], capsys) -> tuple[int, str, str]:
-    from phonepose.cli import main
-
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    code = exc.value.code
-    return (0 if code is None else code), out.out, out.err
-
-
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
-def test_bad_input(case: Case, good, tmp_path, capsys):
-    code, _, err = run_inprocess(case.argv(good, tmp_path), capsys)
+def test_bad_input(case: Case, good, tmp_path, cli):
+    code, _, err = cli(*case.argv(good, tmp_path))
     lines = err.strip().splitlines()
     assert code == case.code, err
     assert len(lines) == 1 and "Traceback" not in err, err
@@ -547,10 +537,9 @@ def test_bad_input(case: Case, good, tmp_path, capsys):
     assert re.search(message, lines[0]), lines[0]
 
 
-def test_the_good_session_plays(good, tmp_path, capsys):
+def test_the_good_session_plays(good, tmp_path, cli):
     """The control: the input every case breaks plays back cleanly."""
-    code, out, err = run_inprocess(["playback", str(good), "-q", "-t", "T1", "-t", "T4", "--out", str(tmp_path / "o")],
-                                   capsys)
+    code, out, err = cli("playback", str(good), "-q", "-t", "T1", "-t", "T4", "--out", str(tmp_path / "o"))
     assert code == 0 and err == "", err
     assert "T4" in out
 
@@ -738,7 +727,7 @@ def test_evaluate_reports_bad_rows(clean_run, tmp_path):
                                 "timestamp(s), used as evo/rpg do")
 
 
-def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
+def test_output_on_a_read_only_filesystem(good, tmp_path, cli):
     """A read-only mount (root with mount permission only): playback, record and recover say so in one line."""
     with mounted_tmpfs(tmp_path / "ro", "ro,size=1m") as mnt:
         for argv, pattern in [
@@ -750,6 +739,6 @@ def test_output_on_a_read_only_filesystem(good, tmp_path, capsys):
              r"--out .*ro/s\.mcap: directory .*ro is on a read-only file system$"),
             (["board", "--out", str(mnt / "b.png")], r"--out .*ro/b\.png: directory .*ro is on a read-only file system$"),
         ]:
-            code, _, err = run_inprocess(argv, capsys)
+            code, _, err = cli(*argv)
             assert code == 6, err
             assert len(err.strip().splitlines()) == 1 and re.search(pattern, err.strip()), err

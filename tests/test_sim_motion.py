@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -105,9 +103,8 @@ def test_motion_scale_shrinks_the_displacements():
     (["--motion", FR1, "--motion-start", "25"], "is not inside the file's"),
     (["--motion", FR1, "--motion-centre", "0,0"], "--motion-centre"),
 ])
-def test_a_bad_motion_window_is_one_line_before_anything_is_written(tmp_path, args, needle):
+def test_a_bad_motion_window_is_one_line_before_anything_is_written(tmp_path, args, needle, cli):
     out = tmp_path / "s.mcap"
-    r = subprocess.run([sys.executable, "-m", "phonepose", "record", "sim", "--out", str(out), "-q", *args],
-                       capture_output=True, text=True)
+    r = cli("record", "sim", "--out", str(out), "-q", *args)
     assert r.returncode == 5 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not out.exists()
