@@ -45,6 +45,12 @@ async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLIN
         raise AssertionError(waiting.timed_out(what, timeout, None, show_last=True)) from None
 
 
+def pytest_collection_modifyitems(config, items) -> None:
+    """The tests marked ``long`` first, the rest in their order: pytest-xdist hands tests to its workers in
+    collection order, so the 90 s rehearsal collected near the end ran alone while the other worker idled."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)
+
+
 @pytest.fixture
 def short_exp1(monkeypatch) -> list[tuple[float, float, float]]:
     """``experiment exp1`` with 4 of its 16 targets: one inside and one outside the view at each depth (a ~27 s

@@ -113,6 +113,7 @@ def errors(cal) -> tuple[float, float, float, float]:
             1e3 * cal.T_controller_gt.distance_to(X_TRUE), np.degrees(cal.T_controller_gt.angle_to(X_TRUE)))
 
 
+@pytest.mark.long
 def test_a_long_hold_counts_as_one_view_not_as_thirty_a_second(monkeypatch):
     """A minute's hold after 19 s of motion leaves the calibration where the motion alone puts it; counting
     every frame of the hold (the thinning switched off) drags it towards the hold's one marker error."""
@@ -198,12 +199,6 @@ def test_file_round_trip_and_an_old_hand_eye_file(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the command, on sessions
-def _run(*args):
-    import subprocess
-    import sys
-    return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
-
-
 def mocap_file(session, out, offset_s: float) -> Pose:
     """A motion-capture export made from the session's own ground truth: its clock ``offset_s`` late,
     in another world W (returned)."""
@@ -239,7 +234,8 @@ def test_bad_input_is_one_line(tmp_path, cli):
 
 
 @pytest.mark.slow
-def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_path):
+@pytest.mark.long
+def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_path, cli):
     """record sim -> calibrate-gt recovers the simulator's truth within issue 20's tolerances; a mocap-style
     file (0.3 s late, another world) scores the session after calibrate-gt as its own ground truth does."""
     import json
@@ -253,7 +249,7 @@ def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_
     from phonepose.session import SessionReader
     with SessionReader(session) as reader:
         assert ground_truth_source(reader) == "simulator"
-    r = _run("calibrate-gt", str(session), "--out", str(tmp_path / "own.yaml"))
+    r = cli("calibrate-gt", str(session), "--out", str(tmp_path / "own.yaml"))
     assert r.returncode == 0, r.stderr
     assert "clock offset (gt - recorder)" in r.stdout and "grip -> body rotation" in r.stdout
     own = load_gt_calibration(tmp_path / "own.yaml")
@@ -264,14 +260,14 @@ def test_simulated_session_and_a_mocap_file_with_an_unknown_clock_and_world(tmp_
     assert 1e3 * own.T_world_camera.distance_to(world.T_world_camera) < 5
 
     W = mocap_file(session, tmp_path / "mocap.tum", 0.3)
-    r = _run("calibrate-gt", str(session), "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "file.yaml"))
+    r = cli("calibrate-gt", str(session), "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "file.yaml"))
     assert r.returncode == 0, r.stderr
     cal = load_gt_calibration(tmp_path / "file.yaml")
     assert cal.time_offset_s == pytest.approx(own.time_offset_s + 0.3, abs=1e-4)
     assert cal.T_world_camera.allclose(W @ own.T_world_camera, atol=1e-4)
     for args, name in (((), "plain"), (("--gt-calibration", str(tmp_path / "own.yaml")), "own"),
                        (("--gt", str(tmp_path / "mocap.tum"), "--gt-calibration", str(tmp_path / "file.yaml")), "file")):
-        r = _run("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
+        r = cli("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
         assert r.returncode == 0, r.stderr
     doc = {n: json.loads((tmp_path / n / "metrics.json").read_text()) for n in ("plain", "own", "file")}
     assert doc["file"]["ground_truth"]["ground_truth_file"] == str(tmp_path / "mocap.tum")

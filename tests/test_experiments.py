@@ -96,6 +96,7 @@ def run(*args, cwd=None):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_exp2_one_trial_end_to_end(tmp_path):
     r = run("experiment", "exp2", "--trials", "1", "--out", str(tmp_path / "x"), "--jobs", "2")
     assert r.returncode == 0, r.stderr

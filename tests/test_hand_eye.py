@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -105,7 +103,7 @@ def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
 
 
 @pytest.mark.slow
-def test_simulated_session_cli_end_to_end(tmp_path):
+def test_simulated_session_cli_end_to_end(tmp_path, cli):
     """record sim -> calibrate-hand-eye finds the simulator's 11 deg hand-eye and 30 ms mocap clock;
     playback --hand-eye then scores the trackers' own orientation error, not the rigid body's."""
     from phonepose.record.sim import SimSession, default_config, record_sim
@@ -115,10 +113,7 @@ def test_simulated_session_cli_end_to_end(tmp_path):
     truth = SimSession("exp2", "TRI2", 1, seed=0).world.hand_eye
     cfg = default_config()
 
-    def run(*args):
-        return subprocess.run([sys.executable, "-m", "phonepose", *args], capture_output=True, text=True)
-
-    r = run("calibrate-hand-eye", str(session), "--out", str(tmp_path / "he.yaml"), "--translation", "0,0,0")
+    r = cli("calibrate-hand-eye", str(session), "--out", str(tmp_path / "he.yaml"), "--translation", "0,0,0")
     assert r.returncode == 0, r.stderr
     assert re.search(r"rigid body turned 1[01]\.\d\d ± 0\.\d\d deg .* mocap clock \+(29|30|31) ± \d\.\d ms \(1σ\); "
                      r"\d+ motions", r.stdout), r.stdout
@@ -132,7 +127,7 @@ def test_simulated_session_cli_end_to_end(tmp_path):
     assert np.degrees(broken.T_controller_mocap.angle_to(truth)) < 0.5 and broken.pairs < he.pairs
 
     for args, name in (((), "plain"), (("--hand-eye", str(tmp_path / "he.yaml")), "moved")):
-        r = run("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
+        r = cli("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
         assert r.returncode == 0, r.stderr
     plain = json.loads((tmp_path / "plain" / "metrics.json").read_text())["trackers"]
     moved = json.loads((tmp_path / "moved" / "metrics.json").read_text())["trackers"]

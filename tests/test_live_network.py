@@ -16,6 +16,7 @@ import statistics
 
 import aiohttp
 import numpy as np
+import pytest
 import test_record_live
 from conftest import DEADLINE_S, wait_until, wait_until_async
 from test_record_live import STAMP_ROUNDING_NS, Phone, _finish, _messages, _start, _wait_video_start
@@ -206,6 +207,7 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+@pytest.mark.long
 def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_media, tmp_path):
     """2000 TCP connections that never start TLS (anyone on the network can open them), then the
     phone: the gate (phonepose/record/live/gate.py) keeps at most MAX_CONNECTIONS, dropping the

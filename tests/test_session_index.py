@@ -116,6 +116,7 @@ def test_every_byte_of_the_summary_flipped_is_refused_or_read_as_undamaged(small
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_every_byte_of_a_whole_sessions_summary_flipped(tmp_path):
     p = tmp_path / "s.mcap"
     write_test_session(p, duration_s=1.0)
