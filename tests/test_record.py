@@ -146,19 +146,18 @@ def test_anchor_mapping_through_the_recorded_topics(session):
 
 
 # ---------------------------------------------------------------- CLI
-def test_cli_help():
-    r = subprocess.run([*PHONEPOSE, "record", "sim", "--help"], capture_output=True, text=True, timeout=DEADLINE_S)
+def test_cli_help(cli):
+    r = cli("record", "sim", "--help")
     assert r.returncode == 0
     for opt in ("--scenario", "--path", "--trial", "--seed", "--out", "--config", "--rerun", "--spawn"):
         assert opt in r.stdout
 
 
-def test_cli_bad_config_is_one_line_and_exit_5(tmp_path):
+def test_cli_bad_config_is_one_line_and_exit_5(tmp_path, cli):
     bad = tmp_path / "bad.toml"
     bad.write_text("[network]\ncontroller_latency_s = 7\n")
     out = tmp_path / "x.mcap"
-    r = subprocess.run([*PHONEPOSE, "record", "sim", "--out", str(out), "--config", str(bad)],
-                       capture_output=True, text=True, timeout=DEADLINE_S)
+    r = cli("record", "sim", "--out", str(out), "--config", str(bad))
     assert r.returncode == 5
     assert "Traceback" not in r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
@@ -166,13 +165,12 @@ def test_cli_bad_config_is_one_line_and_exit_5(tmp_path):
     assert not out.exists()
 
 
-def test_cli_records_and_summarises(tmp_path):
+def test_cli_records_and_summarises(tmp_path, cli):
     cfg = tmp_path / "fast.toml"
     cfg.write_text("[camera]\nrate_hz = 5.0\n")
     out = tmp_path / "s.mcap"
-    r = subprocess.run([*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
-                        "--seed", "3", "--out", str(out), "--config", str(cfg), "--quiet"],
-                       capture_output=True, text=True, timeout=DEADLINE_S)
+    r = cli("record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2", "--seed", "3", "--out", str(out),
+            "--config", str(cfg), "--quiet")
     assert r.returncode == 0, r.stderr
     assert "exp2 REC1 trial 2" in r.stdout and "done" in r.stdout
     with SessionReader(out) as reader:
@@ -181,14 +179,14 @@ def test_cli_records_and_summarises(tmp_path):
 
     # the same --out again: refused in one line, the first recording kept byte for byte
     before = out.read_bytes()
-    again = [*PHONEPOSE, "record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
+    again = ["record", "sim", "--scenario", "exp2", "--path", "rec1", "--trial", "2",
              "--seed", "4", "--out", str(out), "--config", str(cfg), "--quiet"]
-    r = subprocess.run(again, capture_output=True, text=True, timeout=DEADLINE_S)
+    r = cli(*again)
     assert r.returncode == 6 and r.stderr == f"phonepose: error: {out} already exists: choose another --out, " \
                                               "or add --force to replace it\n"
     assert out.read_bytes() == before
     # --force replaces it
-    r = subprocess.run([*again, "--force"], capture_output=True, text=True, timeout=DEADLINE_S)
+    r = cli(*again, "--force")
     assert r.returncode == 0, r.stderr
     with SessionReader(out) as reader:
         assert reader.first(Topic.SESSION_INFO).seed == 4
