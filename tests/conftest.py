@@ -73,9 +73,10 @@ def cli(capsys, monkeypatch) -> Callable[..., CliResult]:
     """``phonepose ARGS`` run in this process, through the console script's own entry point
     (``phonepose.cli.main``: the same one-line errors and exit codes), with ``env`` set for the call.
 
-    A spawned interpreter spends ~1 s importing numpy, scipy and the CLI before the command starts, ~30
-    times in the fast tests. The tests that need a real process (signals, a killed command, the entry
-    point's own wiring: test_evaluation's ``test_cli_error_in_a_real_process``) still spawn one."""
+    A spawned interpreter spends ~1 s importing numpy, scipy and the CLI before the command starts: the fast
+    tests spawned 99 before this fixture, most to check what a command prints or refuses. The tests that need
+    a real process (signals, a killed command, logging's warnings, the entry point's own wiring:
+    test_evaluation's ``test_cli_error_in_a_real_process``) still spawn one."""
     from phonepose.cli import main
 
     def run(*args, env: dict[str, str] | None = None) -> CliResult:
