@@ -260,19 +260,15 @@ def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], 5, "exclusive"),
     (["-t", "T99"], 5, "T99"),
 ])
-def test_cli_errors_are_one_line_with_exit_code(args, code, message, tmp_path, capsys):
-    from phonepose.cli import main
-
+def test_cli_errors_are_one_line_with_exit_code(args, code, message, tmp_path, cli):
     (tmp_path / "not.parquet").write_text("not parquet")
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]
     if "--out" not in args:
         args += ["--out", str(tmp_path / "r.parquet")]
     if "-t" not in args:
         args += ["-t", "paper"]
-    with pytest.raises(SystemExit) as exit_:     # in-process: the same main() as the console script
-        main(["batch", "x.mcap", *args])
-    err = capsys.readouterr().err
-    assert exit_.value.code == code, err
+    got, _, err = cli("batch", "x.mcap", *args)
+    assert got == code, err
     assert err.count("\n") == 1 and err.startswith("phonepose: error: ") and message in err
     assert "Traceback" not in err
 
@@ -389,16 +385,13 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
                               "move it away or choose another --out")
 
 
-def test_resuming_a_table_with_wrong_column_types_is_one_line(sessions, tmp_path, capsys):
-    from phonepose.cli import main
-
+def test_resuming_a_table_with_wrong_column_types_is_one_line(sessions, tmp_path, cli):
     out = tmp_path / "r.parquet"
     pq.write_table(pa.table({"session": pa.array([1, 2]), "params": ["{}", "{}"], "tracker": ["T1", "T2"],
                              "status": ["ok", "ok"]}), out)
     before = out.read_bytes()
-    with pytest.raises(SystemExit) as exc:
-        main(["batch", sessions[0], "-t", "T1", "--out", str(out)])
-    assert exc.value.code == 6
-    assert capsys.readouterr().err == (f"phonepose: error: --out {out} is not a phonepose batch table (column session is "
-                                       "int64, not string); move it away or choose another --out\n")
+    code, _, err = cli("batch", sessions[0], "-t", "T1", "--out", out)
+    assert code == 6
+    assert err == (f"phonepose: error: --out {out} is not a phonepose batch table (column session is "
+                   "int64, not string); move it away or choose another --out\n")
     assert out.read_bytes() == before

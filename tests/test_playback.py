@@ -9,7 +9,6 @@ import re
 import numpy as np
 import pytest
 
-from phonepose.cli import main
 from phonepose.errors import ConfigError, OutputError
 from phonepose.pipeline.trackers import tracker_names
 from phonepose.playback import rerun_log as paths
@@ -25,16 +24,6 @@ def session(tmp_path_factory):
     p = tmp_path_factory.mktemp("pb") / "s.mcap"
     write_test_session(p, duration_s=2.5)
     return p
-
-
-def cli(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main(["playback", *map(str, args), "--quiet"])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_outputs_and_metrics_layout(session, tmp_path):
@@ -99,27 +88,27 @@ def test_determinism_byte_identical(session, tmp_path):
 
 
 @pytest.mark.parametrize("name", tracker_names())
-def test_every_tracker_from_the_cli(session, tmp_path, capsys, name):
-    code, out, err = cli(capsys, session, "--tracker", name, "--out", tmp_path / "o")
+def test_every_tracker_from_the_cli(session, tmp_path, cli, name):
+    code, out, err = cli("playback", "--quiet", session, "--tracker", name, "--out", tmp_path / "o")
     assert code == 0, err
     assert name in out
     assert (tmp_path / "o" / "trajectories" / f"{name}.tum").exists()
     assert list(json.loads((tmp_path / "o" / "metrics.json").read_text())["trackers"]) == [name]
 
 
-def test_all_and_repeated_trackers_from_the_cli(session, tmp_path, capsys):
-    code, out, err = cli(capsys, session, "--tracker", "all", "--out", tmp_path / "all")
+def test_all_and_repeated_trackers_from_the_cli(session, tmp_path, cli):
+    code, out, err = cli("playback", "--quiet", session, "--tracker", "all", "--out", tmp_path / "all")
     assert code == 0, err
     assert sorted(os.listdir(tmp_path / "all" / "trajectories")) == sorted(f"{n}.tum" for n in tracker_names())
-    code, out, err = cli(capsys, session, "-t", "T1", "-t", "T7", "--out", tmp_path / "two", "--rate", "10",
+    code, out, err = cli("playback", "--quiet", session, "-t", "T1", "-t", "T7", "--out", tmp_path / "two", "--rate", "10",
                          "--start", "0.5", "--end", "2")
     assert code == 0, err
     doc = json.loads((tmp_path / "two" / "metrics.json").read_text())
     assert list(doc["trackers"]) == ["T1", "T7"] and doc["rate_hz"] == 10
 
 
-def test_unknown_tracker_is_one_line_listing_valid_names(session, tmp_path, capsys):
-    code, out, err = cli(capsys, session, "--tracker", "T99", "--out", tmp_path / "x")
+def test_unknown_tracker_is_one_line_listing_valid_names(session, tmp_path, cli):
+    code, out, err = cli("playback", "--quiet", session, "--tracker", "T99", "--out", tmp_path / "x")
     assert code == ConfigError.exit_code
     line = err.strip()
     assert "\n" not in line and "T99" in line
@@ -127,20 +116,20 @@ def test_unknown_tracker_is_one_line_listing_valid_names(session, tmp_path, caps
     assert not (tmp_path / "x").exists()
 
 
-def test_output_not_writable_is_output_error(session, tmp_path, capsys):
+def test_output_not_writable_is_output_error(session, tmp_path, cli):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    code, out, err = cli(capsys, session, "--tracker", "T1", "--out", blocker / "sub")
+    code, out, err = cli("playback", "--quiet", session, "--tracker", "T1", "--out", blocker / "sub")
     assert code == OutputError.exit_code
     assert err.strip() == f"phonepose: error: --out {blocker / 'sub'}: {blocker} is not a directory"
 
 
-def test_missing_session_and_bad_options(tmp_path, capsys, session):
-    code, _, err = cli(capsys, tmp_path / "nope.mcap", "--out", tmp_path / "o")
+def test_missing_session_and_bad_options(tmp_path, cli, session):
+    code, _, err = cli("playback", "--quiet", tmp_path / "nope.mcap", "--out", tmp_path / "o")
     assert code == 2 and "no such file" in err
-    code, _, err = cli(capsys, session, "--rate", "0", "--out", tmp_path / "o")
+    code, _, err = cli("playback", "--quiet", session, "--rate", "0", "--out", tmp_path / "o")
     assert code == ConfigError.exit_code
-    code, _, err = cli(capsys, session, "--correction-math", "bogus", "--out", tmp_path / "o")
+    code, _, err = cli("playback", "--quiet", session, "--correction-math", "bogus", "--out", tmp_path / "o")
     assert code == ConfigError.exit_code
 
 
@@ -165,10 +154,10 @@ def test_sessions_missing_a_stream_play_back(tmp_path, kind):
     assert not r.has_gt if kind == "no_gt" else r.has_gt
 
 
-def test_no_gt_cli_says_unavailable(tmp_path, capsys):
+def test_no_gt_cli_says_unavailable(tmp_path, cli):
     p = tmp_path / "nogt.mcap"
     write_test_session(p, duration_s=1.0, gt=False)
-    code, out, err = cli(capsys, p, "-t", "T1", "--out", tmp_path / "o")
+    code, out, err = cli("playback", "--quiet", p, "-t", "T1", "--out", tmp_path / "o")
     assert code == 0, err
     assert "n/a" in out and "unavailable" in out
 
@@ -275,10 +264,10 @@ def test_progress_callback_counts_every_tick(session):
     assert all(total == r.n_ticks for _, total in seen)
 
 
-def test_cli_rerun_option_and_spawn_conflict(session, tmp_path, capsys):
+def test_cli_rerun_option_and_spawn_conflict(session, tmp_path, cli):
     rrd = tmp_path / "s.rrd"
-    code, out, err = cli(capsys, session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd)
+    code, out, err = cli("playback", "--quiet", session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd)
     assert code == 0, err
     assert rrd.exists() and rrd.stat().st_size > 10_000 and "rerun:" in out
-    code, out, err = cli(capsys, session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd, "--spawn")
+    code, out, err = cli("playback", "--quiet", session, "-t", "T7", "--out", tmp_path / "o", "--rerun", rrd, "--spawn")
     assert code == ConfigError.exit_code and "exclusive" in err

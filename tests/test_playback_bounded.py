@@ -16,7 +16,6 @@ from pathlib import Path
 import pytest
 from test_reliability_cli import rewrite
 
-from phonepose.cli import main
 from phonepose.pipeline.context import read_context
 from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Topic
@@ -55,22 +54,16 @@ def _with_extra_vio(src: Path, dst: Path, *offsets_ns: int) -> Path:
     return rewrite(src, dst, add)
 
 
-def _play(session: Path, out: Path, capsys) -> tuple[int, str]:
-    capsys.readouterr()
-    try:
-        main(["playback", str(session), "-q", "-t", "T1,T2", "--out", str(out)])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    return code, capsys.readouterr().err
+def _play(cli, session: Path, out: Path) -> int:
+    return cli("playback", session, "-q", "-t", "T1,T2", "--out", out).returncode
 
 
-def test_a_far_future_message_is_skipped_and_reported_and_changes_nothing(clean, tmp_path, capsys, caplog):
+def test_a_far_future_message_is_skipped_and_reported_and_changes_nothing(clean, tmp_path, cli, caplog):
     bad = _with_extra_vio(clean, tmp_path / "far" / "s.mcap", 10**19 - 1_700_000_010 * 10**9)   # year ~2286
-    assert _play(clean, tmp_path / "clean", capsys)[0] == 0
+    assert _play(cli, clean, tmp_path / "clean") == 0
     t0 = time.perf_counter()
     with caplog.at_level(logging.WARNING, logger="phonepose"):
-        code, _ = _play(bad, tmp_path / "bad", capsys)
+        code = _play(cli, bad, tmp_path / "bad")
     assert code == 0 and time.perf_counter() - t0 < 60
     assert [r.getMessage() for r in caplog.records] == [
         "phonepose: warning: /controller/vio/pose: 1 sample(s) skipped: log time more than an hour away from the "
@@ -95,13 +88,7 @@ def test_ticks_only_where_there_is_data(clean, tmp_path):
     assert ticks[-1].T_cvio_controller is not None
 
 
-def test_a_rate_of_a_billion_is_refused_before_any_work(clean, tmp_path, capsys):
-    code, err = None, ""
-    capsys.readouterr()
-    try:
-        main(["playback", str(clean), "-q", "--rate", "1e9", "--out", str(tmp_path / "o")])
-    except SystemExit as exc:
-        code = exc.code
-    err = capsys.readouterr().err
+def test_a_rate_of_a_billion_is_refused_before_any_work(clean, tmp_path, cli):
+    code, _, err = cli("playback", clean, "-q", "--rate", "1e9", "--out", tmp_path / "o")
     assert code == 5 and err == "phonepose: error: --rate 1000000000: expected a finite number in (0, 1000] Hz\n"
     assert not (tmp_path / "o").exists()

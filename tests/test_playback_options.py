@@ -7,7 +7,6 @@ from pathlib import Path
 
 import pytest
 
-from phonepose.cli import main
 from phonepose.errors import SessionContentError
 from phonepose.playback.engine import PlaybackOptions, run_playback
 from phonepose.testing.playback_session import write_test_session
@@ -21,28 +20,18 @@ def sessions(tmp_path_factory) -> tuple[Path, Path]:
     return d / "s.mcap", d / "nocam.mcap"
 
 
-def _run(args: list[str], capsys) -> tuple[int, str]:
-    capsys.readouterr()
-    try:
-        main(args)
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    return code, capsys.readouterr().err
-
-
-def test_a_tracker_given_twice_is_refused_before_any_file(sessions, tmp_path, capsys):
+def test_a_tracker_given_twice_is_refused_before_any_file(sessions, tmp_path, cli):
     out = tmp_path / "o"
-    code, err = _run(["playback", str(sessions[0]), "-q", "-t", "T1", "-t", "T1", "--out", str(out)], capsys)
+    code, _, err = cli("playback", str(sessions[0]), "-q", "-t", "T1", "-t", "T1", "--out", str(out))
     assert code == 5 and err.strip() == "phonepose: error: tracker given twice: T1, T1"
     assert not out.exists()   # formerly a 40-byte trackers.mcap that `info` reported as damaged
 
 
-def test_a_missing_session_leaves_nothing_behind(tmp_path, capsys):
+def test_a_missing_session_leaves_nothing_behind(tmp_path, cli):
     cwd = os.getcwd()
     os.chdir(tmp_path)
     try:
-        code, err = _run(["playback", "missing.mcap", "-q"], capsys)
+        code, _, err = cli("playback", "missing.mcap", "-q")
     finally:
         os.chdir(cwd)
     assert code == 2 and err.startswith("phonepose: error: ") and "missing.mcap" in err

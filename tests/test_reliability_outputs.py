@@ -176,15 +176,6 @@ def outside(snap: dict, named: list[str]) -> dict:
     return {k: v for k, v in snap.items() if not any(k == n or k.startswith(n + "/") for n in named)}
 
 
-def run(argv: list[str], capsys) -> tuple[int, str, str]:
-    from phonepose.cli import main
-
-    with pytest.raises(SystemExit) as exc:
-        main(argv)
-    out = capsys.readouterr()
-    return (0 if exc.value.code is None else exc.value.code), out.out, out.err
-
-
 @contextlib.contextmanager
 def deadline(seconds: int):
     """A FIFO opened by mistake would block forever: fail the test instead."""
@@ -254,20 +245,20 @@ def temporaries(root: Path) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- the cases
-def case_missing_parent(w, d, inp, capsys, monkeypatch):
+def case_missing_parent(w, d, inp, cli, monkeypatch):
     """A missing parent is one line, the same words in every command, and creates nothing."""
     before = snapshot(d)
     out = d / "nodir" / w.name
-    code, _, err = run(argv_for(w, d, out, inp), capsys)
+    code, _, err = cli(*argv_for(w, d, out, inp))
     assert code == 6 and one_line(err) == f"{w.option} {out}: directory {d / 'nodir'} does not exist"
     assert snapshot(d) == before
 
 
-def case_wrong_extension(w, d, inp, capsys, monkeypatch):
+def case_wrong_extension(w, d, inp, cli, monkeypatch):
     """A name whose extension is not the format written is refused (never a PNG named .jpg)."""
     before = snapshot(d)
     out = d / w.wrong
-    code, _, err = run(argv_for(w, d, out, inp), capsys)
+    code, _, err = cli(*argv_for(w, d, out, inp))
     assert code == 5, err
     line = one_line(err)
     assert line.startswith(f"{w.option} {out}: writes {w.what}") and "; give a name ending in ." in line, line
@@ -275,7 +266,7 @@ def case_wrong_extension(w, d, inp, capsys, monkeypatch):
 
 
 def _output_is_input(link: str):
-    def case(w, d, inp, capsys, monkeypatch):
+    def case(w, d, inp, cli, monkeypatch):
         if w.kind == "dir":      # the output folder holds the input: it would be replaced whole
             run_dir = d / w.name
             run_dir.mkdir()
@@ -284,7 +275,7 @@ def _output_is_input(link: str):
             os.rename(inp, moved)
             args = [str(moved) if a == str(inp) else a for a in argv_for(w, d, run_dir, inp)]
             before = snapshot(d)
-            code, _, err = run(args, capsys)
+            code, _, err = cli(*args)
             assert code == 2 and one_line(err) == (f"{w.option} {run_dir}: holds the input {moved} and would be "
                                                    f"replaced whole; choose another {w.option}")
             assert snapshot(d) == before
@@ -295,7 +286,7 @@ def _output_is_input(link: str):
         elif link == "hardlink":
             os.link(inp, out)
         before = snapshot(d)
-        code, _, err = run(argv_for(w, d, out, inp), capsys)
+        code, _, err = cli(*argv_for(w, d, out, inp))
         assert code == 2 and one_line(err) == (f"{w.option} {out} is the input {inp}: writing it would destroy the "
                                                "input; choose another name")
         assert snapshot(d) == before       # the input's bytes (and its links) untouched
@@ -303,30 +294,30 @@ def _output_is_input(link: str):
     return case
 
 
-def case_missing_input(w, d, inp, capsys, monkeypatch):
+def case_missing_input(w, d, inp, cli, monkeypatch):
     """A missing input stops the command before any output exists."""
     inp.unlink()
     before = snapshot(d)
-    code, _, err = run(argv_for(w, d, d / w.name, inp), capsys)
+    code, _, err = cli(*argv_for(w, d, d / w.name, inp))
     assert code == w.missing_input_code and one_line(err).endswith(f"{inp}: no such file")
     assert snapshot(d) == before
 
 
-def case_fifo_input(w, d, inp, capsys, monkeypatch):
+def case_fifo_input(w, d, inp, cli, monkeypatch):
     """A FIFO given as the input is refused at once (opening it would wait forever)."""
     inp.unlink()
     os.mkfifo(inp)
     before = snapshot(d)
     with deadline(60):
-        code, _, err = run(argv_for(w, d, d / w.name, inp), capsys)
+        code, _, err = cli(*argv_for(w, d, d / w.name, inp))
     assert code in (2, 5) and "not a regular file (a FIFO, socket or device)" in one_line(err)
     assert snapshot(d) == before
 
 
-def case_device_output(w, d, inp, capsys, monkeypatch):
+def case_device_output(w, d, inp, cli, monkeypatch):
     """A device is never written nor replaced by a file."""
     before, dev = snapshot(d), os.stat("/dev/full")
-    code, _, err = run(argv_for(w, d, "/dev/full", inp), capsys)
+    code, _, err = cli(*argv_for(w, d, "/dev/full", inp))
     assert code == 6 and one_line(err) == f"{w.option} /dev/full: not a regular file (a device, FIFO or socket); " \
                                           "give a file name"
     after = os.stat("/dev/full")
@@ -346,12 +337,12 @@ def _earlier_output(w: Writer, d: Path) -> Path:
     return out
 
 
-def case_failed_run(w, d, inp, capsys, monkeypatch):
+def case_failed_run(w, d, inp, cli, monkeypatch):
     """A run that fails after the checks leaves the earlier output as it was, and no temporary."""
     out = _earlier_output(w, d)
     argv = w.fails(monkeypatch, d, argv_for(w, d, out, inp))
     before = snapshot(d)
-    code, _, err = run(argv, capsys)
+    code, _, err = cli(*argv)
     assert code != 0
     one_line(err)
     assert not temporaries(d), temporaries(d)
@@ -361,11 +352,11 @@ def case_failed_run(w, d, inp, capsys, monkeypatch):
     assert TMP_SUFFIX not in err, err                          # the error names the user's paths
 
 
-def case_replaced_whole(w, d, inp, capsys, monkeypatch):
+def case_replaced_whole(w, d, inp, cli, monkeypatch):
     """A successful run over an earlier output replaces it whole: nothing of the earlier run survives."""
     out = _earlier_output(w, d)
     before = snapshot(d)
-    code, _, err = run(argv_for(w, d, out, inp), capsys)
+    code, _, err = cli(*argv_for(w, d, out, inp))
     assert code == 0, err
     after = snapshot(d)
     assert outside(after, [w.name, *also_named(w)]) == outside(before, [w.name, *also_named(w)])
@@ -376,7 +367,7 @@ def case_replaced_whole(w, d, inp, capsys, monkeypatch):
     assert not temporaries(d)
 
 
-def case_disk_full(w, d, inp, capsys, monkeypatch):
+def case_disk_full(w, d, inp, cli, monkeypatch):
     """A full disk is one line (exit 6) and leaves nothing there: no partial output, no temporary."""
     with mounted_tmpfs(d / "full", "size=1m") as mnt:
         with open(mnt / "filler", "wb") as f:     # fill it to the last block
@@ -385,7 +376,7 @@ def case_disk_full(w, d, inp, capsys, monkeypatch):
                     f.write(b"\0" * 65536)
                     f.flush()
         before = snapshot(d)
-        code, _, err = run(argv_for(w, d, mnt / w.name, inp), capsys)
+        code, _, err = cli(*argv_for(w, d, mnt / w.name, inp))
         assert code == 6 and "No space left on device" in one_line(err), err
         assert TMP_SUFFIX not in err and "phonepose recover" not in err, err
         assert sorted(p.name for p in mnt.iterdir()) == ["filler"]
@@ -428,12 +419,12 @@ PAIRS = [pytest.param(w, c, id=f"{w.id}-{c.id}", marks=[pytest.mark.slow] if c.s
 
 
 @pytest.mark.parametrize("w,case", PAIRS)
-def test_output_rule(w: Writer, case: Case, good_session, tmp_path, capsys, monkeypatch):
+def test_output_rule(w: Writer, case: Case, good_session, tmp_path, cli, monkeypatch):
     monkeypatch.chdir(tmp_path)
     d = tmp_path / "d"
     d.mkdir()
     inp = make_input(w, d, good_session)
-    case.fn(w, d, inp, capsys, monkeypatch)
+    case.fn(w, d, inp, cli, monkeypatch)
 
 
 def test_every_writing_command_is_in_the_table():

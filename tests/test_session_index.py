@@ -10,7 +10,6 @@ summary, or without chunks are valid MCAP and read like any other.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import struct
@@ -21,7 +20,6 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
-from phonepose.cli import main
 from phonepose.errors import DamagedFileError
 from phonepose.session import SessionReader
 from phonepose.session.index import MAX_CHUNK_BYTES
@@ -139,14 +137,8 @@ def _statistics_offset(data: bytes) -> int:
         p += 9 + length
 
 
-def _playback(session: Path, out: Path, capsys, *extra) -> tuple[int, str]:
-    capsys.readouterr()
-    try:
-        main(["playback", str(session), "-q", "-t", "T1", "--out", str(out), *extra])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    return code, capsys.readouterr().err
+def _playback(cli, session: Path, out: Path, *extra) -> int:
+    return cli("playback", session, "-q", "-t", "T1", "--out", out, *extra).returncode
 
 
 def _flipped(src: Path, dst: Path, at: int, bit: int) -> Path:
@@ -158,7 +150,7 @@ def _flipped(src: Path, dst: Path, at: int, bit: int) -> Path:
 
 
 @pytest.mark.parametrize("what", ["statistics end time", "gt calibration topic", "statistics start time"])
-def test_the_red_teams_summary_flips_play_back_like_the_undamaged_file(small, tmp_path, capsys, caplog, what):
+def test_the_red_teams_summary_flips_play_back_like_the_undamaged_file(small, tmp_path, cli, caplog, what):
     """A flipped Statistics end time ran forever; a flipped topic dropped /gt/calibration (exit 0, other
     metrics); a flipped start time shifted --start/--end. Now: one warning line, the undamaged outputs."""
     data = small.read_bytes()
@@ -170,10 +162,10 @@ def test_the_red_teams_summary_flips_play_back_like_the_undamaged_file(small, tm
         at, bit = data.rindex(b"/gt/calibration") + 1, 0                   # the summary's copy: /ft/...
         assert at > _footer(data)[0]
     bad = _flipped(small, tmp_path / "bad" / small.name, at, bit)
-    code, _ = _playback(small, tmp_path / "clean", capsys, "--start", "0.1", "--end", "0.9")
+    code = _playback(cli, small, tmp_path / "clean", "--start", "0.1", "--end", "0.9")
     assert code == 0
     with caplog.at_level(logging.WARNING, logger="phonepose"):
-        code, _ = _playback(bad, tmp_path / "damaged", capsys, "--start", "0.1", "--end", "0.9")
+        code = _playback(cli, bad, tmp_path / "damaged", "--start", "0.1", "--end", "0.9")
     assert code == 0
     warnings = [r.getMessage() for r in caplog.records if "summary section" in r.getMessage()]
     assert len(warnings) == 1 and warnings[0].startswith(
@@ -280,14 +272,9 @@ def CompressionType_none():
     return CompressionType.NONE
 
 
-def test_info_and_verify_on_a_summary_flip(small, tmp_path, capsys):
+def test_info_and_verify_on_a_summary_flip(small, tmp_path, cli):
     """`info` prints what the data section holds, the same as for the undamaged file."""
     data = small.read_bytes()
     bad = _flipped(small, tmp_path / "b" / "s.mcap", _statistics_offset(data) + 3, 0)   # the message count
-    outs = []
-    for f in (small, bad):
-        capsys.readouterr()
-        with contextlib.suppress(SystemExit):
-            main(["info", "--json", "--verify", str(f)])
-        outs.append(capsys.readouterr().out.replace(str(f), "S"))
+    outs = [cli("info", "--json", "--verify", f).stdout.replace(str(f), "S") for f in (small, bad)]
     assert outs[0] == outs[1] and '"messages": 128,\n' in outs[0]

@@ -369,7 +369,8 @@ def test_a_sighting_nearer_facing_the_camera_pulls_less(ambiguity, noise_factor)
     s_m = c.pull_marker_rotation_deg * noise_factor
     gain = c.pull_vio_rotation_deg ** 2 / (c.pull_vio_rotation_deg ** 2 + s_m ** 2)
     assert np.degrees((out * R0.inv()).magnitude()) == pytest.approx(2.0 * gain, abs=1e-9)
-    R_meas = FusedTracker()._measurement_noise(np.zeros(3), None, ambiguity)
+    tracker = FusedTracker()
+    R_meas = tracker._measurement_noise(np.zeros(3), None, tracker._rotation_scale(ambiguity))
     np.testing.assert_allclose(np.sqrt(np.diag(R_meas)[:3]), np.radians(c.marker_rotation_deg * noise_factor), rtol=1e-12)
 
 

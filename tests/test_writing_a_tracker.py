@@ -13,7 +13,6 @@ import pytest
 
 from phonepose.batch.driver import run_batch
 from phonepose.batch.table import read_rows
-from phonepose.cli import main
 from phonepose.errors import ConfigError
 from phonepose.pipeline.trackers import make_tracker
 from phonepose.playback.engine import run_playback
@@ -91,11 +90,9 @@ def test_example_in_a_batch_beside_the_paper_trackers(session, on_path, tmp_path
     assert rows["LastSighting"]["p_ate_m_total"] == pytest.approx(want, rel=0, abs=0)
 
 
-def test_example_as_an_installed_entry_point(session, on_path, tmp_path, capsys):
+def test_example_as_an_installed_entry_point(session, on_path, tmp_path, cli):
     out = tmp_path / "o"
-    with pytest.raises(SystemExit) as done:
-        main(["playback", str(session), "-q", "-t", "T4", "-t", "last-sighting", "--out", str(out)])
-    assert done.value.code in (0, None)
+    assert cli("playback", session, "-q", "-t", "T4", "-t", "last-sighting", "--out", out).returncode == 0
     assert sorted(p.name for p in (out / "trajectories").iterdir()) == ["LastSighting.tum", "T4.tum"]
     with pytest.raises(ConfigError, match=r"unknown tracker 'nope'; valid: .*, last-sighting, all, paper"):
         make_tracker("nope")

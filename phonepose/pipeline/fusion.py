@@ -738,10 +738,10 @@ class FusedTracker:
         return math.sqrt(ref / max(ambiguity, 1.0)) if ref > 0 and ambiguity > 0 else 1.0
 
     def _measurement_noise(self, marker_position: np.ndarray, camera_position: np.ndarray | None,
-                           ambiguity: float = 0.0) -> np.ndarray:
+                           rotation_scale: float = 1.0) -> np.ndarray:
         c = self.cfg
         R_meas = np.zeros((6, 6))
-        R_meas[0:3, 0:3] = _I3 * (math.radians(c.marker_rotation_deg) * self._rotation_scale(ambiguity)) ** 2
+        R_meas[0:3, 0:3] = _I3 * (math.radians(c.marker_rotation_deg) * rotation_scale) ** 2
         cov = _I3 * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
         if camera_position is not None:
             u = marker_position - camera_position
@@ -786,8 +786,9 @@ class FusedTracker:
 
     def _add_sighting(self, t_img: float, marker: RawPose, camera_position: np.ndarray | None,
                       ambiguity: float = 0.0) -> None:
-        self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position, ambiguity)))
-        self._last_marker = (t_img, marker, self._rotation_scale(ambiguity))
+        rotation_scale = self._rotation_scale(ambiguity)
+        self._pending.append((t_img, marker, self._measurement_noise(marker[1], camera_position, rotation_scale)))
+        self._last_marker = (t_img, marker, rotation_scale)
         self._sightings.append((t_img, marker[1]))
         while self._sightings and self._sightings[0][0] < t_img - self.cfg.marker_velocity_window_s:
             self._sightings.popleft()
