@@ -47,7 +47,9 @@ async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLIN
 
 def pytest_collection_modifyitems(config, items) -> None:
     """The tests marked ``long`` first, the rest in their order: pytest-xdist hands tests to its workers in
-    collection order, so the 90 s rehearsal collected near the end ran alone while the other worker idled."""
+    collection order, so a long test collected near the end runs alone while the other worker idles. Not the
+    browser rehearsal: it streams in real time, and started first it ran beside exp2's worker processes, where
+    its page fell behind (a CI run: VIO at 44 Hz, T1 r_ATE 5.0 deg against the 3 deg goal)."""
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
 
 

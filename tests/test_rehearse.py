@@ -126,7 +126,6 @@ def test_gravity_check_takes_the_vio_as_recorded_out_of_order_and_repeated():
 
 
 @pytest.mark.slow
-@pytest.mark.long
 def test_rehearsal_end_to_end(tmp_path):
     """The whole live path with no hardware; the goals of issue 20 (docs/recording-real-sessions.md#rehearsal)."""
     from phonepose.errors import ConfigError
