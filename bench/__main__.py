@@ -95,7 +95,15 @@ def print_summary(results: dict) -> None:
 
 def main(argv: list[str]) -> int:
     here = pathlib.Path(__file__).parent
-    names = argv or sorted(p.stem.removeprefix("bench_") for p in here.glob("bench_*.py"))
+    known = sorted(p.stem.removeprefix("bench_") for p in here.glob("bench_*.py"))
+    if any(a in ("-h", "--help") for a in argv):
+        print(f"usage: python -m bench [NAME ...]   (NAME: {', '.join(known)}; none: all, written to results.json)")
+        return 0
+    unknown = [a for a in argv if a not in known]
+    if unknown:
+        print(f"error: no benchmark named {unknown[0]!r} (known: {', '.join(known)})", file=sys.stderr)
+        return 2
+    names = argv or known
     results = {"machine": machine(), "command": "python -m bench " + " ".join(argv)}
     t0 = time.perf_counter()
     for name in names:
