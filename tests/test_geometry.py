@@ -12,10 +12,10 @@ from phonepose.geometry import (
     Pose,
     interpolate,
     interpolate_many,
+    quat_apply_rows,
     quat_as_rotvec,
     quat_from_rotvec,
     quat_inv,
-    quat_matrices,
     quat_matrix,
     quat_mul,
     quat_normalised,
@@ -255,13 +255,18 @@ def test_rotvec_round_trip_and_small_angles(v):
     np.testing.assert_allclose(quat_as_rotvec(quat_from_rotvec(v)), v, rtol=0, atol=1e-13)
 
 
-@given(st.lists(quat, min_size=1, max_size=6))
-def test_quat_matrices_are_scipys_to_the_bit(qs):
-    """The batched matrices (T8's accelerometer turns ~200 samples a tick with them): scipy's, byte for byte,
-    signed zeros included, of unnormalised quaternions too (normalised as scipy does)."""
-    q = np.array(qs) * 3.0
-    assert quat_matrices(q).tobytes() == Rotation.from_quat(q).as_matrix().tobytes()
-    assert quat_matrices(q[:1])[0].tobytes() == np.array(quat_matrix(tuple(q[0] / np.linalg.norm(q[0])))).tobytes()
+@given(st.lists(quat, min_size=1, max_size=8), st.lists(st.floats(-100, 100), min_size=24, max_size=24),
+       st.sampled_from([1e-3, 1.0, 3.0, 1e3]))
+def test_quat_apply_rows_is_scipys_apply(qs, vs, scale):
+    """T8 turns 1-60 accelerometer samples a tick with it: scipy's Rotation.apply row by row, to rounding (the
+    same products summed in another order), for quaternions of any norm (normalised as scipy does)."""
+    q = np.array(qs) * scale
+    v = np.array(vs[:3 * len(qs)] + [0.0] * max(0, 3 * len(qs) - len(vs))).reshape(-1, 3)
+    want = Rotation.from_quat(q).apply(v)
+    np.testing.assert_allclose(quat_apply_rows(q, v), want, rtol=0, atol=1e-13)
+    # each row alone, as the one-quaternion matrix turns it
+    one = np.array(quat_matrix(quat_normalised(q[0]))) @ v[0]
+    np.testing.assert_allclose(quat_apply_rows(q[:1], v[:1])[0], one, rtol=0, atol=1e-13)
 
 
 @given(unit_quat, unit_quat)

@@ -34,6 +34,8 @@ def test_repeated_stamps_and_infinite_values_take_numpy_s_own_fallbacks():
     x = np.array([-1.0, 0.5, 1.0, 1.5, 2.0, 3.0])
     expected = np.stack([np.interp(x, xp, fp[:, j]) for j in range(2)], axis=1)
     assert interp_columns(x, xp, fp).tobytes() == expected.tobytes()
+    for i, x_one in enumerate(x.tolist()):      # one float at a time: the row path, the same fallbacks
+        assert interp_columns(x_one, xp, fp).tobytes() == expected[i].tobytes()
 
 
 def test_newer_than_before_keeps_each_stamp_above_all_earlier_ones():

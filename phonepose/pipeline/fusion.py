@@ -59,10 +59,10 @@ from phonepose.geometry import (
     Pose,
     Quat,
     is_finite,
+    quat_apply_rows,
     quat_as_rotvec,
     quat_from_rotvec,
     quat_inv,
-    quat_matrices,
     quat_matrix,
     quat_mul,
     quat_normalised,
@@ -221,9 +221,12 @@ def entry_carry_s(h, tau: float):
     return 0.0 * h if tau <= 0 else tau * -np.expm1(-np.asarray(h) / tau)
 
 
+_YZX, _ZXY = np.array([1, 2, 0]), np.array([2, 0, 1])   # (index arrays: a list is converted per call)
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.cross`` of rows (n, 3), the same products and differences, at half its cost on a few rows."""
-    return a[:, [1, 2, 0]] * b[:, [2, 0, 1]] - a[:, [2, 0, 1]] * b[:, [1, 2, 0]]
+    return a[:, _YZX] * b[:, _ZXY] - a[:, _ZXY] * b[:, _YZX]
 
 
 def _steps(t_before: float, t: np.ndarray) -> np.ndarray:
@@ -243,7 +246,7 @@ def _turned_by_vio(ts: np.ndarray, q: np.ndarray, t: np.ndarray, f: np.ndarray) 
     w = np.minimum(np.maximum((t - ts[i - 1]) / np.maximum(ts[i] - ts[i - 1], 1e-9), 0.0), 1.0)[:, None]
     q0, q1 = q[i - 1], q[i]
     q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
-    return np.einsum("kij,kj->ki", quat_matrices((1 - w) * q0 + w * q1), f)
+    return quat_apply_rows((1 - w) * q0 + w * q1, f)
 
 
 GRAVITY = np.array([0.0, 0.0, -9.80665])   # display_vio and the controller's VIO world are gravity aligned, z up
@@ -302,11 +305,11 @@ class AccelMotion:
 _H_CONSTANT = np.zeros((6, 7))
 _H_CONSTANT[0:3, 0:3] = _H_CONSTANT[3:6, 3:6] = np.eye(3)
 _I7 = np.eye(7)
-_I3 = np.eye(3)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    x, y, z = v.tolist()
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 class CorrectionFilter:
@@ -382,7 +385,7 @@ class CorrectionFilter:
         q_tilt = math.radians(c.tilt_walk_deg_per_sqrt_s) ** 2 * dt_s
         q_pos = c.translation_walk_m_per_sqrt_s ** 2 * dt_s + (c.translation_per_path_length * path_m) ** 2
         q_d = c.time_offset_walk_s_per_sqrt_s ** 2 * dt_s
-        self.P[np.diag_indices(7)] += np.array([q_tilt, q_tilt, q_rot] + [q_pos] * 3 + [q_d])
+        self.P.reshape(-1)[::8] += (q_tilt, q_tilt, q_rot, q_pos, q_pos, q_pos, q_d)   # the diagonal (a view)
 
     def apply(self, V: RawPose) -> RawPose:
         return quat_mul(self.q, V[0]), self._Rm @ V[1] + self.t
@@ -392,29 +395,37 @@ class CorrectionFilter:
         angular rate (world frame, per second). Returns False if the gate rejected it."""
         Rm = self._Rm
         p_world = Rm @ V[1]
-        r_rot = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(quat_mul(self.q, V[0])))))
-        r_pos = M[1] - (p_world + self.t)
-        y = np.concatenate([r_rot, r_pos])
+        y = np.empty(6)
+        y[0:3] = quat_as_rotvec(quat_mul(M[0], quat_inv(quat_mul(self.q, V[0]))))
+        y[3:6] = M[1] - (p_world + self.t)
         H = _H_CONSTANT.copy()
         if self.cfg.lever_arm:
-            H[3:6, 0:3] = -_skew(p_world)
+            H[3:6, 0:3] = _skew(-p_world)
         # d later means the pair looks at an earlier VIO sample: dV/dd = -velocity
         H[0:3, 6] = -(Rm @ w_vio)
         H[3:6, 6] = -(Rm @ v_vio)
         with np.errstate(over="ignore", invalid="ignore"):   # absurd inputs give inf/NaN: gated below
-            S = H @ self.P @ H.T + R_meas
+            HP = H @ self.P
+            S = HP @ H.T + R_meas
+            # one factorisation for both: (P H^T S^-1)^T (S symmetric) and S^-1 y; np.linalg.solve's LAPACK
+            # routine (_solve), which under this errstate returns NaN where np.linalg.solve raised for a
+            # singular S: such a sighting is skipped without counting as a rejection, as before
+            rhs = np.empty((6, 8))
+            rhs[:, :7] = HP
+            rhs[:, 7] = y
             try:
-                # one factorisation for both: (P H^T S^-1)^T (S symmetric) and S^-1 y
-                both = np.linalg.solve(S, np.column_stack([H @ self.P, y]))
-                K_T, m2 = both[:, :7], float(y @ both[:, 7])
-            except np.linalg.LinAlgError:
+                both = _solve(S, rhs)
+            except np.linalg.LinAlgError:   # (the public np.linalg.solve, should numpy drop the private module)
                 return False
+            K_T, m2 = both[:, :7], float(y @ both[:, 7])
+        if not math.isfinite(m2) and np.isfinite(S).all() and np.isfinite(y).all():
+            return False
         if not math.isfinite(m2) or m2 > self.cfg.gate_chi2:
             self.rejections += 1
             self.rejected += 1
             return False
         dx = K_T.T @ y
-        self._set_rotation(quat_normalised(quat_mul(quat_from_rotvec(dx[0:3]), self.q)))
+        self._set_rotation(quat_normalised(quat_mul(quat_from_rotvec(dx[0:3].tolist()), self.q)))
         self.t = self.t + dx[3:6]
         self.d = self.d + dx[6]
         I_KH = _I7 - K_T.T @ H
@@ -502,7 +513,8 @@ def _interpolate(t0: float, s0: list, t1: float, s1: list, t: float) -> RawPose:
     q0, q1 = tuple(s0[:4]), tuple(s1[:4])
     r = quat_as_rotvec(quat_mul(quat_inv(q0), q1))
     q = quat_mul(q0, quat_from_rotvec((a * r[0], a * r[1], a * r[2])))
-    return q, (1.0 - a) * np.array(s0[4:]) + a * np.array(s1[4:])
+    b = 1.0 - a   # the translation as floats (numpy's element-wise products and sums), one array at the end
+    return q, np.array([b * s0[4] + a * s1[4], b * s0[5] + a * s1[5], b * s0[6] + a * s1[6]])
 
 
 class FusedTracker:
@@ -616,7 +628,7 @@ class FusedTracker:
             return None
         t_k, f_k = tk[k_lo:], self._acc.v[k_lo:]
         f_world = self._specific_force_world(ts, t_k, f_k, t0)
-        g = self.filter._Rm.T @ GRAVITY if self.filter.ready else GRAVITY
+        g = GRAVITY[2] * self.filter._Rm[2] if self.filter.ready else GRAVITY   # _Rm.T @ GRAVITY (x, y are 0)
         a_k = f_world + g
         if c.accel_smooth_s > 0:
             # a centred moving average (one-sided at the newest samples): the 8-12 Hz tremor's ~3 m/s^2 would
@@ -646,7 +658,7 @@ class FusedTracker:
         s_k[0] = 0.0
         P_f[0] = V_f[0] = 0.0
         recent = int(t_k.searchsorted(t_k[-1] - c.accel_recent_s, side="left"))
-        a_now = a_k[recent:].mean(axis=0) + beta
+        a_now = np.add.reduce(a_k[recent:], axis=0) / (len(a_k) - recent) + beta   # .mean(axis=0)'s sum and division
         out = AccelMotion(t0, coef[0], coef[1], beta, s_k, P_f, V_f, a_now, c.accel_carry_time_s)
         self._accel_cache = (key, out)
         return out
@@ -707,7 +719,6 @@ class FusedTracker:
         if not len(self._vio):
             return None
         t_last = self._vio.last_t
-        q = tuple(self._vio.v[-1, 0:4].tolist())
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
         motion = self._accel_motion()
         if motion is not None:
@@ -715,8 +726,15 @@ class FusedTracker:
         else:
             velocity, p_fit, _ = self._velocity()
             position = p_fit + velocity * dt
+        return self._predicted_rotation(t_stamp), position
+
+    def _predicted_rotation(self, t_stamp: float) -> Quat:
+        """_vio_predicted's orientation alone (the pull of a sighting needs no position)."""
+        t_last = self._vio.last_t
+        q = tuple(self._vio.v[-1, 0:4].tolist())
+        dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
         if dt <= 0 or not len(self._gyro) or not self.cfg.use_gyro:
-            return q, position
+            return q
         tg, gyro = self._gyro.t, self._gyro.v
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
@@ -727,9 +745,9 @@ class FusedTracker:
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
         if self._hold_cache is None or self._hold_cache[0] != key:
             recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
-            self._hold_cache = (key, gyro[recent:].mean(axis=0))   # the recent mean rate
+            self._hold_cache = (key, np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent))   # the recent mean rate
         hold = self._hold_cache[1]
-        return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev))), position
+        return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev)))
 
     # ------------------------------------------------------------------ measurements
     def _rotation_scale(self, ambiguity: float) -> float:
@@ -740,17 +758,22 @@ class FusedTracker:
     def _measurement_noise(self, marker_position: np.ndarray, camera_position: np.ndarray | None,
                            rotation_scale: float = 1.0) -> np.ndarray:
         c = self.cfg
-        R_meas = np.zeros((6, 6))
-        R_meas[0:3, 0:3] = _I3 * (math.radians(c.marker_rotation_deg) * rotation_scale) ** 2
-        cov = _I3 * (c.marker_lateral_m ** 2 + c.vio_position_m ** 2)
+        rot = (math.radians(c.marker_rotation_deg) * rotation_scale) ** 2
+        lateral = c.marker_lateral_m ** 2 + c.vio_position_m ** 2
+        cov = [[lateral, 0.0, 0.0], [0.0, lateral, 0.0], [0.0, 0.0, lateral]]
         if camera_position is not None:
             u = marker_position - camera_position
             n = math.sqrt(u.dot(u))   # np.linalg.norm(u), its own dot product
             if n > 1e-6:
-                u = u / n
-                cov = cov + u[:, None] * u[None, :] * (c.marker_depth_m ** 2 - c.marker_lateral_m ** 2)   # np.outer
-        R_meas[3:6, 3:6] = cov
-        return R_meas
+                # + outer(u, u) (depth^2 - lateral^2) with u the unit line of sight: Python floats, the same
+                # products and sums as the arrays' (a 6 x 6 built from arrays cost ~20 µs a sighting)
+                k = c.marker_depth_m ** 2 - c.marker_lateral_m ** 2
+                u0, u1, u2 = (u / n).tolist()
+                cov = [[row[j] + ui * uj * k for j, uj in enumerate((u0, u1, u2))]
+                       for row, ui in zip(cov, (u0, u1, u2), strict=True)]
+        return np.array([[rot, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, rot, 0.0, 0.0, 0.0, 0.0],
+                         [0.0, 0.0, rot, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, *cov[0]], [0.0, 0.0, 0.0, *cov[1]],
+                         [0.0, 0.0, 0.0, *cov[2]]])
 
     def _ingest(self, obs: Observation) -> None:
         tick = obs.tick
@@ -835,8 +858,8 @@ class FusedTracker:
         dt = ts[i] - ts[i - 1]
         if dt <= 0:
             return np.zeros(3)
-        v = self._vio.v
-        return np.array(quat_as_rotvec(quat_mul(tuple(v[i, 0:4].tolist()), quat_inv(tuple(v[i - 1, 0:4].tolist()))))) / dt
+        before, after = self._vio.v[i - 1:i + 1, 0:4].tolist()
+        return np.array([r / dt for r in quat_as_rotvec(quat_mul(after, quat_inv(before)))])
 
     # ------------------------------------------------------------------ output
     def step(self, obs: Observation) -> Pose | None:
@@ -942,11 +965,13 @@ class FusedTracker:
         assert self._last_marker is not None   # called with the marker as the source
         t_img, M, rotation_scale = self._last_marker
         at_img = self._vio_at(t_img - f.d)
-        if at_img is None:                  # the image is newer than the newest VIO sample (usual)
-            at_img = self._vio_predicted(t_img - f.d)
-        if at_img is None:
+        if at_img is not None:
+            q_vio = at_img[0]
+        elif len(self._vio):                # the image is newer than the newest VIO sample (usual)
+            q_vio = self._predicted_rotation(t_img - f.d)
+        else:
             return rotation
-        q_at = (f.apply(at_img) if f.ready else at_img)[0]
+        q_at = quat_mul(f.q, q_vio) if f.q is not None else q_vio     # f.apply's orientation (f.ready: q is set)
         pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
         if math.sqrt(pull.dot(pull)) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull (the norm)
             return rotation
