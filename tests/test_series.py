@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from phonepose.series import interp_columns, newer_than_before
+from phonepose.series import interp_columns, interp_columns_inside, newer_than_before
 
 
 @given(st.lists(st.integers(-5_000_000, 5_000_000), min_size=2, max_size=40, unique=True),
@@ -23,6 +23,8 @@ def test_interpolating_every_column_at_once_is_np_interp_per_column(xp_us, seed,
     x = np.append(x, np.nan)
     expected = np.stack([np.interp(x, xp, fp[:, j]) for j in range(6)], axis=1)
     assert interp_columns(x, xp, fp).tobytes() == expected.tobytes()
+    inside = x[(x >= xp[0]) & (x < xp[-1])]        # (NaN is neither)
+    assert np.array_equal(interp_columns_inside(inside, xp, fp), expected[(x >= xp[0]) & (x < xp[-1])])
     for x_one in (float(x[0]), float(x[1]), float(x[len(x) // 2]), float(xp[-1]), float(x[-2])):
         one = np.array([np.interp(x_one, xp, fp[:, j]) for j in range(6)])
         assert interp_columns(x_one, xp, fp).tobytes() == one.tobytes()

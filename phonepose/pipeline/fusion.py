@@ -68,7 +68,7 @@ from phonepose.geometry import (
     quat_normalised,
 )
 from phonepose.pipeline.types import Observation
-from phonepose.series import interp_columns, newer_than_before
+from phonepose.series import interp_columns, interp_columns_inside, newer_than_before
 
 # Per tick, T8 works on single poses as (quaternion tuple, translation array) pairs with the closed-form
 # math of phonepose.geometry: scipy's Rotation costs tens of microseconds per single-rotation operation
@@ -242,10 +242,12 @@ def _steps(t_before: float, t: np.ndarray) -> np.ndarray:
 def _turned_by_vio(ts: np.ndarray, q: np.ndarray, t: np.ndarray, f: np.ndarray) -> np.ndarray:
     """Vectors ``f`` (n, 3) at stamps ``t`` within the VIO samples' (``ts``, quaternions ``q``) turned by the
     VIO orientation there, normalised-linearly interpolated (the short way round)."""
-    i = np.minimum(np.maximum(ts.searchsorted(t), 1), len(ts) - 1)   # (np.clip costs 3x more)
-    w = np.minimum(np.maximum((t - ts[i - 1]) / np.maximum(ts[i] - ts[i - 1], 1e-9), 0.0), 1.0)[:, None]
+    # t <= ts[-1] (the samples are turned up to the newest VIO stamp), and the stamps rise strictly (_Ring):
+    # the index needs no upper bound and the weight none above 1; before ts[0] it is 0 (the oldest sample)
+    i = np.maximum(ts.searchsorted(t), 1)
+    w = np.maximum((t - ts[i - 1]) / (ts[i] - ts[i - 1]), 0.0)[:, None]
     q0, q1 = q[i - 1], q[i]
-    q1 = np.where((q0 * q1).sum(axis=1, keepdims=True) < 0, -q1, q1)
+    q1 = q1 * np.copysign(1.0, np.add.reduce(q0 * q1, axis=1, keepdims=True))   # the short way round
     return quat_apply_rows((1 - w) * q0 + w * q1, f)
 
 
@@ -541,6 +543,7 @@ class FusedTracker:
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
+        self._vio_last_p = (0.0, 0.0, 0.0)         # the newest VIO sample's position, as floats (the path length)
         self._velocity_cache: tuple[tuple, tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
         self._source: str | None = None
@@ -562,10 +565,14 @@ class FusedTracker:
     # ------------------------------------------------------------------ VIO history
     def _add_vio(self, t: float, pose: RawPose) -> None:
         q, p = pose
-        if len(self._vio) and t > self._vio.last_t:
-            step = p - self._vio.v[-1, 4:7]
-            self._path_since_predict += math.sqrt(step.dot(step))   # np.linalg.norm's own sum, without its checks
-        self._vio.add(t, (*q, *p.tolist()))
+        x, y, z = p.tolist()
+        if t > self._vio.last_t:   # (the ring keeps only newer samples)
+            if len(self._vio):
+                px, py, pz = self._vio_last_p
+                dx, dy, dz = x - px, y - py, z - pz    # (products, not ** 2: a float power raises on overflow)
+                self._path_since_predict += math.sqrt(dx * dx + dy * dy + dz * dz)
+            self._vio_last_p = (x, y, z)
+        self._vio.add(t, (*q, x, y, z))
 
     def _vio_at(self, t: float) -> RawPose | None:
         """Anchor-mapped VIO at stamp time ``t`` (None outside the kept samples)."""
@@ -649,7 +656,7 @@ class FusedTracker:
         V = VP[:, 0:3] - VP0[0:3]
         # the fit of the VIO positions less the integral
         tt = ts[lo:] - t0
-        D_i = interp_columns(ts[lo:], t_k, P)
+        D_i = interp_columns_inside(ts[lo:], t_k, P)   # t_k[0] <= ts[lo], ts[-1] = t0 < t_k[-1]
         coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
         beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
         # from t0 on (t_k[0] <= t0 < t_k[-1]): the integral at t0 (zero) and at the samples after it
@@ -739,15 +746,15 @@ class FusedTracker:
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
-        steps = _steps(t_last, tg[a:b])
-        rotvec = (gyro[a:b] * steps[:, None]).sum(axis=0)
+        rotvec = _steps(t_last, tg[a:b]) @ gyro[a:b]    # sum of rate x step (one product: 3 array calls less)
         t_prev = tg[b - 1] if b > a else t_last
         key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
         if self._hold_cache is None or self._hold_cache[0] != key:
             recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
             self._hold_cache = (key, np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent))   # the recent mean rate
-        hold = self._hold_cache[1]
-        return quat_mul(q, quat_from_rotvec(rotvec + hold * (t_last + dt - t_prev)))
+        held = t_last + dt - t_prev
+        hold = self._hold_cache[1].tolist()
+        return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), hold, strict=True)]))
 
     # ------------------------------------------------------------------ measurements
     def _rotation_scale(self, ambiguity: float) -> float:
@@ -903,10 +910,10 @@ class FusedTracker:
         self._source = source
         self._last_t = t
         out = position + self._offset
-        if not (np.isfinite(out).all() and all(map(math.isfinite, rotation))):
+        if not all(map(math.isfinite, (*out.tolist(), *rotation))):
             return None
         self._last_out = out
-        return Pose.from_xyzw(out, rotation)   # normalised as Rotation.from_quat does, bit for bit, without building one
+        return Pose._of(quat_normalised(rotation), out)   # normalised as Rotation.from_quat does, bit for bit
 
     def _position(self, source: str, corrected: RawPose | None, marker_now: np.ndarray | None, velocity: np.ndarray,
                   t: float) -> np.ndarray:
