@@ -339,7 +339,7 @@ def _pull_case(data_until_s: float, sighting_error_deg: float, ambiguity: float 
     for k in range(int(round(data_until_s * 30)) + 1):
         t8._add_vio(k / 30, (q0, np.zeros(3)))
     for k in range(int(round(data_until_s * 200)) + 1):
-        t8._gyro.add(k / 200, np.zeros(3))
+        t8._imu.add(k / 200, np.r_[np.zeros(3), 0.0, 0.0, 9.80665])
     delta = Rotation.from_rotvec([np.radians(sighting_error_deg), 0, 0])
     t8._add_sighting(0.9, (tuple((delta * R0).as_quat().tolist()), np.zeros(3)), None, ambiguity)
     return Rotation.from_quat(t8._pulled_by_sighting(q0)), delta, t8.cfg
@@ -433,5 +433,5 @@ def test_a_burst_of_imu_samples_larger_than_the_rings_room_is_taken_whole():
     obs.append(dataclasses.replace(obs[-1], tick=dataclasses.replace(obs[-1].tick, index=4, t_ns=int(3.3e9), imu=burst)))
     t8 = FusedTracker()
     run(t8, obs)
-    kept = t8._acc.t[t8._acc.t >= stamps[0] - t8._t0_ns / 1e9 - 1e-9]
+    kept = t8._imu.t[t8._imu.t >= stamps[0] - t8._t0_ns / 1e9 - 1e-9]
     np.testing.assert_allclose(kept[-len(stamps):] - kept[-len(stamps)], stamps - stamps[0], atol=1e-9)

@@ -535,8 +535,9 @@ class FusedTracker:
         self.filter.reset()
         self._t0_ns: int | None = None             # time origin (ns) for float seconds
         self._vio = _Ring(7)                       # (stamp s) -> qx qy qz qw x y z in display_vio (anchor-mapped)
-        self._gyro = _Ring(3)                      # (stamp s) -> gyro rad/s, body frame
-        self._acc = _Ring(3)                       # (stamp s) -> specific force m/s^2, body frame
+        # (stamp s) -> gyro rad/s (0:3) and specific force m/s^2 (3:6), body frame: one ring, as the samples
+        # come (one stamp for both; two rings were kept and pruned in step, twice the calls)
+        self._imu = _Ring(6)
         self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
         self._hold_cache: tuple[tuple, np.ndarray] | None = None   # the gyro's recent mean rate, per gyro samples
         self._turned = (np.empty(0), np.empty((0, 3)))  # IMU stamps and their specific force in display_vio, final
@@ -618,11 +619,11 @@ class FusedTracker:
         """The accelerometer-aided motion from the newest VIO sample (FusionConfig.accel_*), or None (off, or
         too few VIO or IMU samples)."""
         c = self.cfg
-        if not c.accel_prediction or len(self._vio) < c.accel_fit_degree + 2 or len(self._acc) < 2:
+        if not c.accel_prediction or len(self._vio) < c.accel_fit_degree + 2 or len(self._imu) < 2:
             return None
-        ts, tk = self._vio.t, self._acc.t
+        ts, tk = self._vio.t, self._imu.t
         t0 = float(ts[-1])
-        key = (len(ts), t0, ts[0], len(tk), self._acc.last_t, self.filter.ready)
+        key = (len(ts), t0, ts[0], len(tk), self._imu.last_t, self.filter.ready)
         if self._accel_cache is not None and self._accel_cache[0] == key:
             return self._accel_cache[1]
         self._accel_cache = (key, None)
@@ -633,8 +634,8 @@ class FusedTracker:
         lo = int(ts.searchsorted(tk[k_lo], side="left"))                 # VIO samples the integral covers
         if len(ts) - lo < c.accel_fit_degree + 2 or len(tk) - k_lo < 2:
             return None
-        t_k, f_k = tk[k_lo:], self._acc.v[k_lo:]
-        f_world = self._specific_force_world(ts, t_k, f_k, t0)
+        t_k = tk[k_lo:]
+        f_world = self._specific_force_world(ts, t_k, self._imu.v[k_lo:], t0)
         g = GRAVITY[2] * self.filter._Rm[2] if self.filter.ready else GRAVITY   # _Rm.T @ GRAVITY (x, y are 0)
         a_k = f_world + g
         if c.accel_smooth_s > 0:
@@ -651,31 +652,40 @@ class FusedTracker:
         VP = np.zeros((len(t_k), 6))
         np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0, out=VP[1:, 0:3])
         np.cumsum(VP[:-1, 0:3] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0, out=VP[1:, 3:6])
-        VP0 = interp_columns(t0, t_k, VP)
-        P = VP[:, 3:6] - VP0[3:6] - VP0[0:3] * (t_k - t0)[:, None]
-        V = VP[:, 0:3] - VP0[0:3]
-        # the fit of the VIO positions less the integral
-        tt = ts[lo:] - t0
-        D_i = interp_columns_inside(ts[lo:], t_k, P)   # t_k[0] <= ts[lo], ts[-1] = t0 < t_k[-1]
-        coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
-        beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
-        # from t0 on (t_k[0] <= t0 < t_k[-1]): the integral at t0 (zero) and at the samples after it
+        # the integral at t0 (t_k[0] <= t0 < t_k[-1]; np.interp's formula), the reference of the one used below
         upto = int(t_k.searchsorted(t0, side="right"))
-        s_k, P_f, V_f = t_k[upto - 1:] - t0, P[upto - 1:], V[upto - 1:]
+        j = upto - 1
+        VP0 = (VP[j + 1] - VP[j]) / (t_k[j + 1] - t_k[j]) * (t0 - t_k[j]) + VP[j]
+        # the fit of the VIO positions less the integral. The integral less a constant and a line in time
+        # (zero with its rate at t0) moves only the fit's constant and slope: the fit takes the integral as
+        # summed, and its constant and slope are moved after it (the same to rounding, on 3 rows, not ~200)
+        tt = ts[lo:] - t0
+        D_i = interp_columns_inside(ts[lo:], t_k, VP[:, 3:6])   # t_k[0] <= ts[lo], ts[-1] = t0 < t_k[-1]
+        coef = _polyfit(tt, self._vio.v[lo:, 4:7] - D_i, c.accel_fit_degree)
+        coef[0] += VP0[3:6]
+        coef[1] += VP0[0:3]
+        beta = 2 * coef[2] if c.accel_fit_degree >= 2 else np.zeros(3)
+        # from t0 on: the integral at t0 (zero) and at the samples after it
+        s_k = t_k[j:] - t0
         s_k[0] = 0.0
-        P_f[0] = V_f[0] = 0.0
+        VP_f = VP[j:] - VP0
+        VP_f[0] = 0.0
+        P_f, V_f = VP_f[:, 3:6], VP_f[:, 0:3]
+        P_f -= VP0[0:3] * s_k[:, None]
         recent = int(t_k.searchsorted(t_k[-1] - c.accel_recent_s, side="left"))
         a_now = np.add.reduce(a_k[recent:], axis=0) / (len(a_k) - recent) + beta   # .mean(axis=0)'s sum and division
         out = AccelMotion(t0, coef[0], coef[1], beta, s_k, P_f, V_f, a_now, c.accel_carry_time_s)
         self._accel_cache = (key, out)
         return out
 
-    def _specific_force_world(self, ts: np.ndarray, t_k: np.ndarray, f_k: np.ndarray, t0: float) -> np.ndarray:
-        """The IMU samples' specific force ``f_k`` (at stamps ``t_k``) turned into display_vio: up to the newest
-        VIO sample ``t0`` by the VIO orientation, normalised-linearly interpolated; past it by the newest VIO
-        orientation turned on by the gyro. A sample's value up to t0 is final once the two VIO samples around
-        it are in (they are kept in order and never change): those rows are kept from one tick to the next and
-        each tick turns only the samples new since (turning the window's ~200 every tick was a fifth of T8)."""
+    def _specific_force_world(self, ts: np.ndarray, t_k: np.ndarray, imu_k: np.ndarray, t0: float) -> np.ndarray:
+        """The specific force of the IMU samples ``imu_k`` (rows: gyro, specific force) at stamps ``t_k`` turned
+        into display_vio: up to the newest VIO sample ``t0`` by the VIO orientation, normalised-linearly
+        interpolated; past it by the newest VIO orientation turned on by the gyro. A sample's value up to t0 is
+        final once the two VIO samples around it are in (they are kept in order and never change): those rows
+        are kept from one tick to the next and each tick turns only the samples new since (turning the window's
+        ~200 every tick was a fifth of T8)."""
+        f_k = imu_k[:, 3:6]
         kt, kf = self._turned
         drop = int(kt.searchsorted(t_k[0], side="left"))       # kept rows older than the window
         kt, kf = kt[drop:], kf[drop:]
@@ -693,15 +703,10 @@ class FusedTracker:
         first = int(t_k.searchsorted(ts[0], side="left"))       # rows before the oldest VIO sample can change
         self._turned = (t_k[first:upto].copy(), f_world[first:upto])
         if upto < len(t_k):
-            if len(self._gyro):
-                tg, gyro = self._gyro.t, self._gyro.v
-                g_i = np.minimum(tg.searchsorted(t_k[upto:]), len(tg) - 1)
-                steps = _steps(t0, t_k[upto:])
-                rotvec = np.cumsum(gyro[g_i] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
-                f_after = f_k[upto:]
-                turned = f_after + _cross(rotvec, f_after)
-            else:
-                turned = f_k[upto:]
+            steps = _steps(t0, t_k[upto:])
+            rotvec = np.cumsum(imu_k[upto:, 0:3] * steps[:, None], axis=0)   # small angles over the <= ~0.05 s past t0
+            f_after = f_k[upto:]
+            turned = f_after + _cross(rotvec, f_after)
             f_world[upto:] = turned @ np.array(quat_matrix(quat_normalised(q[-1]))).T
         return f_world
 
@@ -717,7 +722,11 @@ class FusedTracker:
         hi = int(ts.searchsorted(t_stamp + half, side="right"))
         if hi - lo < 3:
             return self._velocity(t_stamp)[0]
-        return _polyfit(ts[lo:hi] - t_stamp, self._vio.v[lo:hi, 4:7], 1)[1]
+        # the least-squares line's slope, sum (t - mean t) p / sum (t - mean t)^2: four array calls where
+        # _polyfit's normal equations take seven (once per sighting; the same slope to rounding)
+        tt = ts[lo:hi] - t_stamp
+        d = tt - np.add.reduce(tt) / len(tt)
+        return (d @ self._vio.v[lo:hi, 4:7]) / (d @ d)
 
     def _vio_predicted(self, t_stamp: float) -> RawPose | None:
         """Anchor-mapped VIO moved from its newest sample to stamp time ``t_stamp``: position at
@@ -740,15 +749,15 @@ class FusedTracker:
         t_last = self._vio.last_t
         q = tuple(self._vio.v[-1, 0:4].tolist())
         dt = min(max(t_stamp - t_last, 0.0), self.cfg.max_prediction_s)
-        if dt <= 0 or not len(self._gyro) or not self.cfg.use_gyro:
+        if dt <= 0 or not len(self._imu) or not self.cfg.use_gyro:
             return q
-        tg, gyro = self._gyro.t, self._gyro.v
+        tg, gyro = self._imu.t, self._imu.v[:, 0:3]
         # The body-frame increments are summed into one rotation vector: over <= 0.5 s of hand
         # motion the terms this drops (half the cross products of the increments) are < 0.01 deg.
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
         rotvec = _steps(t_last, tg[a:b]) @ gyro[a:b]    # sum of rate x step (one product: 3 array calls less)
         t_prev = tg[b - 1] if b > a else t_last
-        key = (len(self._gyro), self._gyro.last_t)      # called twice a tick (output, pull) on the same samples
+        key = (len(self._imu), self._imu.last_t)      # called twice a tick (output, pull) on the same samples
         if self._hold_cache is None or self._hold_cache[0] != key:
             recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
             self._hold_cache = (key, np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent))   # the recent mean rate
@@ -799,14 +808,11 @@ class FusedTracker:
                 self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
                 assert self._t0_ns is not None
                 stamps = (stamps_ns - self._t0_ns) * _NS
-                self._gyro.add_many(stamps, rows[:, 1:4])
-                if self.cfg.accel_prediction:
-                    self._acc.add_many(stamps, rows[:, 4:7])
+                self._imu.add_many(stamps, rows[:, 1:7])
         if len(self._vio):
             horizon = self._vio.last_t - max(self.cfg.history_s, self.cfg.accel_window_s if self.cfg.accel_prediction else 0.0)
             self._vio.prune(horizon)
-            self._gyro.prune(horizon)
-            self._acc.prune(horizon)
+            self._imu.prune(horizon)
         m = obs.marker
         frame = tick.new_frame   # a sighting counts once, on the tick that first carries its frame
         raw = _raw(m.T_dvio_controller) if m is not None and m.T_dvio_controller is not None else None
@@ -982,7 +988,7 @@ class FusedTracker:
         pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
         if math.sqrt(pull.dot(pull)) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull (the norm)
             return rotation
-        t_data = max(self._vio.last_t, self._gyro.last_t if len(self._gyro) else -math.inf)   # where measurements end
+        t_data = max(self._vio.last_t, self._imu.last_t if len(self._imu) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
         P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * h) ** 2
         gain = P / (P + (c.pull_marker_rotation_deg * rotation_scale) ** 2)
