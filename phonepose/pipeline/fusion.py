@@ -539,7 +539,7 @@ class FusedTracker:
         # come (one stamp for both; two rings were kept and pruned in step, twice the calls)
         self._imu = _Ring(6)
         self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
-        self._hold_cache: tuple[tuple, np.ndarray] | None = None   # the gyro's recent mean rate, per gyro samples
+        self._hold_cache: tuple[tuple, list[float]] | None = None   # the gyro's recent mean rate, per gyro samples
         self._turned = (np.empty(0), np.empty((0, 3)))  # IMU stamps and their specific force in display_vio, final
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
@@ -760,9 +760,10 @@ class FusedTracker:
         key = (len(self._imu), self._imu.last_t)      # called twice a tick (output, pull) on the same samples
         if self._hold_cache is None or self._hold_cache[0] != key:
             recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
-            self._hold_cache = (key, np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent))   # the recent mean rate
+            mean_rate = np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent)   # the recent mean rate
+            self._hold_cache = (key, mean_rate.tolist())
         held = t_last + dt - t_prev
-        hold = self._hold_cache[1].tolist()
+        hold = self._hold_cache[1]
         return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), hold, strict=True)]))
 
     # ------------------------------------------------------------------ measurements
@@ -985,14 +986,14 @@ class FusedTracker:
         else:
             return rotation
         q_at = quat_mul(f.q, q_vio) if f.q is not None else q_vio     # f.apply's orientation (f.ready: q is set)
-        pull = np.array(quat_as_rotvec(quat_mul(M[0], quat_inv(q_at))))
-        if math.sqrt(pull.dot(pull)) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull (the norm)
+        px, py, pz = quat_as_rotvec(quat_mul(M[0], quat_inv(q_at)))
+        if math.sqrt(px * px + py * py + pz * pz) > math.radians(3 * c.marker_rotation_deg):   # a flip does not pull
             return rotation
         t_data = max(self._vio.last_t, self._imu.last_t if len(self._imu) else -math.inf)   # where measurements end
         h = max(0.0, (t_img - f.d) - t_data)
         P = c.pull_vio_rotation_deg ** 2 + (c.pull_prediction_deg_per_s * h) ** 2
         gain = P / (P + (c.pull_marker_rotation_deg * rotation_scale) ** 2)
-        return quat_mul(quat_from_rotvec(gain * pull), rotation)
+        return quat_mul(quat_from_rotvec((gain * px, gain * py, gain * pz)), rotation)
 
     def __repr__(self) -> str:
         return f"{self.name}(fused: ESKF correction + time offset, gyro prediction, continuous output)"
