@@ -104,7 +104,7 @@ def _shared_stages(session: Path, repeats: int = 3) -> tuple[list, dict]:
     return obs, best
 
 
-def _per_tick_ms(trackers: list, obs: list, repeats: int = 3) -> tuple[float, float]:
+def _per_tick_ms(trackers: list, obs: list, repeats: int = 7) -> tuple[float, float]:
     """(wall, CPU) ms per tick, each the best of ``repeats``."""
     best, best_cpu = float("inf"), float("inf")
     for _ in range(repeats):

@@ -74,6 +74,38 @@ def test_lag_is_its_definition_shift_by_shift(n):
     assert n < 40 or abs(want - 0.12) < 0.02           # and it finds the delay
 
 
+def test_lag_curve_interpolates_as_np_interp_inside_the_estimate_stamps():
+    """The interpolation under lag_curve, point by point, to the bit: at the stamps themselves (the last one
+    included), between them, and shifted by the lag grid (points outside are left out of the curve)."""
+    from phonepose.evaluation.controller import _Segments
+    from phonepose.series import interp_columns
+
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0, 10, 200))
+    p = rng.normal(size=(200, 3)) * 0.3
+    x = np.concatenate([t, rng.uniform(-1, 11, 500), (t[None, :] + np.arange(-3, 4)[:, None] * LAG_RESOLUTION_S).ravel()])
+    inside = (x >= t[0]) & (x <= t[-1])
+    assert np.column_stack(_Segments(t, p).columns(x))[inside].tobytes() == interp_columns(x, t, p)[inside].tobytes()
+
+
+@pytest.mark.parametrize("n", [40, 2257])
+def test_lag_on_the_ticks_themselves_is_its_definition(n):
+    """As a playback scores it: the estimate on the truth's own 20 Hz stamps, so that shifted stamps meet
+    estimate stamps exactly (every one at shift 0, the last one at the end): np.interp's sample values there,
+    to the bit; a repeated stamp takes np.interp's own fallbacks."""
+    t = np.round(np.arange(n) * TICK, 9)
+    rng = np.random.default_rng(n)
+    p_gt = _path(t) + rng.normal(0, 0.002, (n, 3))
+    p_est = _path(t - 0.1) + rng.normal(0, 0.002, (n, 3))
+    _, errors = lag_curve(t, p_gt, t, p_est)
+    want, want_errors = _lag_by_definition(t, p_gt, t, p_est)
+    assert np.array(errors).tobytes() == np.array(want_errors).tobytes() and lag(t, p_gt, t, p_est) == want
+    t_rep = t.copy()
+    t_rep[n // 2] = t_rep[n // 2 - 1]                  # a repeated stamp: an infinite slope
+    _, errors = lag_curve(t, p_gt, t_rep, p_est)
+    assert np.array(errors).tobytes() == np.array(_lag_by_definition(t, p_gt, t_rep, p_est)[1]).tobytes()
+
+
 def test_white_noise_while_still_has_jitter_sigma_root_3_and_drift_none():
     n = 40_000
     rng = np.random.default_rng(1)

@@ -53,11 +53,15 @@ def lag_curve(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.n
     # Each shift's error is the per-shift formula's to the bit: the same interpolations and squared
     # distances element by element, and its mean over exactly its own window's stamps, in order.
     per_block = max(1, LAG_BLOCK_POINTS // t_gt.size)
+    moved_at = _Segments(t_est, p_est)
     for start in range(0, len(taus), per_block):
         block = taus[start:start + per_block]
         q = t_gt[None, :] + np.array(block)[:, None]
-        moved = interp_columns(q.ravel(), t_est, p_est)
-        sq = np.sum((moved.reshape(len(block), t_gt.size, 3) - p_gt) ** 2, axis=2)
+        sq = None      # the squared distances summed over x, y, z in that order, as np.sum(..., axis=2) does
+        for k, moved in enumerate(moved_at.columns(q.ravel())):
+            d = moved.reshape(len(block), t_gt.size) - p_gt[:, k]
+            sq = d * d if sq is None else sq + d * d
+        assert sq is not None
         use = (q >= t_est[0]) & (q <= t_est[-1])
         for tau, row, keep in zip(block, sq, use, strict=True):
             if int(keep.sum()) < max(2, t_gt.size // 2):     # the shifted window must keep most of the task
@@ -65,6 +69,40 @@ def lag_curve(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.n
             shifts.append(tau)
             errors.append(float(np.mean(row[keep])))
     return shifts, errors
+
+
+class _Segments:
+    """np.interp of each column at many points, for lag_curve: the value at a point inside the stamps is
+    interp_columns' to the bit (the same slope of its segment, times the same offset, plus the same sample);
+    outside them it is any finite number (lag_curve leaves those points out). The slopes are computed once per
+    segment, not once per point and shift, and gathered column by column (1-D takes: ~1.6x faster than rows of
+    three): lag_curve interpolates ~200 shifts of every stamp, three quarters of a playback's metrics. Stamps
+    repeated or values not finite: interp_columns itself."""
+
+    def __init__(self, t: np.ndarray, p: np.ndarray) -> None:
+        self.t, self.p = t, p
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            slope = (p[1:] - p[:-1]) / (t[1:] - t[:-1])[:, None]
+        self.exact = bool(np.isfinite(slope).all())
+        self.slope_cols = [np.ascontiguousarray(slope[:, k]) for k in range(p.shape[1])]
+        self.p_cols = [np.ascontiguousarray(p[:, k]) for k in range(p.shape[1])]
+
+    def columns(self, x: np.ndarray) -> list[np.ndarray]:
+        """The interpolated values at ``x``, one array per column."""
+        t, p = self.t, self.p
+        if not self.exact:
+            out = interp_columns(x, t, p)
+            return [out[:, k] for k in range(p.shape[1])]
+        j = np.minimum(np.maximum(t.searchsorted(x, side="right") - 1, 0), len(t) - 2)
+        offset = x - t.take(j)
+        at_end = x == t[-1]             # np.interp's value there is the last sample's own
+        cols = []
+        for slope, values in zip(self.slope_cols, self.p_cols, strict=True):
+            col = slope.take(j) * offset + values.take(j)
+            if at_end.any():
+                col[at_end] = values[-1]
+            cols.append(col)
+        return cols
 
 
 def lag(stamps_s: np.ndarray, gt_positions: np.ndarray, est_stamps_s: np.ndarray, est_positions: np.ndarray,
