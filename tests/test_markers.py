@@ -216,3 +216,65 @@ def test_a_low_contrast_marker_is_still_found_through_the_default_contrast():
     assert obs is not None and rec.stats["track-roi"] == 1
     np.testing.assert_array_equal(obs.corners_px, expected + [x0, y0] - APRILTAG_SHIFT_PX)
     assert np.max(np.linalg.norm(obs.corners_px - project_corners(CAMERA, MARKER, T_true), axis=1)) < 1.0
+
+
+class _SearchSizes:
+    """The recognizer's full-frame CONTOUR detector, noting the size of every image it searches."""
+
+    def __init__(self, rec: MarkerRecognizer) -> None:
+        self.detector, self.shapes = rec._fast, []
+        rec._fast = self
+
+    def detectMarkers(self, image):
+        self.shapes.append(image.shape)
+        return self.detector.detectMarkers(image)
+
+
+def _seen_then_searched(marker_pose: Pose, frames: int = 1) -> tuple[MarkerRecognizer, list, list]:
+    """A recognizer that saw the marker at 25 cm (~100 px a side), lost it in an empty frame, then gets
+    ``frames`` renders of it at ``marker_pose`` (far from the lost crop: a full-frame search each time);
+    with the sizes of the frames it searched."""
+    rec = MarkerRecognizer(CAMERA, MARKER)
+    sizes = _SearchSizes(rec)
+    assert rec.recognize(render_marker(CAMERA, MARKER, looking_at(0.25, 20, 40)), t_ns=0) is not None
+    assert rec.recognize(np.full((480, 640), 110, np.uint8), t_ns=33_000_000) is None
+    return rec, [rec.recognize(render_marker(CAMERA, MARKER, marker_pose), t_ns=66_000_000 + 33_000_000 * k)
+                 for k in range(frames)], sizes.shapes
+
+
+@pytest.mark.parametrize("distance_m", [0.25, 0.4])
+def test_the_full_frame_search_at_half_size_keeps_the_full_size_corners(distance_m):
+    """After a sighting of a large marker the full-frame search runs on the halved frame; the corners then
+    come from the APRILTAG crop at full size, the same as a full-size search gives (to 0.15 px: the crop it
+    places may differ by a pixel)."""
+    pose = looking_at(distance_m, 35, 150, roll_deg=20, offset_xy_m=(0.06, -0.04))
+    rec, (obs,), shapes = _seen_then_searched(pose)
+    assert shapes == [(480, 640), (240, 320), (240, 320)] and obs is not None and rec.stats["roi"] == 2
+    full = MarkerRecognizer(CAMERA, MARKER).recognize(render_marker(CAMERA, MARKER, pose))   # a first search
+    assert full is not None and np.abs(obs.corners_px - full.corners_px).max() < 0.15
+
+
+def test_a_marker_too_small_for_the_half_size_search_is_found_by_the_periodic_full_one():
+    """Seen large, back at 2.5 m (~10 px a side: not found in the halved frame): found by the full-size
+    search that every FULL_SEARCH_EVERY-th search in a row runs, and from then on searched at full size."""
+    from phonepose.pipeline.markers import FULL_SEARCH_EVERY
+
+    rec, found, shapes = _seen_then_searched(looking_at(2.5), frames=FULL_SEARCH_EVERY + 2)
+    # the empty frame was the first search in a row without the marker
+    first = next(k for k, obs in enumerate(found) if obs is not None)
+    assert first == FULL_SEARCH_EVERY - 2 and all(obs is not None for obs in found[first:])
+    assert shapes[1:FULL_SEARCH_EVERY] == [(240, 320)] * (FULL_SEARCH_EVERY - 1)
+    assert set(shapes[FULL_SEARCH_EVERY:]) == {(480, 640)}
+
+
+def test_a_marker_first_seen_small_is_searched_at_full_size():
+    """No sighting yet, or the last one too small for the halved frame (a 4x4 marker under 48 px a side):
+    every search at full size, as the real photos' 17-34 px markers need."""
+    rec = MarkerRecognizer(CAMERA, MARKER)
+    sizes = _SearchSizes(rec)
+    small = render_marker(CAMERA, MARKER, looking_at(0.9))            # ~28 px a side
+    assert rec.recognize(small, t_ns=0) is not None
+    assert rec._last_side_px is not None and rec._last_side_px < 48
+    assert rec.recognize(np.full((480, 640), 110, np.uint8), t_ns=33_000_000) is None
+    assert rec.recognize(small, t_ns=66_000_000) is not None and rec.stats["roi"] == 2
+    assert set(sizes.shapes) == {(480, 640)}
