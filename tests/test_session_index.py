@@ -278,33 +278,3 @@ def test_info_and_verify_on_a_summary_flip(small, tmp_path, cli):
     bad = _flipped(small, tmp_path / "b" / "s.mcap", _statistics_offset(data) + 3, 0)   # the message count
     outs = [cli("info", "--json", "--verify", f).stdout.replace(str(f), "S") for f in (small, bad)]
     assert outs[0] == outs[1] and '"messages": 128,\n' in outs[0]
-
-
-def test_chunk_records_are_mcaps_own_and_a_record_past_the_chunk_is_damage(small):
-    """index.chunk_contents reads Message records with struct where mcap's breakup_chunk goes through its
-    stream reader: the same records, every chunk of a session; and a chunk whose last record is cut short, or
-    holds a message shorter than its 22 fixed bytes, raises (breakup_chunk would return what it could read)."""
-    from mcap.data_stream import ReadDataStream
-    from mcap.records import Chunk
-    from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
-
-    from phonepose.session.index import chunk_contents
-
-    n = 0
-    with SessionReader(small) as reader, small.open("rb") as f:
-        for ci in reader.index.chunks:
-            f.seek(ci.chunk_start_offset + 9)
-            chunk = Chunk.read(ReadDataStream(f))
-            stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-            data = stream.read(size)
-            records = chunk_contents(data)
-            assert records == breakup_chunk(chunk, validate_crc=True)
-            n += len(records)
-    assert n > 100
-    with pytest.raises(ValueError, match="runs past the chunk"):
-        chunk_contents(data[:-1])
-    with pytest.raises(ValueError, match="runs past the chunk"):
-        chunk_contents(data + b"\x05\x01")
-    short = struct.pack("<BQ", 0x05, 21) + bytes(21)
-    with pytest.raises(ValueError, match="shorter than its fixed fields"):
-        chunk_contents(short)
