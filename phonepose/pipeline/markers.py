@@ -16,13 +16,6 @@ Choices (measured; see docs/pipeline.md and ../shared/docs/notes/markers.md §1.
   (OpenCV's default 5 turns the sensor noise of a flat background into thousands of tiny clusters,
   each fitted as a candidate quad: ~3/4 of the crop's cost), and again with the default only if the
   expected marker is not found that way; see the constant.
-- The full-frame search (the marker not seen in the previous frame, or lost from its crop) runs on the
-  frame halved in each direction when the marker, last seen, was large enough to be found there (a
-  cell at least ``SEARCH_MIN_CELL_PX`` wide at half size); its corners only place the APRILTAG crop,
-  which runs at full resolution as before. Every ``FULL_SEARCH_EVERY``-th search in a row that finds
-  nothing runs at full resolution, so a marker that comes back smaller than half-size search can see
-  is found within that many frames. A frame whose crop fails gets the full-resolution CONTOUR corners
-  as before. See the constants.
 - Only the expected id counts; every other id is ignored.
 - Pose: ``solvePnPGeneric(IPPE_SQUARE)`` gives both planar solutions; take the best if its
   reprojection error is clearly lower (ratio > 4), else the one whose rotation is closer to the
@@ -67,17 +60,6 @@ MIN_MARGIN_PX = 12
 # where the marker is not found this way (a dim or washed-out screen) is searched again with the
 # default, so no marker that was found before is lost.
 APRILTAG_MIN_CONTRAST = 30
-# The full-frame search at half size (each pixel the mean of a 2x2 block): a frame without the marker costs
-# ~0.45 instead of ~1.6 ms of CONTOUR detection (640x480; on exp1, where the controller is out of view half
-# the time, 1.33 -> 1.03 ms of recognition per frame). Only where the marker last seen had cells of at least
-# SEARCH_MIN_CELL_PX at half size (a 4x4 marker with its border: 48 px a side at full size): on the
-# simulated sessions (44-140 px) the half-size search found the marker in the same frames as the full one
-# but one per session (a marker cut by the image border), and the APRILTAG corners in its crop were
-# identical or within 0.11 px (docs/performance.md, issue 23 eighth round). Smaller markers (the 17-34 px
-# of the real photos in tests/data) are searched at full size.
-SEARCH_SCALE = 0.5
-SEARCH_MIN_CELL_PX = 4.0
-FULL_SEARCH_EVERY = 8          # searches in a row without the marker: every 8th at full size (0.27 s at 30 Hz)
 # AprilTag convention leaks a +0.5 px shift; CONTOUR edges sit 0.5 px inside the true edge.
 APRILTAG_SHIFT_PX = 0.5
 CONTOUR_EDGE_OFFSET_PX = 0.5
@@ -156,8 +138,6 @@ class MarkerRecognizer:
         self._accurate_low_contrast = cv2.aruco.ArucoDetector(dictionary, accurate)
         accurate.aprilTagMinWhiteBlackDiff = APRILTAG_MIN_CONTRAST
         self._accurate = cv2.aruco.ArucoDetector(dictionary, accurate)
-        cells = dictionary.markerSize + 2 * fast.markerBorderBits     # the marker's side in cells
-        self._min_search_side_px = cells * SEARCH_MIN_CELL_PX / SEARCH_SCALE
         self._object_points = marker_object_points(self.marker.size_m)
         self._K = np.asarray(self.camera.K, dtype=np.float64)
         self._D = np.asarray(self.camera.D, dtype=np.float64).reshape(-1)
@@ -168,8 +148,6 @@ class MarkerRecognizer:
         self._last_corners: np.ndarray | None = None      # set only if seen in the previous frame
         self._last_rotation: Pose | None = None
         self._last_seen_ns: int | None = None
-        self._last_side_px: float | None = None           # the shortest side of the marker last seen
-        self._failed_searches = 0                          # full-frame searches in a row that found nothing
 
     # ------------------------------------------------------------------ corners
     def _find_expected(self, detector: cv2.aruco.ArucoDetector, image: np.ndarray) -> np.ndarray | None:
@@ -201,43 +179,18 @@ class MarkerRecognizer:
             return None
         return found + np.array([x0, y0]) - APRILTAG_SHIFT_PX
 
-    def _search(self, gray: np.ndarray) -> tuple[np.ndarray | None, bool]:
-        """(CONTOUR corners of the expected marker in the whole frame or None, whether found at half size)."""
-        half = (self._last_side_px is not None and self._last_side_px >= self._min_search_side_px
-                and self._failed_searches % FULL_SEARCH_EVERY != FULL_SEARCH_EVERY - 1)
-        if half:
-            h, w = gray.shape[:2]
-            small = cv2.resize(gray[:h - h % 2, :w - w % 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-            found = self._find_expected(self._fast, small)
-            coarse = None if found is None else found * 2.0 + 0.5   # a half-size pixel centre u is 2u + 0.5
-        else:
-            coarse = self._find_expected(self._fast, gray)
-        self._failed_searches = 0 if coarse is not None else self._failed_searches + 1
-        return coarse, half
-
     def detect_corners(self, gray: np.ndarray) -> _Detection | None:
         """Bias-corrected corners (TL, TR, BR, BL) of the expected marker, or None."""
-        detection = self._detect_corners(gray)
-        if detection is not None:
-            c = detection.corners
-            self._last_side_px = min(math.dist(c[i].tolist(), c[i - 1].tolist()) for i in range(4))
-        return detection
-
-    def _detect_corners(self, gray: np.ndarray) -> _Detection | None:
         if self._last_corners is not None:
             tracked = self._accurate_in_roi(gray, self._last_corners, TRACKING_MARGIN)
             if tracked is not None:
                 return _Detection(tracked, "track-roi")
-        coarse, half = self._search(gray)
+        coarse = self._find_expected(self._fast, gray)
         if coarse is None:
             return None
         refined = self._accurate_in_roi(gray, coarse, DETECTION_MARGIN)
         if refined is not None:
             return _Detection(refined, "roi")
-        if half:   # the CONTOUR corners at full size, as without the half-size search
-            coarse = self._find_expected(self._fast, gray)
-            if coarse is None:
-                return None
         return _Detection(push_edges_outward(coarse), "contour")
 
     # ------------------------------------------------------------------ pose
