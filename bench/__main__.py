@@ -106,20 +106,29 @@ def main(argv: list[str]) -> int:
     names = argv or known
     results = {"machine": machine(), "command": "python -m bench " + " ".join(argv)}
     t0 = time.perf_counter()
+    failed = []
     for name in names:
         print(f"\n=== {name} ===", flush=True)
         mod = importlib.import_module(f"bench.bench_{name}")
-        results[name] = mod.main()
+        try:
+            results[name] = mod.main()
+        except Exception as exc:  # noqa: BLE001 - one broken item must not lose the others' figures
+            print(f"error: bench {name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            results[name] = {"error": f"{type(exc).__name__}: {exc}"}
+            failed.append(name)
     results["total_s"] = round(time.perf_counter() - t0, 1)
     print_summary(results)
     m = results["machine"]
     print(f"\nmachine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m.get('numpy')}, "
           f"OpenCV {m.get('cv2')}; Python speed: sum(range(1000)) {m.get('python_sum_range_1000_us')} us; "
           f"load average at start {m.get('load_average')}; total {results['total_s']} s")
-    # a full run is the record; a partial one must not overwrite it
-    out = here / ("results.json" if not argv else "results_partial.json")
+    # a full run is the record; a partial one (or one with a failed item) must not overwrite it
+    out = here / ("results.json" if not argv and not failed else "results_partial.json")
     out.write_text(json.dumps(results, indent=2))
     print(f"wrote {out}")
+    if failed:
+        print(f"error: {len(failed)} item(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
     return 0
 
 
