@@ -79,4 +79,5 @@ def interp_columns_inside(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.n
     the clamping, the end and at-sample cases and the finiteness check, which were half its array operations
     (T8 interpolates its accelerometer integral at the window's VIO stamps on every tick)."""
     j = xp.searchsorted(x, side="right") - 1
-    return (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])[:, None] * (x - xp[j])[:, None] + fp[j]
+    f0, x0 = fp[j], xp[j]         # (each row gathered once)
+    return (fp[j + 1] - f0) / (xp[j + 1] - x0)[:, None] * (x - x0)[:, None] + f0
