@@ -84,8 +84,7 @@ class _Segments:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             slope = (p[1:] - p[:-1]) / (t[1:] - t[:-1])[:, None]
         self.exact = bool(np.isfinite(slope).all())
-        self.slope_cols = [np.ascontiguousarray(slope[:, k]) for k in range(p.shape[1])]
-        self.p_cols = [np.ascontiguousarray(p[:, k]) for k in range(p.shape[1])]
+        self.slope = slope
 
     def columns(self, x: np.ndarray) -> list[np.ndarray]:
         """The interpolated values at ``x``, one array per column."""
@@ -97,8 +96,9 @@ class _Segments:
         offset = x - t.take(j)
         at_end = x == t[-1]             # np.interp's value there is the last sample's own
         cols = []
-        for slope, values in zip(self.slope_cols, self.p_cols, strict=True):
-            col = slope.take(j) * offset + values.take(j)
+        for k in range(p.shape[1]):        # (columns of the arrays as they are: no copy that grows with them)
+            values = p[:, k]
+            col = self.slope[:, k].take(j) * offset + values.take(j)
             if at_end.any():
                 col[at_end] = values[-1]
             cols.append(col)
