@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
 from phonepose.geometry import Pose
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig
+from phonepose.pipeline.fusion import CorrectionFilter, FusedTracker, FusionConfig
 from phonepose.pipeline.trackers import make_tracker
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
@@ -435,3 +435,23 @@ def test_a_burst_of_imu_samples_larger_than_the_rings_room_is_taken_whole():
     run(t8, obs)
     kept = t8._imu.t[t8._imu.t >= stamps[0] - t8._t0_ns / 1e9 - 1e-9]
     np.testing.assert_allclose(kept[-len(stamps):] - kept[-len(stamps)], stamps - stamps[0], atol=1e-9)
+
+
+def test_the_filter_skips_a_sighting_it_cannot_weigh_and_rejects_an_absurd_one():
+    """update() solves S with LAPACK directly: a singular S (no uncertainty at all) skips the sighting without
+    counting a rejection, as np.linalg.solve's LinAlgError did; a sighting with an infinite position is gated
+    (a rejection), and neither moves the correction."""
+    f = CorrectionFilter(FusionConfig())
+    q = (0.0, 0.0, 0.0, 1.0)
+    f.initialise((q, np.zeros(3)), (q, np.zeros(3)))
+    f.P[:] = 0.0
+    state = (f.q, f.t.copy(), f.d)
+    zero = np.zeros(3)
+    assert not f.update((q, np.array([0.01, 0.0, 0.0])), (q, zero), zero, zero, np.zeros((6, 6)))
+    assert (f.rejections, f.rejected, f.accepted) == (0, 0, 0)
+    f.P[:] = np.eye(7) * 1e-4
+    assert not f.update((q, np.array([np.inf, 0.0, 0.0])), (q, zero), zero, zero, np.eye(6) * 1e-4)
+    assert (f.rejections, f.rejected, f.accepted) == (1, 1, 0)
+    assert f.q == state[0] and np.array_equal(f.t, state[1]) and f.d == state[2]
+    assert f.update((q, np.array([0.01, 0.0, 0.0])), (q, zero), zero, zero, np.eye(6) * 1e-4)
+    assert f.accepted == 1 and f.t[0] > 0.004          # an ordinary sighting still moves it
