@@ -9,13 +9,15 @@ detecting again, so a frame counts as
 A recognised marker needs the display pose to be placed in display_vio; while the display
 pose is unknown the marker is reported as not in view (``Observation.marker`` None).
 
-Look-ahead: ``prefetch(tick)`` starts a tick's decode + recognition on one worker thread, so that
-it runs while the caller steps the trackers and writes the outputs of the ticks before it (OpenCV
-releases the GIL in ``imdecode`` and ``detectMarkers``, which are ~80 % of a playback on a session
-with a camera). The worker recognises the frames one after the other in tick order, exactly as
-``process`` does without it, so the results are the same bits; ``process`` of a prefetched tick
-waits for its result. Measured on exp1 (docs/performance.md): the playback's wall time falls by
-the trackers' and outputs' share when a second core is free.
+Look-ahead: ``prefetch(tick)`` starts a tick's decode on one worker thread and its recognition on
+another, so that both run while the caller steps the trackers and writes the outputs of the ticks
+before it (OpenCV releases the GIL in ``imdecode`` and ``detectMarkers``, which are ~80 % of a
+playback on a session with a camera). Recognition is a chain (each frame's crop follows from the
+last one's marker), decoding is not: the next frame is decoded while this one is recognised. The
+recognition worker takes the frames one after the other in tick order, exactly as ``process`` does
+without it, so the results are the same bits; ``process`` of a prefetched tick waits for its result.
+Measured on exp1 (docs/performance.md): the playback's wall time falls by the trackers' and outputs'
+share when a second core is free, and by ~8 % more with the decode on its own thread.
 """
 
 from __future__ import annotations
@@ -53,7 +55,8 @@ class SharedStages:
         # Only trackers with ``uses_vio_samples`` (T8) read them; the engine switches this off
         # when none runs, since it costs ~0.2 ms per tick.
         self.map_vio_samples = True
-        self._worker: ThreadPoolExecutor | None = None     # started by the first prefetch
+        self._worker: ThreadPoolExecutor | None = None     # recognition, started by the first prefetch
+        self._decoder: ThreadPoolExecutor | None = None    # JPEG decoding, a frame or more ahead of it
         self._pending: deque[tuple[Tick, Future]] = deque()
         self.reset()
 
@@ -64,13 +67,14 @@ class SharedStages:
         self.frames_decoded = 0
         self.frames_undecodable = 0   # reported once by the caller (docs/reliability.md)
 
-    def _recognize(self, tick: Tick) -> MarkerObservation | None:
+    def _recognize(self, tick: Tick, decoded: Future | None = None) -> MarkerObservation | None:
+        """The tick's marker; ``decoded``: its new frame's pixels being decoded by ``prefetch``."""
         frame = tick.frame
         if frame is None:
             return None
         if not frame.is_new:
             return self._last_marker
-        gray = decode_gray(frame)
+        gray = decoded.result() if decoded is not None else decode_gray(frame)
         self.frames_decoded += 1
         marker = None
         if gray is None:
@@ -83,16 +87,20 @@ class SharedStages:
     def prefetch(self, tick: Tick) -> None:
         """Start ``tick``'s recognition on the worker thread; ticks come in order, each once, and
         are then processed in the same order."""
-        if self._worker is None:
+        if self._worker is None or self._decoder is None:
             self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="phonepose-recognition")
-        self._pending.append((tick, self._worker.submit(self._recognize, tick)))
+            self._decoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="phonepose-decode")
+        frame = tick.frame
+        decoded = self._decoder.submit(decode_gray, frame) if frame is not None and frame.is_new else None
+        self._pending.append((tick, self._worker.submit(self._recognize, tick, decoded)))
 
     def close(self) -> None:
-        """Stop the worker thread (a prefetched tick not processed yet is dropped)."""
+        """Stop the worker threads (a prefetched tick not processed yet is dropped)."""
         self._drain()
-        if self._worker is not None:
-            self._worker.shutdown(wait=True)
-            self._worker = None
+        for pool in (self._worker, self._decoder):
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+        self._worker = self._decoder = None
 
     def _drain(self) -> None:
         while self._pending:
