@@ -85,8 +85,13 @@ def test_all_trackers_step_on_one_observation():
 
 
 def test_prefetch_gives_the_same_observations_as_process_alone():
-    """The look-ahead recognises on a worker thread, in tick order: the same corners and poses to the
-    bit as without it (the tracked crop depends on the previous frame), the same counters."""
+    """The look-ahead decodes on one worker thread and recognises on another, in tick order: the same
+    corners and poses to the bit as without it (the tracked crop depends on the previous frame), the same
+    counters; close() stops both threads."""
+    import threading
+
+    before = set(threading.enumerate())
+
     near = [looking_at(0.3 + 0.01 * k, 30 - k, 40 + k, roll_deg=15) for k in range(4)]
     ticks = [tick(0, jpeg(near[0]), 1_000, new=True), tick(1, jpeg(near[0]), 1_000, new=False),
              tick(2, jpeg(near[1]), 2_000, new=True), tick(3, jpeg(None), 3_000, new=True),
@@ -99,8 +104,11 @@ def test_prefetch_gives_the_same_observations_as_process_alone():
         for t in ticks:
             ahead.prefetch(t)
         got = [ahead.process(t) for t in ticks]
+        started = set(threading.enumerate()) - before
+        assert {t.name.rsplit("_", 1)[0] for t in started} >= {"phonepose-decode", "phonepose-recognition"}
     finally:
         ahead.close()
+    assert not any(t.is_alive() for t in started)
     assert [o.in_view for o in got] == [o.in_view for o in expected] == [True, True, True, False, True, True, False]
     assert got[1].marker is got[0].marker                 # the reused frame's recognition, as without it
     for g, e in zip(got, expected, strict=True):
