@@ -17,7 +17,7 @@ last one's marker), decoding is not: the next frame is decoded while this one is
 recognition worker takes the frames one after the other in tick order, exactly as ``process`` does
 without it, so the results are the same bits; ``process`` of a prefetched tick waits for its result.
 Measured on exp1 (docs/performance.md): the playback's wall time falls by the trackers' and outputs'
-share when a second core is free, and by ~8 % more with the decode on its own thread.
+share when a second core is free, and by 10-15 % more with the decode on its own thread.
 """
 
 from __future__ import annotations
