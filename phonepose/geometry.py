@@ -393,17 +393,20 @@ def quat_matrix(q: Quat) -> list[list[float]]:
             [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]]
 
 
-# quat_apply_rows: each matrix entry of quat_matrix is a quadratic form of (x y z w); with the 16 products of a
-# row's outer product, the nine entries are one matrix product with these weights
-_QUADRATIC_FORMS = np.zeros((4, 4, 9))
-for _k, _terms in enumerate((
-        ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 0, 1), (-2, 2, 3)), ((2, 0, 2), (2, 1, 3)),
-        ((2, 0, 1), (2, 2, 3)), ((-1, 0, 0), (1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 1, 2), (-2, 0, 3)),
-        ((2, 0, 2), (-2, 1, 3)), ((2, 1, 2), (2, 0, 3)), ((-1, 0, 0), (-1, 1, 1), (1, 2, 2), (1, 3, 3)))):
-    for _sign, _a, _b in _terms:
-        _QUADRATIC_FORMS[_a, _b, _k] = _sign
-# and the turned vector's components as bilinear forms of those 16 products and the vector's 3 components
-_TURN_FORMS = _QUADRATIC_FORMS.reshape(16, 3, 3).transpose(0, 2, 1).reshape(48, 3)
+def _turn_forms() -> np.ndarray:
+    """quat_apply_rows' weights (48, 3): each matrix entry of quat_matrix is a quadratic form of (x y z w), so
+    each turned component is a bilinear form of a row's 16 pairwise products and the vector's 3 components."""
+    forms = np.zeros((4, 4, 9))
+    for k, terms in enumerate((
+            ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 0, 1), (-2, 2, 3)), ((2, 0, 2), (2, 1, 3)),
+            ((2, 0, 1), (2, 2, 3)), ((-1, 0, 0), (1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 1, 2), (-2, 0, 3)),
+            ((2, 0, 2), (-2, 1, 3)), ((2, 1, 2), (2, 0, 3)), ((-1, 0, 0), (-1, 1, 1), (1, 2, 2), (1, 3, 3)))):
+        for sign, a, b in terms:
+            forms[a, b, k] = sign
+    return forms.reshape(16, 3, 3).transpose(0, 2, 1).reshape(48, 3)
+
+
+_TURN_FORMS = _turn_forms()
 
 
 def quat_apply_rows(q: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -541,7 +541,6 @@ class FusedTracker:
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
         self._path_since_predict = 0.0
-        self._vio_last_p = (0.0, 0.0, 0.0)         # the newest VIO sample's position, as floats (the path length)
         self._velocity_cache: tuple[tuple, tuple[np.ndarray, np.ndarray, float | None]] | None = None
         self._offset = np.zeros(3)                 # carried across source switches, decays
         self._source: str | None = None
@@ -564,12 +563,10 @@ class FusedTracker:
     def _add_vio(self, t: float, pose: RawPose) -> None:
         q, p = pose
         x, y, z = p.tolist()
-        if t > self._vio.last_t:   # (the ring keeps only newer samples)
-            if len(self._vio):
-                px, py, pz = self._vio_last_p
-                dx, dy, dz = x - px, y - py, z - pz    # (products, not ** 2: a float power raises on overflow)
-                self._path_since_predict += math.sqrt(dx * dx + dy * dy + dz * dz)
-            self._vio_last_p = (x, y, z)
+        if len(self._vio) and t > self._vio.last_t:   # (the ring keeps only newer samples)
+            px, py, pz = self._vio.v[-1, 4:7].tolist()
+            dx, dy, dz = x - px, y - py, z - pz    # (products, not ** 2: a float power raises on overflow)
+            self._path_since_predict += math.sqrt(dx * dx + dy * dy + dz * dz)
         self._vio.add(t, (*q, x, y, z))
 
     def _vio_at(self, t: float) -> RawPose | None:
@@ -649,10 +646,9 @@ class FusedTracker:
         VP = np.zeros((len(t_k), 6))
         np.cumsum((a_k[:-1] + a_k[1:]) / 2 * dt, axis=0, out=VP[1:, 0:3])
         np.cumsum(VP[:-1, 0:3] * dt + (a_k[:-1] / 3 + a_k[1:] / 6) * dt * dt, axis=0, out=VP[1:, 3:6])
-        # the integral at t0 (t_k[0] <= t0 < t_k[-1]; np.interp's formula), the reference of the one used below
-        upto = int(t_k.searchsorted(t0, side="right"))
-        j = upto - 1
-        VP0 = (VP[j + 1] - VP[j]) / (t_k[j + 1] - t_k[j]) * (t0 - t_k[j]) + VP[j]
+        # the integral at t0 (t_k[0] <= t0 < t_k[-1]), the reference of the one used below
+        VP0 = interp_columns(t0, t_k, VP)
+        j = int(t_k.searchsorted(t0, side="right")) - 1     # the IMU sample at or before t0
         # the fit of the VIO positions less the integral. The integral less a constant and a line in time
         # (zero with its rate at t0) moves only the fit's constant and slope: the fit takes the integral as
         # summed, and its constant and slope are moved after it (the same to rounding, on 3 rows, not ~200)
