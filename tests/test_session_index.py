@@ -16,13 +16,14 @@ import struct
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
 from phonepose.errors import DamagedFileError
 from phonepose.session import SessionReader
-from phonepose.session.index import MAX_CHUNK_BYTES
+from phonepose.session.index import MAX_CHUNK_BYTES, main_span
 from phonepose.testing.playback_session import write_test_session
 
 FLIP_BOUND_S = 5.0      # one open of a 20-50 KB file; ~3 ms on a quiet machine
@@ -214,7 +215,60 @@ def test_valid_files_without_parts_of_the_summary_read_like_the_full_one(small, 
             keys = [(m.topic, m.log_time_ns, m.sequence, m.msg) for m in b.messages()]
             assert keys == [(m.topic, m.log_time_ns, m.sequence, m.msg) for m in a.messages()]
             assert b.verify(deep=True) == len(b.index.chunks)
+            _assert_times(b.log_times(), _times_by_mcap(small))
     assert caplog.records == []
+
+
+def _times_by_mcap(path: Path) -> dict[str, list[int]]:
+    """Every message's log time per topic, in file order, as mcap's own reader reads them."""
+    out: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        for _schema, channel, m in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(m.log_time)
+    return out
+
+
+def _assert_times(got: dict, expected: dict[str, list[int]]) -> None:
+    assert set(got) == set(expected)
+    for topic, ts in expected.items():
+        assert got[topic].dtype == np.uint64 and got[topic].tolist() == ts, topic
+
+
+def test_log_times_from_the_message_indexes_equal_mcaps_reading(tmp_path):
+    """The log times come from the Message Index records after each chunk (parsed as uint64 arrays,
+    not through mcap's StreamReader); they equal every message's log time as mcap reads them. When a
+    chunk's index records are damaged (they are outside the summary's CRC), its messages are read."""
+    path = tmp_path / "s.mcap"
+    write_test_session(path, duration_s=2.0, camera=False)
+    chunked = _rewrite(path, tmp_path / "chunks.mcap", chunk_size=2048)   # several chunks, each with its indexes
+    expected = _times_by_mcap(chunked)
+    assert sum(map(len, expected.values())) > 100
+    with SessionReader(chunked) as r:
+        assert len(r.index.chunks) > 3
+        _assert_times(r.log_times(), expected)
+        first = r.index.chunks[0]
+        at = min(first.message_index_offsets.values())
+    data = bytearray(chunked.read_bytes())
+    assert data[at] == 0x07                       # a Message Index record
+    data[at + 1] ^= 0xFF                          # its length now runs past the chunk's index block
+    damaged_index = tmp_path / "damaged-index.mcap"
+    damaged_index.write_bytes(bytes(data))
+    with SessionReader(damaged_index) as r:
+        _assert_times(r.log_times(), expected)
+
+
+@pytest.mark.parametrize("times, span", [
+    ([5], (5, 5)),
+    ([30, 10, 20], (10, 30)),
+    ([10, 20, 20 + 3600 * 10**9 + 1], (10, 20)),                          # one message past the hour: an outlier
+    ([1, 10, 20, 20 + 3600 * 10**9], (1, 20 + 3600 * 10**9)),                  # exactly an hour apart: one group
+    ([10, 20, 2**64 - 1], (10, 20)),                                          # the largest log time MCAP holds
+    ([0, 1, 3600 * 10**9 + 2, 3600 * 10**9 + 3], (0, 1)),                     # two of the same size: the first
+    ([0, 1, 10**13, 10**13 + 1, 10**13 + 2], (10**13, 10**13 + 2)),       # the larger group wins
+    ([], None),
+])
+def test_main_span_is_the_largest_group_of_messages_within_an_hour_of_each_other(times, span):
+    assert main_span(np.array(times, dtype=np.uint64)) == span
 
 
 def test_a_file_with_no_summary_section_at_all_is_read(small, tmp_path):

@@ -236,11 +236,11 @@ class TickScheduler:
         """The session's time span without time outliers (counted into ``skipped``): a far-future or
         far-past log time would otherwise set the span the ticks and --start/--end are planned on."""
         times = reader.log_times()
-        span = main_span([t for ts in times.values() for t in ts])
+        span = main_span(np.concatenate(list(times.values()))) if times else None
         if span is None:
             return summary.start_ns, summary.end_ns
         for topic, ts in times.items():
-            n = sum(1 for t in ts if not span[0] <= t <= span[1])
+            n = int(np.count_nonzero((ts < span[0]) | (ts > span[1])))
             if n:
                 self.skipped[(topic, OUTLIER)] += n
         return span

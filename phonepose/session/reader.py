@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from google.protobuf.message import DecodeError
 from mcap.records import ChunkIndex
 from mcap.records import Message as McapMessage
@@ -133,30 +134,31 @@ class SessionReader:
                 self._chunk_messages(ci, None, None, None)
         return len(self.index.chunks)
 
-    def log_times(self) -> dict[str, list[int]]:
-        """The log time of every message, per topic: from the message index records when every chunk
-        has them (a few bytes a message), else from the chunks themselves."""
+    def log_times(self) -> dict[str, np.ndarray]:
+        """The log time of every message, per topic (uint64 ns as in MCAP, in file order): from the message index
+        records when every chunk has them (a few bytes a message), else from the chunks themselves."""
         ix = self.index
-        by_channel: dict[int, list[int]] = {}
+        by_channel: dict[int, list] = {}
         if ix.times is not None:
-            by_channel = ix.times
+            by_channel = {cid: [np.asarray(ts, dtype=np.uint64)] for cid, ts in ix.times.items()}
         else:
             for ci in ix.chunks:
                 got = message_index_times(self._file, ci)
                 if got is None:
-                    got = {}
+                    lists: dict[int, list[int]] = {}
                     for m in self._chunk_messages(ci, None, None, None):
-                        got.setdefault(m.channel_id, []).append(m.log_time)
-                for cid, ts in got.items():
-                    by_channel.setdefault(cid, []).extend(ts)
+                        lists.setdefault(m.channel_id, []).append(m.log_time)
+                    got = {cid: np.asarray(ts, dtype=np.uint64) for cid, ts in lists.items()}
+                for cid, arr in got.items():
+                    by_channel.setdefault(cid, []).append(arr)
             for m in ix.loose:
-                by_channel.setdefault(m.channel_id, []).append(m.log_time)
-        out: dict[str, list[int]] = {}
-        for cid, ts in by_channel.items():
+                by_channel.setdefault(m.channel_id, []).append(np.array([m.log_time], dtype=np.uint64))
+        parts: dict[str, list] = {}
+        for cid, arrays in by_channel.items():
             ch = ix.channels.get(cid)
             if ch is not None:
-                out.setdefault(ch.topic, []).extend(ts)
-        return out
+                parts.setdefault(ch.topic, []).extend(arrays)
+        return {topic: np.concatenate(arrays) for topic, arrays in parts.items()}
 
     def topics(self) -> set[str]:
         return {ch.topic for ch in self.index.channels.values()}
