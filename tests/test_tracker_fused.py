@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
 from phonepose.geometry import Pose
-from phonepose.pipeline.fusion import CorrectionFilter, FusedTracker, FusionConfig
+from phonepose.pipeline.fusion import CorrectionFilter, FusedTracker, FusionConfig, _RateCorrelation
 from phonepose.pipeline.trackers import make_tracker
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
@@ -358,6 +358,63 @@ def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():
                                                                      abs=1e-6)                  # 1.21 deg
     out, _, _ = _pull_case(data_until_s=0.8, sighting_error_deg=20.0)
     assert (out * R0.inv()).magnitude() == 0.0
+
+
+def _held_rate_case(config: FusionConfig, rate: np.ndarray, gyro_until_s: float, t_stamp: float) -> Rotation:
+    """A still VIO at R0 up to 1 s and a gyro reading ``rate`` (body frame, rad/s) at 200 Hz up to
+    ``gyro_until_s``: T8's orientation predicted to ``t_stamp``, relative to R0."""
+    t8 = FusedTracker("T8", config)
+    q0 = tuple(R0.as_quat().tolist())
+    for k in range(31):
+        t8._add_vio(k / 30, (q0, np.zeros(3)))
+    for k in range(int(round(gyro_until_s * 200)) + 1):
+        t8._imu.add(k / 200, np.r_[rate, 0.0, 0.0, 9.80665])
+    return R0.inv() * Rotation.from_quat(t8._predicted_rotation(t_stamp))
+
+
+@pytest.mark.parametrize("tau, carried", [(math.inf, 0.1), (0.2, 0.2 * (1 - math.exp(-0.1 / 0.2))), (0.0, 0.0)])
+def test_past_the_newest_gyro_sample_the_mean_rate_decays_with_its_correlation_time(tau, carried):
+    """From the newest VIO sample (1 s) to the newest gyro sample (1.05 s) the rotation is the gyro's; 0.1 s
+    past it the mean rate acts tau (1 - e^(-0.1 / tau)) s (held whole for tau = inf, not at all for 0)."""
+    rate = np.array([0.3, -0.2, 0.5])
+    got = _held_rate_case(FusionConfig(gyro_rate_adapt_s=0, gyro_rate_time_s=tau), rate, 1.05, 1.15)
+    np.testing.assert_allclose(got.as_rotvec(), rate * (0.05 + carried), atol=1e-12)
+
+
+def _correlation(rates, lag_s=0.25, step_s=0.125, memory_s=5.0, min_history_s=2.0):
+    """The estimator fed one mean rate every ``step_s`` (binary fractions: the partner is exactly ``lag_s``
+    earlier); the tau after each."""
+    est = _RateCorrelation(lag_s, memory_s, min_history_s, initial=math.inf)
+    return [est.update(k * step_s, np.asarray(r, dtype=float)) for k, r in enumerate(rates)]
+
+
+@pytest.mark.parametrize("tau0", [0.1, 0.37, 2.0])
+def test_the_rates_correlation_time_of_an_exponential_decay_is_its_time_constant(tau0):
+    """A rate decaying as e^(-t / tau0): every mean is e^(-lag / tau0) times its partner, so rho is that and
+    tau = tau0; before 2 s of means the initial tau (held)."""
+    taus = _correlation([np.array([0.3, -0.2, 0.5]) * math.exp(-k * 0.125 / tau0) for k in range(40)])
+    assert all(math.isinf(t) for t in taus[:16])                  # 15 * 0.125 s < 2 s
+    assert taus[16:] == pytest.approx([tau0] * 24, rel=1e-9)
+
+
+def test_a_steady_rate_is_held_and_a_reversing_one_is_not_carried():
+    assert all(math.isinf(t) for t in _correlation([[0.1, 0.2, 0.3]] * 40))
+    taus = _correlation([[0.1, 0.2, 0.3], [-0.1, -0.2, -0.3]] * 20, lag_s=0.125)     # partner: the step before
+    assert taus[16:] == [0.0] * 24
+
+
+@pytest.mark.parametrize("memory_s", [1.0, 5.0])
+def test_the_rates_correlation_forgets_with_its_memory(memory_s):
+    """A steady rate for 10 s (79 pairs of equal means), then one reversing every step (partner: the step
+    before). The sums' terms weigh d^age, d = e^(-step / memory): the sum of products turns negative, and
+    tau drops to 0, at the first n reversed pairs with d^n (2 - d^79) < 1."""
+    x = [0.2, 0.0, 0.0]
+    taus = _correlation([x] * 80 + [[-0.2, 0.0, 0.0], x] * 40, lag_s=0.125, memory_s=memory_s)
+    d = math.exp(-0.125 / memory_s)
+    n = next(n for n in range(1, 80) if d ** n * (2 - d ** 79) < 1)       # 6 pairs for 1 s, 28 for 5 s
+    assert math.isinf(taus[79])
+    assert 0 < taus[80 + n - 2] < math.inf and taus[80 + n - 1] == 0.0
+    assert taus[-1] == 0.0
 
 
 @pytest.mark.parametrize("ambiguity, noise_factor", [(13.0 / 4, 2.0), (52.0, 0.5), (0.25, math.sqrt(13.0)), (0.0, 1.0)])

@@ -118,6 +118,19 @@ class FusionConfig:
     velocity_window_s: float = 0.3                   # the fit runs through the newest VIO samples of this window
     use_gyro: int = 1
     gyro_window_s: float = 0.15                      # held rate = mean of the newest gyro samples (averages tremor out)
+    # past the newest gyro sample that mean rate decays as a first-order Markov (Singer) angular rate with
+    # correlation time tau: the angle over h is rate tau (1 - e^(-h / tau)) (inf: held whole, 0: not carried).
+    # tau is estimated online (> 0 s: _RateCorrelation): the regression of each gyro_window_s mean rate on the
+    # one gyro_window_s before it, exponentially weighted over gyro_rate_adapt_s, is the rate's correlation rho
+    # over that lag, and tau = -lag / ln(rho). Held whole over the ~0.15 s prediction, the rate overshoots a
+    # hand's turns, which stop and reverse within a few tenths of a second: on fr2_desk's recorded motion T8's
+    # exact r_ATE outside the view was 1.73 deg against T6's 1.65 (T6 holds the VIO's own, older orientation).
+    # The estimate's median is 0.27 s on fr1_xyz, 0.37 s on fr2_desk, 0.36-1.12 s on the simulated hand (exp2
+    # REC2/TRI2, exp1; tools/gyro_rate_time.py): one fixed tau would be tuned to one kind of motion
+    # (docs/pipeline.md, "The gyro's held rate")
+    gyro_rate_adapt_s: float = 5.0                   # 0: tau fixed at gyro_rate_time_s
+    gyro_rate_adapt_min_s: float = 2.0               # of gyro history before the estimate is used
+    gyro_rate_time_s: float = math.inf               # tau before that, or always when not adapted
     max_prediction_s: float = 0.5                    # never extrapolate further
     history_s: float = 1.0                           # VIO / IMU kept for pairing
     # output
@@ -441,6 +454,44 @@ class CorrectionFilter:
         return True
 
 
+class _RateCorrelation:
+    """The correlation time of the gyro's mean rate, estimated online (FusionConfig.gyro_rate_*).
+
+    ``update(t, rate)`` takes the mean rate of the window that ends at gyro stamp ``t``. Its partner is
+    the newest earlier mean whose window ended at least ``lag`` (the window's length) before, so the two
+    windows do not overlap. Sums of ``rate . partner`` and ``partner . partner`` decay with time constant
+    ``memory_s``; their ratio rho is the least-squares coefficient of the rate on the rate ``lag``
+    earlier, and for a first-order Markov rate rho = e^(-lag / tau). ``tau`` is then -lag / ln(rho) (inf:
+    held, for rho >= 1; 0: not carried, for rho <= 0), and ``initial`` until ``min_history_s`` of means."""
+
+    def __init__(self, lag_s: float, memory_s: float, min_history_s: float, initial: float) -> None:
+        self.lag_s, self.memory_s, self.min_history_s = lag_s, memory_s, min_history_s
+        self.tau = initial
+        self._means: deque[tuple[float, np.ndarray]] = deque()
+        self._sxy = self._sxx = 0.0
+        self._first_t: float | None = None
+        self._last_t: float | None = None
+
+    def update(self, t: float, rate: np.ndarray) -> float:
+        means = self._means
+        means.append((t, rate))
+        if self._first_t is None:
+            self._first_t = t
+        while len(means) >= 2 and means[1][0] <= t - self.lag_s:
+            means.popleft()
+        if means[0][0] > t - self.lag_s:
+            return self.tau                     # no mean a whole window earlier yet
+        partner = means[0][1]
+        decay = math.exp(-max(t - self._last_t, 0.0) / self.memory_s) if self._last_t is not None else 0.0
+        self._last_t = t
+        self._sxy = self._sxy * decay + float(rate @ partner)
+        self._sxx = self._sxx * decay + float(partner @ partner)
+        if t - self._first_t >= self.min_history_s and self._sxx > 0:
+            rho = self._sxy / self._sxx
+            self.tau = math.inf if rho >= 1 else (0.0 if rho <= 0 else -self.lag_s / math.log(rho))
+        return self.tau
+
+
 class _Ring:
     """Recent samples of one controller stream on its own stamps (seconds, ascending), one row of
     ``width`` floats each, in preallocated numpy arrays: appending and dropping the oldest cost no
@@ -537,6 +588,8 @@ class FusedTracker:
         self._imu = _Ring(6)
         self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
         self._hold_cache: tuple[tuple, list[float]] | None = None   # the gyro's recent mean rate, per gyro samples
+        self._rate_correlation = _RateCorrelation(self.cfg.gyro_window_s, self.cfg.gyro_rate_adapt_s,
+                                                  self.cfg.gyro_rate_adapt_min_s, self.cfg.gyro_rate_time_s)
         self._turned = (np.empty(0), np.empty((0, 3)))  # IMU stamps and their specific force in display_vio, final
         self._pending: deque = deque()             # (image s, marker RawPose, R_meas)
         self._last_filter_t: float | None = None
@@ -755,7 +808,12 @@ class FusedTracker:
             recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
             mean_rate = np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent)   # the recent mean rate
             self._hold_cache = (key, mean_rate.tolist())
-        held = t_last + dt - t_prev
+            if self.cfg.gyro_rate_adapt_s > 0:
+                self._rate_correlation.update(float(tg[-1]), mean_rate)
+        held = t_last + dt - t_prev              # past the newest gyro sample: the mean rate, decaying with tau
+        tau = self._rate_correlation.tau
+        if not math.isinf(tau):
+            held = tau * -math.expm1(-held / tau) if tau > 0 else 0.0
         hold = self._hold_cache[1]
         return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), hold, strict=True)]))
 
