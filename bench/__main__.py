@@ -18,6 +18,8 @@ import sys
 import time
 import timeit
 
+import cv2
+
 
 def machine() -> dict:
     cpu = platform.processor() or platform.machine()
@@ -107,6 +109,10 @@ def main(argv: list[str]) -> int:
     results = {"machine": machine(), "command": "python -m bench " + " ".join(argv)}
     t0 = time.perf_counter()
     failed = []
+    # fusion, pipeline and ticks time OpenCV on one thread (cv2.setNumThreads(1)); the next item must start
+    # from OpenCV's default again: left at one thread, the playback item's floor (plain detectMarkers, which
+    # spreads over the cores) took 7.5 s instead of ~6 s in a full run, and its ratios read 0.69x
+    opencv_threads = cv2.getNumThreads()
     for name in names:
         print(f"\n=== {name} ===", flush=True)
         mod = importlib.import_module(f"bench.bench_{name}")
@@ -116,6 +122,8 @@ def main(argv: list[str]) -> int:
             print(f"error: bench {name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
             results[name] = {"error": f"{type(exc).__name__}: {exc}"}
             failed.append(name)
+        finally:
+            cv2.setNumThreads(opencv_threads)
     results["total_s"] = round(time.perf_counter() - t0, 1)
     print_summary(results)
     m = results["machine"]
