@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from phonepose.experiments.common import sequence_seed
-from phonepose.pipeline.fusion import entry_carry_s
+from phonepose.pipeline.fusion import markov_carry_s
 from phonepose.record.sim import SimSession, default_config
 from phonepose.record.sim.recorded import MotionSpec
 from phonepose.record.sim.world import marker_in_view
@@ -54,7 +54,7 @@ def entries(s: SimSession, rng: np.random.Generator) -> list[tuple[np.ndarray, n
 
 def errors(rows: list, tau: float) -> np.ndarray:
     v, a, h, truth = (np.array([r[j] for r in rows]) for j in range(4))
-    return np.linalg.norm(truth - v - a * entry_carry_s(h, tau)[:, None], axis=1)
+    return np.linalg.norm(truth - v - a * markov_carry_s(h, tau)[:, None], axis=1)
 
 
 def main() -> int:

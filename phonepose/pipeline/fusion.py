@@ -225,10 +225,14 @@ except ImportError:   # pragma: no cover
     _solve = np.linalg.solve
 
 
-def entry_carry_s(h, tau: float):
-    """How long the fit's acceleration acts over ``h`` s (scalar or array) when it decays with correlation time
-    ``tau`` (a first-order Markov, Singer, acceleration): tau (1 - e^(-h / tau)); ``h`` for tau = inf, 0 for
-    tau = 0 (FusionConfig.entry_acceleration_time_s; tools/entry_velocity.py replays it)."""
+def markov_carry_s(h, tau: float):
+    """How long a first-order Markov (Singer) quantity with correlation time ``tau`` acts over ``h`` s when its
+    value at the start is carried on: tau (1 - e^(-h / tau)); ``h`` for tau = inf, 0 for tau = 0. T8 carries
+    so the acceleration entering the view (FusionConfig.entry_acceleration_time_s; tools/entry_velocity.py
+    replays it), past the newest IMU sample (AccelMotion) and the gyro's mean rate (gyro_rate_*). ``h`` a
+    float: a float (math, a tick's scalar); an array: an array."""
+    if isinstance(h, float):
+        return h if math.isinf(tau) else (tau * -math.expm1(-h / tau) if tau > 0 else 0.0)
     if math.isinf(tau):
         return h
     return 0.0 * h if tau <= 0 else tau * -np.expm1(-np.asarray(h) / tau)
@@ -310,7 +314,7 @@ class AccelMotion:
                 position = position + 0.5 * self.a * h * h
                 velocity = velocity + self.a * h
             elif tau > 0:
-                carry = tau * -math.expm1(-h / tau)
+                carry = markov_carry_s(h, tau)
                 position = position + self.a * (tau * h - tau * carry)
                 velocity = velocity + self.a * carry
         return position, velocity
@@ -811,9 +815,7 @@ class FusedTracker:
             if self.cfg.gyro_rate_adapt_s > 0:
                 self._rate_correlation.update(float(tg[-1]), mean_rate)
         held = t_last + dt - t_prev              # past the newest gyro sample: the mean rate, decaying with tau
-        tau = self._rate_correlation.tau
-        if not math.isinf(tau):
-            held = tau * -math.expm1(-held / tau) if tau > 0 else 0.0
+        held = markov_carry_s(held, self._rate_correlation.tau)
         hold = self._hold_cache[1]
         return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), hold, strict=True)]))
 
@@ -1007,7 +1009,7 @@ class FusedTracker:
                 if accel_motion is not None:
                     motion = self.filter._Rm @ accel_motion.at(self._vio.last_t + h, tau)[1]
                 else:
-                    motion = velocity + (self.filter._Rm @ self._accel) * float(entry_carry_s(h, tau))
+                    motion = velocity + (self.filter._Rm @ self._accel) * markov_carry_s(h, tau)
             if self._source == "marker":
                 # leaving the view: the marker's own velocity is fresher than the VIO's (~0.15 s old)
                 marker_velocity = self._marker_velocity(t)
