@@ -330,16 +330,23 @@ def test_a_recognised_marker_without_display_pose_and_no_vio_keeps_the_last_sigh
     assert est[0].allclose(pose, atol=1e-12) and est[1].allclose(pose, atol=1e-12)
 
 
+def _phone_at_R0(t8: FusedTracker, vio_until_s: float, gyro_until_s: float, rate: np.ndarray) -> FusedTracker:
+    """``t8`` fed VIO samples at 30 Hz of a phone still at R0 up to ``vio_until_s`` and IMU rows at 200 Hz up to
+    ``gyro_until_s``: the gyro reading ``rate`` (body frame, rad/s), the accelerometer gravity."""
+    q0 = tuple(R0.as_quat().tolist())
+    for k in range(int(round(vio_until_s * 30)) + 1):
+        t8._add_vio(k / 30, (q0, np.zeros(3)))
+    for k in range(int(round(gyro_until_s * 200)) + 1):
+        t8._imu.add(k / 200, np.r_[rate, 0.0, 0.0, 9.80665])
+    return t8
+
+
 def _pull_case(data_until_s: float, sighting_error_deg: float, ambiguity: float = 13.0) -> tuple[Rotation, Rotation, float]:
     """A T8 whose filter is not yet ready (no correction), a still phone at R0 whose VIO and gyro samples
     end at ``data_until_s``, and one sighting at 0.9 s turned ``sighting_error_deg`` about x from R0, with IPPE
     ambiguity ratio ``ambiguity`` (13: FusionConfig.rotation_ambiguity_ref, the sighting's noise as configured)."""
-    t8 = FusedTracker("T8")
+    t8 = _phone_at_R0(FusedTracker("T8"), data_until_s, data_until_s, np.zeros(3))
     q0 = tuple(R0.as_quat().tolist())
-    for k in range(int(round(data_until_s * 30)) + 1):
-        t8._add_vio(k / 30, (q0, np.zeros(3)))
-    for k in range(int(round(data_until_s * 200)) + 1):
-        t8._imu.add(k / 200, np.r_[np.zeros(3), 0.0, 0.0, 9.80665])
     delta = Rotation.from_rotvec([np.radians(sighting_error_deg), 0, 0])
     t8._add_sighting(0.9, (tuple((delta * R0).as_quat().tolist()), np.zeros(3)), None, ambiguity)
     return Rotation.from_quat(t8._pulled_by_sighting(q0)), delta, t8.cfg
@@ -363,12 +370,7 @@ def test_orientation_pull_is_a_kalman_share_of_the_sighting_at_its_own_time():
 def _held_rate_case(config: FusionConfig, rate: np.ndarray, gyro_until_s: float, t_stamp: float) -> Rotation:
     """A still VIO at R0 up to 1 s and a gyro reading ``rate`` (body frame, rad/s) at 200 Hz up to
     ``gyro_until_s``: T8's orientation predicted to ``t_stamp``, relative to R0."""
-    t8 = FusedTracker("T8", config)
-    q0 = tuple(R0.as_quat().tolist())
-    for k in range(31):
-        t8._add_vio(k / 30, (q0, np.zeros(3)))
-    for k in range(int(round(gyro_until_s * 200)) + 1):
-        t8._imu.add(k / 200, np.r_[rate, 0.0, 0.0, 9.80665])
+    t8 = _phone_at_R0(FusedTracker("T8", config), 1.0, gyro_until_s, rate)
     return R0.inv() * Rotation.from_quat(t8._predicted_rotation(t_stamp))
 
 
