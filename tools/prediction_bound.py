@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.experiments.common import sequence_seed
-from phonepose.pipeline.fusion import FusionConfig, _RateCorrelation
+from phonepose.pipeline.fusion import FusionConfig, _RateCorrelation, markov_carry_s
 from phonepose.record.sim import SimSession, default_config
 from phonepose.record.sim.world import marker_in_view
 
@@ -53,11 +53,10 @@ def session_errors(path: str, trial: int, seed: int) -> dict[str, np.ndarray]:
     # same mean rates tick by tick
     cfg = FusionConfig()
     est = _RateCorrelation(cfg.gyro_window_s, cfg.gyro_rate_adapt_s, cfg.gyro_rate_adapt_min_s, cfg.gyro_rate_time_s)
-    taus = np.empty((len(t_g), 1))
+    carried = np.empty_like(h)      # how long the rate acts over each tick's h (T8's markov_carry_s)
     for i, (tg, rate) in enumerate(zip(t_g, held, strict=True)):
-        taus[i] = est.update(float(tg), rate) if i == 0 or tg != t_g[i - 1] else est.tau   # once per new sample
-    safe = np.where(np.isfinite(taus) & (taus > 0), taus, 1.0)
-    carried = np.where(np.isinf(taus), h, np.where(taus > 0, safe * -np.expm1(-h / safe), 0.0))
+        tau = est.update(float(tg), rate) if i == 0 or tg != t_g[i - 1] else est.tau   # once per new sample
+        carried[i] = markov_carry_s(float(h[i, 0]), tau)
     return {"held_gyro": err(held), "decaying_gyro": err(held * carried / np.where(h > 0, h, 1.0)),
             "true_rate": err(true_rate), "inside": inside, "age": h.ravel()}
 
