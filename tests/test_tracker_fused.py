@@ -338,6 +338,7 @@ def _phone_at_R0(t8: FusedTracker, vio_until_s: float, gyro_until_s: float, rate
         t8._add_vio(k / 30, (q0, np.zeros(3)))
     for k in range(int(round(gyro_until_s * 200)) + 1):
         t8._imu.add(k / 200, np.r_[rate, 0.0, 0.0, 9.80665])
+    t8._new_gyro()          # what _ingest does after new IMU rows
     return t8
 
 
@@ -381,6 +382,27 @@ def test_past_the_newest_gyro_sample_the_mean_rate_decays_with_its_correlation_t
     rate = np.array([0.3, -0.2, 0.5])
     got = _held_rate_case(FusionConfig(gyro_rate_adapt_s=0, gyro_rate_time_s=tau), rate, 1.05, 1.15)
     np.testing.assert_allclose(got.as_rotvec(), rate * (0.05 + carried), atol=1e-12)
+
+
+def test_the_rates_correlation_takes_each_newest_gyro_sample_once():
+    """Every 4th tick carries no IMU rows (its rows come with the next tick) while the VIO, arriving, prunes the
+    ring: the correlation gets one mean per newest gyro sample, in order, none twice (it took the same mean
+    again on such ticks when it was updated where the prediction read it)."""
+    obs = observations(circle, 120, imu=lambda t_s: (np.array([0.0, 0.0, 0.6]), np.array([0.0, 0.0, 9.80665])))
+    for i in range(0, 120, 4):
+        later = obs[i + 1].tick.imu
+        obs[i + 1].tick.imu = np.vstack([obs[i].tick.imu, later])
+        obs[i].tick.imu = np.zeros((0, 7))
+    t8 = FusedTracker("T8")
+    t8.reset()
+    taken: list[float] = []
+    update = t8._rate_correlation.update
+    t8._rate_correlation.update = lambda t, rate: (taken.append(t), update(t, rate))[1]   # type: ignore[method-assign]
+    for o in obs:
+        t8.step(o)
+    with_rows = sum(1 for o in obs if len(o.tick.imu))
+    assert len(taken) == with_rows > 80
+    assert (np.diff(taken) > 0).all()
 
 
 def _correlation(rates, lag_s=0.25, step_s=0.125, memory_s=5.0, min_history_s=2.0):

@@ -591,7 +591,7 @@ class FusedTracker:
         # come (one stamp for both; two rings were kept and pruned in step, twice the calls)
         self._imu = _Ring(6)
         self._accel_cache: tuple[tuple, AccelMotion | None] | None = None
-        self._hold_cache: tuple[tuple, list[float]] | None = None   # the gyro's recent mean rate, per gyro samples
+        self._held_rate = [0.0, 0.0, 0.0]         # the gyro's mean rate over its newest gyro_window_s (_ingest)
         self._rate_correlation = _RateCorrelation(self.cfg.gyro_window_s, self.cfg.gyro_rate_adapt_s,
                                                   self.cfg.gyro_rate_adapt_min_s, self.cfg.gyro_rate_time_s)
         self._turned = (np.empty(0), np.empty((0, 3)))  # IMU stamps and their specific force in display_vio, final
@@ -807,17 +807,19 @@ class FusedTracker:
         a, b = int(tg.searchsorted(t_last, side="right")), int(tg.searchsorted(t_last + dt, side="right"))
         rotvec = _steps(t_last, tg[a:b]) @ gyro[a:b]    # sum of rate x step (one product: 3 array calls less)
         t_prev = tg[b - 1] if b > a else t_last
-        key = (len(self._imu), self._imu.last_t)      # called twice a tick (output, pull) on the same samples
-        if self._hold_cache is None or self._hold_cache[0] != key:
-            recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
-            mean_rate = np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent)   # the recent mean rate
-            self._hold_cache = (key, mean_rate.tolist())
-            if self.cfg.gyro_rate_adapt_s > 0:
-                self._rate_correlation.update(float(tg[-1]), mean_rate)
         held = t_last + dt - t_prev              # past the newest gyro sample: the mean rate, decaying with tau
         held = markov_carry_s(held, self._rate_correlation.tau)
-        hold = self._hold_cache[1]
-        return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), hold, strict=True)]))
+        return quat_mul(q, quat_from_rotvec([r + h * held for r, h in zip(rotvec.tolist(), self._held_rate,
+                                                                           strict=True)]))
+
+    def _new_gyro(self) -> None:
+        """The gyro's recent mean rate, and its correlation time, once per new newest gyro sample (_ingest)."""
+        tg, gyro = self._imu.t, self._imu.v[:, 0:3]
+        recent = int(tg.searchsorted(tg[-1] - self.cfg.gyro_window_s, side="left"))
+        mean_rate = np.add.reduce(gyro[recent:], axis=0) / (len(gyro) - recent)
+        self._held_rate = mean_rate.tolist()
+        if self.cfg.gyro_rate_adapt_s > 0:
+            self._rate_correlation.update(float(tg[-1]), mean_rate)
 
     # ------------------------------------------------------------------ measurements
     def _rotation_scale(self, ambiguity: float) -> float:
@@ -862,7 +864,12 @@ class FusedTracker:
                 self._s(int(stamps_ns[0]))                                # the time origin, if not set yet
                 assert self._t0_ns is not None
                 stamps = (stamps_ns - self._t0_ns) * _NS
+                newest = self._imu.last_t
                 self._imu.add_many(stamps, rows[:, 1:7])
+                if self._imu.last_t != newest:
+                    # once per new sample, not per call of _predicted_rotation: that ran again when pruning
+                    # changed the ring without a new sample, and counted one mean twice in tau's sums
+                    self._new_gyro()
         if len(self._vio):
             horizon = self._vio.last_t - max(self.cfg.history_s, self.cfg.accel_window_s if self.cfg.accel_prediction else 0.0)
             self._vio.prune(horizon)
