@@ -255,6 +255,14 @@ def test_log_times_from_the_message_indexes_equal_mcaps_reading(tmp_path):
     damaged_index.write_bytes(bytes(data))
     with SessionReader(damaged_index) as r:
         _assert_times(r.log_times(), expected)
+    whole = chunked.read_bytes()                  # no summary at all: the times come from reading the data section
+    start, _, _ = _footer(whole)
+    no_summary = tmp_path / "no-summary.mcap"
+    no_summary.write_bytes(whole[:start] + struct.pack("<BQQQI", 0x02, 20, 0, 0, 0) + whole[-8:])
+    with SessionReader(no_summary) as r:
+        assert not r.index.from_summary and r.index.times is not None
+        assert all(ts.dtype == np.uint64 for ts in r.index.times.values())
+        _assert_times(r.log_times(), expected)
 
 
 @pytest.mark.parametrize("times, span", [

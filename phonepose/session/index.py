@@ -62,7 +62,7 @@ class SessionIndex:
     chunks: list[ChunkIndex] = field(default_factory=list)         # in file order
     statistics: Statistics | None = None
     loose: list[Message] = field(default_factory=list)              # messages outside chunks (unchunked writers)
-    times: dict[int, list[int]] | None = None   # log times per channel, when the data section was read
+    times: dict[int, np.ndarray] | None = None  # log times per channel (uint64), when the data section was read
     from_summary: bool = True
     problem: str | None = None      # why the summary was not used (None: it was, or the file has none)
 
@@ -283,7 +283,8 @@ def scan_data_section(f: BinaryIO, path: str, size: int) -> SessionIndex:
     The records must chain from the header to a Data End record: a byte that is no data-section
     record (an overwritten header, a summary record) is damage, never the end of the data, so a
     damaged file is never read as a shorter one."""
-    index = SessionIndex(from_summary=False, times={})
+    index = SessionIndex(from_summary=False)
+    times: dict[int, list[int]] = {}
     counts: dict[int, int] = {}
     limit = size - len(MCAP_MAGIC) - _FOOTER_SIZE       # where the footer is (checked before)
     f.seek(len(MCAP_MAGIC))
@@ -307,11 +308,13 @@ def scan_data_section(f: BinaryIO, path: str, size: int) -> SessionIndex:
         if op in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
             body = f.read(length)
             if op == Opcode.CHUNK:
-                index.chunks.append(_scan_chunk(index, counts, body, path, pos, length))
+                index.chunks.append(_scan_chunk(index, counts, times, body, path, pos, length))
             else:
-                _add(index, counts, _read_record(op, body, length, path, pos))
+                _add(index, counts, times, _read_record(op, body, length, path, pos))
         pos += 9 + length
     index.statistics = _statistics(index, counts)
+    # kept for the whole playback: one uint64 array a channel, not a Python int (32 bytes) a message
+    index.times = {cid: np.array(ts, dtype=np.uint64) for cid, ts in times.items()}
     return index
 
 
@@ -382,24 +385,19 @@ def _read_record(op: int, body: bytes, length: int, path: str, pos: int):
         raise damaged(path, f"the record at byte {pos} does not parse") from None
 
 
-def _time(index: SessionIndex, m: Message) -> None:
-    if index.times is not None:
-        index.times.setdefault(m.channel_id, []).append(m.log_time)
-
-
-def _add(index: SessionIndex, counts: dict[int, int], r) -> None:
+def _add(index: SessionIndex, counts: dict[int, int], times: dict[int, list[int]], r) -> None:
     if isinstance(r, Schema):
         index.schemas.setdefault(r.id, r)
     elif isinstance(r, Channel):
         index.channels.setdefault(r.id, r)
     elif isinstance(r, Message):
         index.loose.append(r)
-        _time(index, r)
+        times.setdefault(r.channel_id, []).append(r.log_time)
         counts[r.channel_id] = counts.get(r.channel_id, 0) + 1
 
 
-def _scan_chunk(index: SessionIndex, counts: dict[int, int], body: bytes, path: str, pos: int,
-                length: int) -> ChunkIndex:
+def _scan_chunk(index: SessionIndex, counts: dict[int, int], times: dict[int, list[int]], body: bytes, path: str,
+                pos: int, length: int) -> ChunkIndex:
     try:
         chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
     except Exception:  # noqa: BLE001
@@ -410,11 +408,11 @@ def _scan_chunk(index: SessionIndex, counts: dict[int, int], body: bytes, path: 
     for r in chunk_records(chunk, path, pos, t0):
         if isinstance(r, Message):
             in_chunk[r.channel_id] = in_chunk.get(r.channel_id, 0) + 1
-            _time(index, r)
+            times.setdefault(r.channel_id, []).append(r.log_time)
             lo = r.log_time if lo is None else min(lo, r.log_time)
             hi = r.log_time if hi is None else max(hi, r.log_time)
         else:
-            _add(index, counts, r)
+            _add(index, counts, times, r)
     for cid, n in in_chunk.items():
         counts[cid] = counts.get(cid, 0) + n
     return ChunkIndex(message_start_time=lo or 0, message_end_time=hi or 0, chunk_start_offset=pos,

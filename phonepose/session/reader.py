@@ -140,7 +140,7 @@ class SessionReader:
         ix = self.index
         by_channel: dict[int, list] = {}
         if ix.times is not None:
-            by_channel = {cid: [np.asarray(ts, dtype=np.uint64)] for cid, ts in ix.times.items()}
+            by_channel = {cid: [ts] for cid, ts in ix.times.items()}
         else:
             for ci in ix.chunks:
                 got = message_index_times(self._file, ci)
