@@ -34,9 +34,10 @@ The rule, the same in every command:
    there is the user's data (``phonepose recover`` reads it); with ``--force`` over an existing
    file it goes to a temporary like any output, so the old file stays until the new one is done.
    Any other output file is replaced whole. An output folder is
-   replaced whole when it is empty or an earlier phonepose output (it holds the
-   ``.phonepose-output`` manifest), so no file of an earlier run survives beside the new ones;
-   a folder holding anything else is refused, and so is the current directory.
+   replaced whole when it is empty or an earlier phonepose output (its ``.phonepose-output``
+   manifest lists every file and folder of that run, and nothing else is in it), so no file of an
+   earlier run survives beside the new ones and no file of the user's is lost with them; a folder
+   holding anything else is refused, and so is the current directory.
 
 Written by hand: no library does exclusive temporaries with stale-lock recovery and no-clobber
 commits, and ``tempfile``'s names cannot be found again after a crash.
@@ -318,9 +319,21 @@ class OutputDir(_Output):
         if not target.is_dir():
             raise OutputError(f"{self.option} {self.path}: exists and is not a directory")
         entries = os.listdir(target)
-        if entries and MANIFEST not in entries:
+        if not entries:
+            return
+        if MANIFEST not in entries:
             raise OutputError(f"{self.option} {self.path}: holds files phonepose did not write; choose a new "
                               f"folder, or empty it")
+        written = _listed_in_manifest(target / MANIFEST)
+        if written is None:
+            raise OutputError(f"{self.option} {self.path}: its {MANIFEST} does not list what phonepose wrote (an "
+                              f"older phonepose, or edited), so files of yours in it cannot be told apart; choose a "
+                              f"new folder, or empty it")
+        foreign = sorted(_tree_entries(target) - written - {MANIFEST})
+        if foreign:
+            named = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+            raise OutputError(f"{self.option} {self.path}: holds {named}, which phonepose did not write there; "
+                              f"move {'it' if len(foreign) == 1 else 'them'} away, or choose a new folder")
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._clear_stale(inputs)
@@ -338,7 +351,11 @@ class OutputDir(_Output):
         tmp, target = self.tmp, self.target
         assert tmp is not None
         try:
-            (tmp / MANIFEST).write_text(json.dumps({"written_by": "phonepose", "command": self.command}) + "\n")
+            # every file and folder of this run, so that a later run replaces the folder only if nothing else
+            # arrived in it (a recording saved there would be lost with the folder)
+            files = sorted(_tree_entries(tmp))
+            (tmp / MANIFEST).write_text(json.dumps({"written_by": "phonepose", "command": self.command,
+                                                    "files": files}) + "\n")
             _fsync_tree(tmp)
             self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
             if os.path.lexists(target):
@@ -485,6 +502,28 @@ def _one_of(items: Sequence[str]) -> str:
 
 def _glob_escape(name: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def _tree_entries(root: Path) -> set[str]:
+    """Every file and folder below ``root`` as a relative POSIX path (symlinks listed, not followed)."""
+    found: set[str] = set()
+    for folder, dirs, files in os.walk(root):
+        rel = os.path.relpath(folder, root)
+        found.update(n if rel == "." else f"{Path(rel).as_posix()}/{n}" for n in (*dirs, *files))
+    return found
+
+
+def _listed_in_manifest(manifest: Path) -> set[str] | None:
+    """The paths a manifest says phonepose wrote; None if it lists none (an older phonepose) or is not one."""
+    try:
+        if not stat.S_ISREG(os.lstat(manifest).st_mode) or os.lstat(manifest).st_size > 64 * 2**20:
+            return None
+        files = json.loads(manifest.read_bytes()).get("files")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+        return None
+    return set(files)
 
 
 def _empty(p: Path) -> bool:

@@ -189,6 +189,63 @@ def test_a_folder_of_someone_else_is_refused_and_an_empty_one_is_used(tmp_path):
     assert set(_tree(empty)) == {"metrics.json", MANIFEST}
 
 
+def _earlier_run(out: Path) -> dict[str, bytes]:
+    plan = OutputPlan()
+    d = plan.dir(out, "--out", command="playback")
+    with plan:
+        _write_dir(d, {"trajectories/T1.tum": "1", "metrics.json": "{}"})
+    return _tree(out)
+
+
+@pytest.mark.parametrize("added", ["my_recording.mcap", "trajectories/mine.tum", "notes/a.txt"])
+def test_a_file_saved_into_an_earlier_output_folder_stops_its_replacement(tmp_path, added):
+    """The manifest lists every file and folder of the run: anything else in the folder (a recording
+    saved there after the run, at any depth) is the user's, and the folder is not replaced."""
+    out = tmp_path / "run"
+    _earlier_run(out)
+    (out / added).parent.mkdir(exist_ok=True)
+    (out / added).write_bytes(b"\x89MCAP0\r\n precious")
+    before = _tree(out)
+    plan = OutputPlan()
+    d = plan.dir(out, "--out", command="playback")
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    extra = "notes, notes/a.txt" if added == "notes/a.txt" else added
+    assert str(e.value) == f"--out {out}: holds {extra}, which phonepose did not write there; " \
+                           f"move {'them' if ',' in extra else 'it'} away, or choose a new folder"
+    assert _tree(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    # also when it arrives while the command works: checked again before the folder is replaced
+    (out / added).unlink()
+    if added == "notes/a.txt":
+        (out / "notes").rmdir()
+    plan = OutputPlan()
+    d = plan.dir(out, "--out", command="playback")
+    with pytest.raises(OutputError, match="which phonepose did not write there"):
+        with plan:
+            (d.tmp / "metrics.json").write_text("{new}")
+            (out / "late.mcap").write_bytes(b"precious")
+    assert (out / "late.mcap").read_bytes() == b"precious" and (out / "metrics.json").read_text() == "{}"
+
+
+@pytest.mark.parametrize("manifest", ["{}", '{"written_by": "phonepose"}', "not json", '{"files": "x"}'])
+def test_an_output_folder_whose_manifest_lists_no_files_is_not_replaced(tmp_path, manifest):
+    """An older phonepose wrote no list: files of the user's cannot be told apart, so nothing is replaced."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / MANIFEST).write_text(manifest)
+    (out / "metrics.json").write_text("{}")
+    plan = OutputPlan()
+    plan.dir(out, "--out")
+    with pytest.raises(OutputError) as e:
+        with plan:
+            pass
+    assert str(e.value) == (f"--out {out}: its {MANIFEST} does not list what phonepose wrote (an older phonepose, "
+                            f"or edited), so files of yours in it cannot be told apart; choose a new folder, or "
+                            f"empty it")
+    assert (out / "metrics.json").read_text() == "{}"
+
+
 def test_a_session_is_not_replaced_without_force(tmp_path):
     s = tmp_path / "s.mcap"
     s.write_bytes(b"old recording")

@@ -328,7 +328,7 @@ def _earlier_output(w: Writer, d: Path) -> Path:
     out = d / w.name
     if w.kind == "dir":
         out.mkdir()
-        (out / MANIFEST).write_text('{"written_by": "phonepose"}\n')
+        (out / MANIFEST).write_text('{"written_by": "phonepose", "files": ["stale.txt"]}\n')
         (out / "stale.txt").write_text("an earlier run's file")
     elif w.earlier is not None:
         w.earlier(out)
