@@ -62,6 +62,7 @@ from phonepose.errors import RECOVER_HINT, ConfigError, InputFileError, OutputEr
 
 TMP_SUFFIX = ".phonepose-tmp"
 MANIFEST = ".phonepose-output"
+_MCAP_MAGIC = b"\x89MCAP0\r\n"     # (session.index.MCAP_MAGIC: this module imports nothing of the session's)
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -201,10 +202,18 @@ class OutputFile(_Output):
         if self.suffixes and self.path.suffix.lower() not in self.suffixes:
             raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
                               f"{_one_of(self.suffixes)}")
+        if self.suffixes and os.path.islink(self.path) and self.target.suffix.lower() not in self.suffixes:
+            # written through the link: the file replaced is its target, whose name is what the user reads
+            raise ConfigError(f"{self.option} {self.path}: a symlink to {self.target}, which does not end in "
+                              f"{_one_of(self.suffixes)}; give the file's own name")
         self._check_parent()
         if self.session and not self.force and st is not None:
             raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
                               f"replace it")
+        if not self.session and st is not None and _is_recording(self.target):
+            what = f"points to {self.target}, " if os.path.islink(self.path) else "is "
+            raise OutputError(f"{self.option} {self.path}: {what}a recording (MCAP), which only a recording "
+                              f"replaces; choose another name")
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._direct = self.in_place and not os.path.lexists(self.target)
@@ -502,6 +511,15 @@ def _one_of(items: Sequence[str]) -> str:
 
 def _glob_escape(name: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+
+
+def _is_recording(p: Path) -> bool:
+    """Does ``p`` start as an MCAP file does (what ``record`` and ``recover`` write)?"""
+    try:
+        with open(p, "rb") as f:
+            return f.read(len(_MCAP_MAGIC)) == _MCAP_MAGIC
+    except OSError:
+        return False
 
 
 def _tree_entries(root: Path) -> set[str]:

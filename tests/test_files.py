@@ -246,6 +246,52 @@ def test_an_output_folder_whose_manifest_lists_no_files_is_not_replaced(tmp_path
     assert (out / "metrics.json").read_text() == "{}"
 
 
+def test_a_symlinked_output_name_is_checked_by_the_file_it_replaces(tmp_path):
+    """Written through a link, the file replaced is the link's target: its name must end as the format
+    written (``ln -s keep.mcap b.png; phonepose board -o b.png`` would have turned a recording into a PNG)."""
+    keep = tmp_path / "notes.txt"
+    keep.write_text("precious")
+    link = tmp_path / "b.png"
+    link.symlink_to(keep.name)
+    plan = OutputPlan()
+    plan.file(link, "--out", suffixes=(".png",), what="a PNG image")
+    with pytest.raises(ConfigError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    assert str(e.value) == f"--out {link}: a symlink to {keep}, which does not end in .png; give the file's own name"
+    assert keep.read_text() == "precious" and link.is_symlink()
+    # a link to a file of the right name is written through, as before: the link stays
+    target = tmp_path / "real.png"
+    target.write_bytes(b"old")
+    link.unlink()
+    link.symlink_to(target.name)
+    plan = OutputPlan()
+    out = plan.file(link, "--out", suffixes=(".png",))
+    with plan:
+        assert out.tmp is not None
+        out.tmp.write_bytes(b"new")
+    assert target.read_bytes() == b"new" and link.is_symlink()
+
+
+@pytest.mark.parametrize("linked", [False, True])
+def test_only_a_recording_replaces_a_recording(tmp_path, linked):
+    """An existing file that is an MCAP recording is replaced by no other output, whatever its name."""
+    rec = tmp_path / "x.yaml"
+    rec.write_bytes(b"\x89MCAP0\r\n a recording named like a calibration")
+    out_path = tmp_path / "he.yaml" if linked else rec
+    if linked:
+        out_path.symlink_to(rec.name)
+    plan = OutputPlan()
+    plan.file(out_path, "--out", suffixes=(".yaml",))
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    what = f"points to {rec}, " if linked else "is "
+    assert str(e.value) == f"--out {out_path}: {what}a recording (MCAP), which only a recording replaces; " \
+                           f"choose another name"
+    assert rec.read_bytes().startswith(b"\x89MCAP0\r\n")
+
+
 def test_a_session_is_not_replaced_without_force(tmp_path):
     s = tmp_path / "s.mcap"
     s.write_bytes(b"old recording")
