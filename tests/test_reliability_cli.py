@@ -537,6 +537,29 @@ def test_bad_input(case: Case, good, tmp_path, cli):
     assert re.search(message, lines[0]), lines[0]
 
 
+@pytest.mark.parametrize("argv", [
+    ["calibrate-hand-eye", "{bad}", "-o", "{d}/he.yaml"],           # OpenCV's FileStorage crashed on it (exit 139)
+    ["calibrate-gt", "{bad}", "-o", "{d}/gt.yaml"],
+    ["calibrate-camera", "-q", "--video", "{bad}", "-o", "{d}/c.yaml"],
+    ["playback", "{bad}", "-q", "-t", "T1", "-o", "{d}/pb"],         # "unexpected UnicodeEncodeError"
+    ["playback", "{good}", "-q", "-t", "T1", "-o", "{d}/pb", "--rerun", "{d}/r\udcfe.rrd"],
+    ["info", "{bad}"],
+])
+def test_an_argument_that_is_not_utf8_is_one_line_before_any_work(good, tmp_path, cli, argv):
+    """A file name in another encoding (bytes 0xff, 0xfe: os.fsdecode escapes them as lone surrogates)."""
+    bad = tmp_path / "a\udcff.mcap"
+    bad.write_bytes(good.read_bytes())
+    before = sorted(os.listdir(os.fsencode(tmp_path)))
+    args = [a.format(bad=bad, good=good, d=tmp_path) for a in argv]
+    shown = next(a for a in args if any(0xDC80 <= ord(c) <= 0xDCFF for c in a))
+    shown = os.fsencode(shown).decode("utf-8", "backslashreplace")
+    code, out, err = cli(*args)
+    assert code == 5 and out == "", err
+    assert err == f"phonepose: error: the argument '{shown}' is not UTF-8 text (a file name in another " \
+                  f"encoding?): rename the file with a UTF-8 name\n"
+    assert sorted(os.listdir(os.fsencode(tmp_path))) == before
+
+
 def test_the_good_session_plays(good, tmp_path, cli):
     """The control: the input every case breaks plays back cleanly."""
     code, out, err = cli("playback", str(good), "-q", "-t", "T1", "-t", "T4", "--out", str(tmp_path / "o"))

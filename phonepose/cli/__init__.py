@@ -16,7 +16,7 @@ import threading
 import typer
 
 from phonepose import __version__
-from phonepose.errors import PhoneposeError, quiet_library_warnings
+from phonepose.errors import ConfigError, PhoneposeError, quiet_library_warnings
 
 app = typer.Typer(
     name="phonepose",
@@ -131,6 +131,19 @@ def _prepare(command) -> None:
         _prepare(sub)
 
 
+def _check_text(args: list[str]) -> None:
+    """Every argument is UTF-8 text. A file name in another encoding reaches Python with its bytes escaped
+    (PEP 383), and the libraries the commands hand paths to cannot take it: OpenCV crashed (exit 139), rerun,
+    rich and the JSON outputs raised; one line here instead, before any work."""
+    for arg in args:
+        try:
+            arg.encode("utf-8")
+        except UnicodeEncodeError:
+            shown = os.fsencode(arg).decode("utf-8", "backslashreplace")
+            raise ConfigError(f"the argument '{shown}' is not UTF-8 text (a file name in another encoding?): "
+                              f"rename the file with a UTF-8 name") from None
+
+
 def command():
     """The click command of ``app``, as ``phonepose`` runs it."""
     cmd = typer.main.get_command(app)
@@ -146,6 +159,7 @@ def main(argv: list[str] | None = None) -> None:
     in_main = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
+        _check_text(sys.argv[1:] if argv is None else argv)
         rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
