@@ -120,6 +120,9 @@ class _Output:
     def _check_parent(self) -> None:
         parent = self._parent()
         shown = self.path.parent if str(self.path.parent) not in ("", ".") or self.path.is_absolute() else Path(".")
+        if os.path.islink(self.path) and not parent.is_dir():    # the link's target is what gets written
+            raise OutputError(f"{self.option} {self.path}: a symlink to {self.target}, whose directory "
+                              f"{'is not a directory' if os.path.lexists(parent) else 'does not exist'}")
         if not parent.is_dir():
             why = f"{shown} is not a directory" if os.path.lexists(parent) else f"directory {shown} does not exist"
             raise OutputError(f"{self.option} {self.path}: {why}")

@@ -292,6 +292,19 @@ def test_only_a_recording_replaces_a_recording(tmp_path, linked):
     assert rec.read_bytes().startswith(b"\x89MCAP0\r\n")
 
 
+@pytest.mark.parametrize("kind", ["file", "dir"])
+def test_a_dangling_symlink_as_output_names_its_target(tmp_path, kind):
+    link = tmp_path / ("x.yaml" if kind == "file" else "run")
+    link.symlink_to(tmp_path / "nowhere" / "x")
+    plan = OutputPlan()
+    plan.file(link, "--out") if kind == "file" else plan.dir(link, "--out")
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    assert str(e.value) == f"--out {link}: a symlink to {tmp_path / 'nowhere' / 'x'}, whose directory does not exist"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [link.name]
+
+
 def test_a_session_is_not_replaced_without_force(tmp_path):
     s = tmp_path / "s.mcap"
     s.write_bytes(b"old recording")
