@@ -144,6 +144,24 @@ def _size_huge(m):
     m.size_m = 1e200
 
 
+def _id50(m):
+    m.id = 50
+
+
+def _json_vio_only(path: Path) -> Path:
+    """What another program records: only /controller/vio/pose, in JSON (no marker spec: it once failed on that
+    first, as an unknown marker dictionary '')."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema("Pose", "jsonschema", b"{}")
+        channel = w.register_channel(Topic.CONTROLLER_VIO_POSE, "json", schema)
+        for k in range(50):
+            w.add_message(channel, log_time=k * 10**8, publish_time=k * 10**8, data=b'{"x": %d}' % k)
+        w.finish()
+    return path
+
+
 def _extreme_imu():
     """Finite but impossible IMU values (gyro 1e200 rad/s, accel -1e300 m/s^2) in every other sample:
     these overflowed T8's integration (`zero norm quaternions`)."""
@@ -358,8 +376,16 @@ CASES = [
          r"playback: Invalid value for '--correction-math': 'foo' is not one of 'paper', 'se3'\. "
          r"\(see `phonepose playback --help`\)$"),
     Case("bad-dictionary", "unknown marker dictionary in the session's marker spec",
-         lambda g, d: ["playback", str(rewrite(g, d / "dict.mcap", _bad_dictionary)), "-q", "--out", str(d / "o")], 5,
-         r"unknown marker dictionary 'DICT_NOPE_99'; allowed: DICT_4X4_100, .*DICT_ARUCO_ORIGINAL$"),
+         lambda g, d: ["playback", str(rewrite(g, d / "dict.mcap", _bad_dictionary)), "-q", "--out", str(d / "o")], 4,
+         r"dict\.mcap: marker dictionary 'DICT_NOPE_99' \(/controller/marker\) is not one OpenCV knows "
+         r"\(DICT_4X4_50, DICT_APRILTAG_36h11, \.\.\.: \d+ in all\)$"),
+    Case("marker-id-not-in-dictionary", "marker id 50 in DICT_4X4_50 (ids 0-49: never recognised)",
+         lambda g, d: ["playback", str(rewrite(g, d / "id.mcap", _static(Topic.CONTROLLER_MARKER, _id50))), "-q",
+                       "--out", str(d / "o")], 4,
+         r"id\.mcap: marker id 50 \(/controller/marker\) is not in DICT_4X4_50 \(ids 0-49\)$"),
+    Case("json-vio-no-marker", "a foreign session: JSON controller VIO, no camera, no marker spec",
+         lambda g, d: ["playback", str(_json_vio_only(d / "js1.mcap")), "-q", "-t", "T1", "--out", str(d / "o")], 4,
+         r"js1\.mcap: topic /controller/vio/pose has encoding 'json', phonepose reads protobuf only$"),
     Case("out-not-dir", "output directory cannot be created (a file is in the way)",
          lambda g, d: ["playback", str(g), "-q", "-t", "T1", "--out", str(_write(d / "f", b"x") / "out")], 6,
          r"--out .*f/out: .*f is not a directory$"),
@@ -558,6 +584,14 @@ def test_an_argument_that_is_not_utf8_is_one_line_before_any_work(good, tmp_path
     assert err == f"phonepose: error: the argument '{shown}' is not UTF-8 text (a file name in another " \
                   f"encoding?): rename the file with a UTF-8 name\n"
     assert sorted(os.listdir(os.fsencode(tmp_path))) == before
+
+
+def test_a_session_without_camera_or_marker_spec_plays_the_vio_trackers(good, tmp_path, cli):
+    """No camera and no /controller/marker: nothing to recognise, and nothing asks for a marker dictionary."""
+    bare = rewrite(good, tmp_path / "bare.mcap", _drop("/display/camera", Topic.CONTROLLER_MARKER))
+    code, out, err = cli("playback", str(bare), "-q", "-t", "T1", "-t", "T2", "--out", str(tmp_path / "o"))
+    assert code == 0 and err == "", err
+    assert (tmp_path / "o" / "trajectories" / "T1.tum").stat().st_size > 0
 
 
 def test_the_good_session_plays(good, tmp_path, cli):

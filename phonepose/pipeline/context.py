@@ -11,10 +11,12 @@ import hashlib
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
+from phonepose.pipeline.markers import aruco_dictionary
 from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
@@ -45,6 +47,14 @@ def _check_camera(path: str, calib) -> None:
 
 
 def _marker_model(path: str, spec) -> MarkerModel:
+    known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    if spec.dictionary not in known:
+        raise SessionContentError(f"{path}: marker dictionary {spec.dictionary!r} ({Topic.CONTROLLER_MARKER}) is not "
+                                  f"one OpenCV knows (DICT_4X4_50, DICT_APRILTAG_36h11, ...: {len(known)} in all)")
+    size = aruco_dictionary(spec.dictionary).bytesList.shape[0]
+    if not 0 <= spec.id < size:
+        raise SessionContentError(f"{path}: marker id {spec.id} ({Topic.CONTROLLER_MARKER}) is not in "
+                                  f"{spec.dictionary} (ids 0-{size - 1})")
     if not (np.isfinite(spec.size_m) and spec.size_m > 0):
         raise SessionContentError(f"{path}: marker size {spec.size_m:g} m: expected a positive size")
     if spec.size_m > MAX_MARKER_SIZE_M:

@@ -49,7 +49,8 @@ class SharedStages:
 
     def __init__(self, context: SessionContext):
         self.context = context
-        self.recognizer = MarkerRecognizer(context.camera, context.marker)
+        # a session without camera images may have no marker spec at all: nothing is recognised then
+        self.recognizer = MarkerRecognizer(context.camera, context.marker) if context.marker.dictionary else None
         self.anchor_map = AnchorMap()
         # Map every received VIO sample into display_vio (Observation.controller_vio_samples_dvio).
         # Only trackers with ``uses_vio_samples`` (T8) read them; the engine switches this off
@@ -62,7 +63,8 @@ class SharedStages:
 
     def reset(self) -> None:
         self._drain()
-        self.recognizer.reset()
+        if self.recognizer is not None:
+            self.recognizer.reset()
         self._last_marker: MarkerObservation | None = None
         self.frames_decoded = 0
         self.frames_undecodable = 0   # reported once by the caller (docs/reliability.md)
@@ -70,7 +72,7 @@ class SharedStages:
     def _recognize(self, tick: Tick, decoded: Future | None = None) -> MarkerObservation | None:
         """The tick's marker; ``decoded``: its new frame's pixels being decoded by ``prefetch``."""
         frame = tick.frame
-        if frame is None:
+        if frame is None or self.recognizer is None:   # (a session with images has a marker spec: context.py)
             return None
         if not frame.is_new:
             return self._last_marker
