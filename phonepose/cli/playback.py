@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import typer
@@ -110,10 +111,15 @@ def playback(
                               spawn=spawn, start_s=start, end_s=end, realtime=realtime, progress=progress,
                               gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
     stdout_console().print(metrics_table(result.metrics))
-    if not result.has_gt:
+    if gt is not None and not result.has_gt:   # asked for, and unusable: a problem, not a fact about the session
+        logging.getLogger("phonepose").warning(
+            "phonepose: warning: --gt %s: no usable ground truth from it (it needs a --gt-calibration from "
+            "`phonepose calibrate-gt SESSION --gt FILE`, or the session's %s, and poses within 0.02 s of the task "
+            "window's ticks: not another session's, nor on another clock); accuracy metrics are null in metrics.json",
+            gt, Topic.GT_CALIBRATION)
+    elif not result.has_gt:
         typer.echo(f"no usable ground truth (needs {Topic.GT_CONTROLLER_POSE} and {Topic.GT_CALIBRATION} within the "
-                   "task window" + (", or with --gt FILE a --gt-calibration from `phonepose calibrate-gt SESSION --gt FILE`"
-                                    if gt is not None else "") + "): accuracy metrics are unavailable (null in metrics.json)")
+                   "task window): accuracy metrics are unavailable (null in metrics.json)")
     gt_note = result.metrics.get("ground_truth")
     if gt_note is not None and result.has_gt and "calibration_file" in gt_note:
         where = " and display_vio" if gt_note["world_display_vio"] == "calibrated" else ""
