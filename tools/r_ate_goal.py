@@ -5,10 +5,11 @@
 
 Per TRI2 / REC2 sequence, a tracker scored against hand-eye-calibrated ground truth and against exact
 ground truth differs by what the calibrated ground truth itself carries: with and without
-``mocap.exact`` every topic a tracker reads is the same to the byte (only /gt/* and /session/info differ). The hand-eye calibration removes the rigid body's 11°
-and the mocap clock, but not the error of the mocap world in display_vio (ChArUco + Quest in the paper;
-the simulator's ``mocap.calibration_rotation_deg``, 1°), which no tracker can observe. Its share is taken
-as sqrt(calibrated^2 - exact^2), assuming it is independent of the tracker's own error.
+``mocap.exact`` every topic a tracker reads is the same to the byte (only /gt/* and /session/info
+differ). The hand-eye calibration removes the rigid body's 11° and the mocap clock, but not the error
+of the mocap world in display_vio (ChArUco + Quest in the paper; the simulator's
+``mocap.calibration_rotation_deg``, 1°), which no tracker can observe. Its share is taken as
+sqrt(calibrated^2 - exact^2), assuming it is independent of the tracker's own error.
 
 Then: by which factor k would T8's own (exact) error have to shrink for the mean over the sequences of
 sqrt((k * exact)^2 + share^2) to reach 0.6x the best of T1-T7's calibrated mean; and what the outside
