@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
-from phonepose.errors import PhoneposeError
+from phonepose.errors import PhoneposeError, StopRequest
 
 FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
                  "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
@@ -80,10 +80,11 @@ def error_rows(unit: Unit, exc: BaseException | str, runtime_s: float | None = N
     return rows
 
 
-class UnitTimeout(BaseException):
+class UnitTimeout(StopRequest):
     """A unit ran past its time budget (``batch --unit-timeout``). A BaseException, like
     KeyboardInterrupt: the SIGALRM raising it may land in code that turns any Exception into its own
-    error (the session reader's "damaged MCAP data")."""
+    error (the session reader's "damaged MCAP data"), or in a user's tracker (a StopRequest passes
+    through its guard unchanged)."""
 
     def __init__(self, budget_s: float):
         super().__init__(f"stopped after its time budget of {budget_s:g} s (--unit-timeout)")
