@@ -128,7 +128,8 @@ def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]
                         unit: Unit = futures[fut]
                         try:
                             rows = fut.result()
-                        except Exception as exc:   # noqa: BLE001 - the worker died (crash, lost Dask worker)
+                        except (Exception, SystemExit, GeneratorExit) as exc:   # noqa: BLE001 - the worker died
+                            # (crash, lost Dask worker), or its task ended with what run_unit does not catch
                             rows = error_rows(unit, f"worker failed: {one_line(exc)}")
                         table.update(rows)
                         table.write(WRITE_INTERVAL_S)

@@ -143,8 +143,17 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
                 end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
-    except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:   # noqa: BLE001 - every failure of one session is that session's rows: an
+        # Exception, the time budget, and a SystemExit that got this far (which would otherwise end a local
+        # worker's task as a SystemExit raised in the batch itself: a silent exit with no table)
         return error_rows(unit, exc, time.perf_counter() - t0)
+    renamed = [t for t in unit.trackers if t not in result.metrics["trackers"]]
+    if renamed:   # a user's tracker whose name depends on the process (it is read in the batch, then here)
+        return error_rows(unit, f"tracker {renamed[0]!r} has another name in this worker ("
+                                f"{', '.join(result.metrics['trackers'])}): a tracker's name must be fixed",
+                          time.perf_counter() - t0)
     rows = []
     for tracker in unit.trackers:
         row = base_row(unit, tracker)
