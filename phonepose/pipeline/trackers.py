@@ -319,8 +319,9 @@ def _what_failed(exc: BaseException) -> str:
 
 
 def _class_name(obj: object) -> str:
-    cls = obj if isinstance(obj, type) else type(obj)
-    return f"{getattr(cls, '__module__', '?')}.{getattr(cls, '__qualname__', cls.__name__)}"
+    """``module.Class`` of a user's tracker (or of the class or factory function that makes it)."""
+    named = obj if isinstance(obj, type) or callable(obj) and hasattr(obj, "__qualname__") else type(obj)
+    return f"{getattr(named, '__module__', '?')}.{getattr(named, '__qualname__', type(named).__name__)}"
 
 
 def _import_reference(ref: str) -> Callable[[], object]:
@@ -400,7 +401,8 @@ def _user_tracker(ref: str, factory: Callable[[], object]) -> Tracker:
     except BaseException as exc:  # noqa: BLE001 - a user's constructor: whatever it raises (or exits with) is its error
         if _passes(exc):
             raise
-        raise ConfigError(f"tracker {ref!r}: could not be created: {_what_failed(exc)}") from None
+        raise ConfigError(f"tracker {ref!r} ({_class_name(factory)}): could not be created: "
+                          f"{_what_failed(exc)}") from None
     values: dict[str, Any] = {}
     for attr in TRACKER_PROTOCOL:   # read once, here: a property that raises (or exits) is one line too
         try:
