@@ -376,3 +376,15 @@ def test_a_unit_ending_in_system_exit_is_error_rows(session, monkeypatch):
     rows = run_unit(Unit("s.mcap", str(session), (), ("T1", "T4")))
     assert [(r["tracker"], r["status"], r["error"]) for r in rows] == [("T1", "error", "SystemExit: 0"),
                                                                         ("T4", "error", "SystemExit: 0")]
+
+
+def test_the_engine_refuses_an_unsafe_name_from_a_tracker_factory(session, tmp_path):
+    """Trackers from PlaybackOptions.tracker_factory (the Python API) skip make_trackers: the engine checks
+    the names itself before the output folder exists."""
+    from phonepose.playback.engine import run_playback
+
+    escape = make_tracker(ref("Base")).tracker   # the user's object, unwrapped
+    escape.name = "../../evil"
+    with pytest.raises(ConfigError, match=r"^tracker Base is named '../../evil': a tracker's name is 1-64 ASCII"):
+        run_playback(session, out_dir=tmp_path / "o", tracker_factory=lambda names, math: [escape])
+    assert list(tmp_path.iterdir()) == []

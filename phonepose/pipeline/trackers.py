@@ -271,10 +271,15 @@ def _kind(value: object) -> str:
     return f"{'an' if kind[:1].lower() in 'aeiou' else 'a'} {kind}"
 
 
+def is_safe_name(name: object) -> bool:
+    """Whether ``name`` may name a tracker's files (NAME_RULE): every built-in's does."""
+    return isinstance(name, str) and len(name) <= NAME_MAX and _NAME.fullmatch(name) is not None
+
+
 def check_tracker_name(name: object, who: str) -> str:
     """``name`` if it follows the rule of a tracker's name (NAME_RULE; not a built-in's, whatever the case),
     else ConfigError naming ``who`` (the tracker as the user gave it, and its class)."""
-    if not isinstance(name, str) or len(name) > NAME_MAX or not _NAME.fullmatch(name):
+    if not isinstance(name, str) or not is_safe_name(name):
         raise ConfigError(f"{who} is named {_shown(name)}: a tracker's name is {NAME_RULE}; "
                           "see docs/writing-a-tracker.md")
     builtin = {n.upper(): n for n in TRACKERS}.get(name.upper())

@@ -33,14 +33,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phonepose.calibration.gt_calibration import GroundTruthSetup, ground_truth_setup
-from phonepose.errors import OutputError, SessionContentError
+from phonepose.errors import ConfigError, OutputError, SessionContentError
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
 from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
-from phonepose.pipeline.trackers import check_unique_names, make_trackers, split_names
+from phonepose.pipeline.trackers import NAME_RULE, check_unique_names, is_safe_name, make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
@@ -116,7 +116,12 @@ class PlaybackEngine:
 
     def __init__(self, context: SessionContext, stages: Stages, trackers: list[Tracker], *,
                  writer: SessionWriter | None = None, rerun_logger: PlaybackRerunLogger | None = None):
-        check_unique_names([t.name for t in trackers])   # make_trackers checks too; a tracker_factory may not
+        # make_trackers checks both (a user's tracker when it is loaded); a tracker_factory may not
+        unsafe = [t for t in trackers if not is_safe_name(t.name)]
+        if unsafe:   # a name is a file name below: trajectories/<name>.tum
+            raise ConfigError(f"tracker {type(unsafe[0]).__name__} is named {unsafe[0].name!r}: a tracker's name is "
+                              f"{NAME_RULE}")
+        check_unique_names([t.name for t in trackers])
         self.context = context
         self.stages = stages
         self.trackers = trackers
