@@ -43,6 +43,18 @@ class OutputError(PhoneposeError):
     exit_code = 6
 
 
+class TrackerError(ConfigError):
+    """A user's tracker (``-t package.module:Class`` or an entry point) failed in its own code: its
+    ``reset`` or ``step`` raised, called ``sys.exit()``, or returned what is not a pose. Exit 5, like
+    every other problem with a ``-t`` (docs/writing-a-tracker.md)."""
+
+
+class StopRequest(BaseException):
+    """phonepose's own stop raised into whatever code runs at that moment (a unit's time budget, from
+    SIGALRM): like KeyboardInterrupt, it passes through a user's tracker unchanged, never becomes the
+    tracker's error."""
+
+
 # What a recorder's disk-full error adds: the file it wrote so far is a valid prefix (docs/reliability.md).
 RECOVER_HINT = " (the file written so far stays readable; run `phonepose recover`)"
 

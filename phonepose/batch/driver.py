@@ -46,16 +46,16 @@ class BatchResult:
 def resolve_trackers(trackers: Sequence[str] | str) -> tuple[list[str], dict[str, str]]:
     """Names as make_trackers resolves them (``all``, ``paper``, ``T1,T7``, ``pkg.mod:Class``), and for a
     user's tracker the reference a worker builds it from (name -> reference); unknown names: ConfigError."""
-    from phonepose.pipeline.trackers import expand_names, is_user_tracker, make_tracker
+    from phonepose.pipeline.trackers import check_unique_names, expand_names, is_user_tracker, make_tracker
 
     names, refs = [], {}
-    for ref in expand_names(trackers):
-        name = make_tracker(ref).name
+    given = expand_names(trackers)
+    for ref in given:
+        name = make_tracker(ref).name   # a user's: its name checked (docs/writing-a-tracker.md), a column's value
         names.append(name)
         if is_user_tracker(ref):
             refs[name] = ref
-    if len(set(names)) != len(names):
-        raise ConfigError(f"tracker given twice: {', '.join(names)}")
+    check_unique_names(names, given)
     return names, refs
 
 
@@ -128,7 +128,8 @@ def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]
                         unit: Unit = futures[fut]
                         try:
                             rows = fut.result()
-                        except Exception as exc:   # noqa: BLE001 - the worker died (crash, lost Dask worker)
+                        except (Exception, SystemExit, GeneratorExit) as exc:   # noqa: BLE001 - the worker died
+                            # (crash, lost Dask worker), or its task ended with what run_unit does not catch
                             rows = error_rows(unit, f"worker failed: {one_line(exc)}")
                         table.update(rows)
                         table.write(WRITE_INTERVAL_S)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
-from phonepose.errors import PhoneposeError
+from phonepose.errors import PhoneposeError, StopRequest
 
 FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
                  "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
@@ -80,10 +80,11 @@ def error_rows(unit: Unit, exc: BaseException | str, runtime_s: float | None = N
     return rows
 
 
-class UnitTimeout(BaseException):
+class UnitTimeout(StopRequest):
     """A unit ran past its time budget (``batch --unit-timeout``). A BaseException, like
     KeyboardInterrupt: the SIGALRM raising it may land in code that turns any Exception into its own
-    error (the session reader's "damaged MCAP data")."""
+    error (the session reader's "damaged MCAP data"), or in a user's tracker (a StopRequest passes
+    through its guard unchanged)."""
 
     def __init__(self, budget_s: float):
         super().__init__(f"stopped after its time budget of {budget_s:g} s (--unit-timeout)")
@@ -142,8 +143,17 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
                 correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
                 end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
                 tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
-    except (Exception, UnitTimeout) as exc:   # noqa: BLE001 - every failure of one session is that session's rows
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:   # noqa: BLE001 - every failure of one session is that session's rows: an
+        # Exception, the time budget, and a SystemExit that got this far (which would otherwise end a local
+        # worker's task as a SystemExit raised in the batch itself: a silent exit with no table)
         return error_rows(unit, exc, time.perf_counter() - t0)
+    renamed = [t for t in unit.trackers if t not in result.metrics["trackers"]]
+    if renamed:   # a user's tracker whose name depends on the process (it is read in the batch, then here)
+        return error_rows(unit, f"tracker {renamed[0]!r} has another name in this worker ("
+                                f"{', '.join(result.metrics['trackers'])}): a tracker's name must be fixed",
+                          time.perf_counter() - t0)
     rows = []
     for tracker in unit.trackers:
         row = base_row(unit, tracker)

@@ -34,14 +34,16 @@ def user_trackers(refs: Iterable[str]) -> tuple[tuple[str, ...], list[str]]:
     """The user's trackers an experiment runs beside T1-T8: their references and their names (the
     table rows), each built once here so a wrong one fails before the first sequence."""
     from phonepose.errors import ConfigError
-    from phonepose.pipeline.trackers import is_user_tracker, make_tracker, split_names
+    from phonepose.pipeline.trackers import check_unique_names, is_user_tracker, make_tracker, split_names
 
     refs = tuple(split_names(list(refs)))
     builtin = [r for r in refs if not is_user_tracker(r)]
     if builtin:
         raise ConfigError(f"--tracker {builtin[0]}: the experiments always run T1-T8; --tracker adds your own "
                           "(package.module:ClassName or an installed entry point)")
-    return refs, [make_tracker(r).name for r in refs]
+    names = [make_tracker(r).name for r in refs]   # each name checked (docs/writing-a-tracker.md)
+    check_unique_names(names, refs)
+    return refs, names
 
 
 def sequence_seed(base_seed: int, path: str | None, trial: int) -> int:

@@ -33,12 +33,15 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import logging
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
-from phonepose.errors import ConfigError
+import numpy as np
+
+from phonepose.errors import ConfigError, StopRequest, TrackerError
 from phonepose.geometry import Pose, interpolate, is_finite
 from phonepose.pipeline.corrections import CM1Reading, Correction, CorrectionMath, cm1_correction, marker_correction
 from phonepose.pipeline.fusion import FusedTracker
@@ -243,6 +246,89 @@ def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
     return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
 
+# A tracker's name is a file name (trajectories/NAME.tum), an MCAP topic (/trackers/NAME/pose), a Rerun entity
+# path, a batch table's row and an experiment table's row: ASCII letters, digits, '_', '-' and '.', not starting
+# with '.' or '-' (no hidden file, nothing a shell reads as an option), at most NAME_MAX characters.
+NAME_MAX = 64
+NAME_RULE = (f"1-{NAME_MAX} ASCII letters, digits, '_', '-' or '.', not starting with '.' or '-' (it names "
+             "trajectories/NAME.tum)")
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*")
+
+
+def _shown(value: object) -> str:
+    """A user's value in an error line, short and without calling its code (its repr may raise or be huge)."""
+    if isinstance(value, str):
+        text = repr(value)
+        return text if len(text) <= 40 else text[:36] + "...'"
+    if isinstance(value, (int, float, bool)) or value is None:
+        return f"{value!r} ({_kind(value)}, not a string)"
+    return f"{_kind(value)}, not a string"
+
+
+def _kind(value: object) -> str:
+    """``an int``, ``a function``: the type of a user's value, for an error line."""
+    kind = type(value).__name__
+    return f"{'an' if kind[:1].lower() in 'aeiou' else 'a'} {kind}"
+
+
+def is_safe_name(name: object) -> bool:
+    """Whether ``name`` may name a tracker's files (NAME_RULE): every built-in's does."""
+    return isinstance(name, str) and len(name) <= NAME_MAX and _NAME.fullmatch(name) is not None
+
+
+def check_tracker_name(name: object, who: str) -> str:
+    """``name`` if it follows the rule of a tracker's name (NAME_RULE; not a built-in's, whatever the case),
+    else ConfigError naming ``who`` (the tracker as the user gave it, and its class)."""
+    if not isinstance(name, str) or not is_safe_name(name):
+        raise ConfigError(f"{who} is named {_shown(name)}: a tracker's name is {NAME_RULE}; "
+                          "see docs/writing-a-tracker.md")
+    builtin = {n.upper(): n for n in TRACKERS}.get(name.upper())
+    if builtin is not None:
+        same = "the name" if builtin == name else f"in another case the name ({builtin})"
+        raise ConfigError(f"{who} is named {name!r}, {same} of a built-in tracker; rename it")
+    return name
+
+
+def check_unique_names(names: Iterable[str], refs: Iterable[str] | None = None) -> None:
+    """The trackers of one run have distinct names, also ignoring case (trajectories/t9.tum and T9.tum are
+    one file on a case-insensitive disk); ``refs`` (the trackers as the user named them) make the error
+    name the two trackers."""
+    names = list(names)
+    refs = list(refs) if refs is not None else None
+    seen: dict[str, tuple[str, str | None]] = {}
+    for i, name in enumerate(names):
+        ref = refs[i] if refs is not None else None
+        first = seen.setdefault(name.casefold(), (name, ref))
+        if first == (name, ref) and names.index(name) == i:
+            continue
+        if first == (name, ref):
+            raise ConfigError(f"tracker given twice: {', '.join(names)}")
+        which = f"named {name!r}" if first[0] == name else \
+            f"named {first[0]!r} and {name!r}, one file name on a case-insensitive disk"
+        pair = f"{first[1]} and {ref}" if refs is not None else f"{first[0]!r} and {name!r}"
+        raise ConfigError(f"trackers {pair} are {which}: the trackers of a run need distinct names; rename one")
+
+
+def _passes(exc: BaseException) -> bool:
+    """What a user's code may raise that is not its error: Ctrl-C / SIGTERM, and phonepose's own stops."""
+    return isinstance(exc, (KeyboardInterrupt, StopRequest))
+
+
+def _what_failed(exc: BaseException) -> str:
+    if isinstance(exc, SystemExit):
+        return f"it called sys.exit({'' if exc.code is None else repr(exc.code)}): a tracker must not end the " \
+               "process; raise an exception instead"
+    text = " ".join(str(exc).split())
+    text = text if len(text) <= 300 else text[:297] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _class_name(obj: object) -> str:
+    """``module.Class`` of a user's tracker (or of the class or factory function that makes it)."""
+    named = obj if isinstance(obj, type) or callable(obj) and hasattr(obj, "__qualname__") else type(obj)
+    return f"{getattr(named, '__module__', '?')}.{getattr(named, '__qualname__', type(named).__name__)}"
+
+
 def _import_reference(ref: str) -> Callable[[], object]:
     """``package.module:ClassName`` (or ``:factory``): the object named, imported."""
     module, _, attr = ref.partition(":")
@@ -252,6 +338,10 @@ def _import_reference(ref: str) -> Callable[[], object]:
         obj: Any = importlib.import_module(module)   # then the attribute a user named: any object
     except ImportError as exc:
         raise ConfigError(f"tracker {ref!r}: cannot import {module}: {exc}") from None
+    except BaseException as exc:   # noqa: BLE001 - the module's own code failed (or exited) while importing
+        if _passes(exc):
+            raise
+        raise ConfigError(f"tracker {ref!r}: importing {module} failed: {_what_failed(exc)}") from None
     for part in attr.split("."):
         obj = getattr(obj, part, None)
         if obj is None:
@@ -259,19 +349,89 @@ def _import_reference(ref: str) -> Callable[[], object]:
     return obj
 
 
+class UserTracker:
+    """A user's tracker as phonepose runs it: its name and capabilities read once, when it is loaded, and
+    checked (the name by :func:`check_tracker_name`), and its ``reset``/``step`` guarded, so that whatever
+    they raise, a ``sys.exit()`` included, is one :class:`TrackerError` naming it (never an "unexpected"
+    line or a silent exit), and a ``step`` returning anything but one finite Pose or None is refused.
+    Ctrl-C passes through. Any other attribute is the user's object's (``tracker``)."""
+
+    def __init__(self, ref: str, tracker: Any, name: str, needs_camera: bool, uses_vio_samples: bool):
+        self.ref = ref
+        self.tracker = tracker
+        self.name = name
+        self.needs_camera = needs_camera
+        self.uses_vio_samples = uses_vio_samples
+
+    def _failed(self, method: str, what: str) -> TrackerError:
+        return TrackerError(f"tracker {self.ref!r} ({self.name}) failed in {method}(): {what}")
+
+    def reset(self) -> None:
+        try:
+            self.tracker.reset()
+        except BaseException as exc:   # noqa: BLE001 - a user's code: whatever it raises is its error
+            if _passes(exc):
+                raise
+            raise self._failed("reset", _what_failed(exc)) from None
+
+    def step(self, obs: Observation) -> Pose | None:
+        try:
+            pose = self.tracker.step(obs)
+        except BaseException as exc:   # noqa: BLE001 - a user's code: whatever it raises is its error
+            if _passes(exc):
+                raise
+            raise self._failed("step", _what_failed(exc)) from None
+        if pose is None:
+            return None
+        if not isinstance(pose, Pose) or not pose.single:
+            what = "a Pose of several poses" if isinstance(pose, Pose) else f"a {type(pose).__name__}"
+            raise self._failed("step", f"it returned {what}; step returns one phonepose.geometry.Pose, or None")
+        if not is_finite(pose):
+            raise self._failed("step", "it returned a pose with NaN/inf values; return None when there is no pose")
+        return pose
+
+    def __getattr__(self, attr: str) -> Any:
+        if attr.startswith("__") or attr == "tracker":   # never for copy/pickle's probes, nor before __init__
+            raise AttributeError(attr)
+        return getattr(self.tracker, attr)
+
+    def __repr__(self) -> str:
+        return f"{self.name}({self.ref}, {_class_name(self.tracker)})"
+
+
 def _user_tracker(ref: str, factory: Callable[[], object]) -> Tracker:
     """A user's tracker, built without arguments and checked against the protocol before any tick."""
     try:
         tracker: Any = factory()   # a user's object, checked against the protocol below
-    except Exception as exc:  # noqa: BLE001 - a user's constructor: whatever it raises is its error
-        raise ConfigError(f"tracker {ref!r}: could not be created: {type(exc).__name__}: {exc}") from None
-    missing = [a for a in TRACKER_PROTOCOL if not hasattr(tracker, a)]
+    except BaseException as exc:  # noqa: BLE001 - a user's constructor: whatever it raises (or exits with) is its error
+        if _passes(exc):
+            raise
+        raise ConfigError(f"tracker {ref!r} ({_class_name(factory)}): could not be created: "
+                          f"{_what_failed(exc)}") from None
+    values: dict[str, Any] = {}
+    for attr in TRACKER_PROTOCOL:   # read once, here: a property that raises (or exits) is one line too
+        try:
+            values[attr] = getattr(tracker, attr)
+        except AttributeError:
+            pass
+        except BaseException as exc:   # noqa: BLE001 - a property of a user's object
+            if _passes(exc):
+                raise
+            raise ConfigError(f"tracker {ref!r} ({_class_name(tracker)}): reading its {attr} failed: "
+                              f"{_what_failed(exc)}") from None
+    missing = [a for a in TRACKER_PROTOCOL if a not in values]
     if missing:
         raise ConfigError(f"tracker {ref!r} is not a phonepose tracker: it has no {', '.join(missing)} "
                           "(docs/writing-a-tracker.md)")
-    if tracker.name in TRACKERS:
-        raise ConfigError(f"tracker {ref!r} is named {tracker.name!r}, the name of a built-in tracker")
-    return tracker
+    who = f"tracker {ref!r} ({_class_name(tracker)})"
+    name = check_tracker_name(values["name"], who)
+    flags = {}
+    for attr in ("needs_camera", "uses_vio_samples"):
+        value = values[attr]
+        if not isinstance(value, (bool, int, np.bool_)):   # True/False (1/0 read the same); not a method, not a string
+            raise ConfigError(f"{who}: its {attr} is {_kind(value)}: expected True or False")
+        flags[attr] = bool(value)
+    return UserTracker(ref, tracker, name, flags["needs_camera"], flags["uses_vio_samples"])
 
 
 def is_user_tracker(name: str) -> bool:
@@ -319,7 +479,10 @@ def expand_names(names: Iterable[str] | str) -> list[str]:
 def make_trackers(names: Iterable[str] | str = "all", correction_math: CorrectionMath | str = "paper",
                   cm1_reading: CM1Reading | str = CM1Reading.CONSISTENT) -> list[Tracker]:
     """Trackers by name (:func:`expand_names`), built-in or a user's (:func:`make_tracker`)."""
-    return [make_tracker(n, correction_math, cm1_reading) for n in expand_names(names)]
+    refs = expand_names(names)
+    trackers = [make_tracker(n, correction_math, cm1_reading) for n in refs]
+    check_unique_names([t.name for t in trackers], refs)
+    return trackers
 
 
 # ----------------------------------------------------------------------------- ours

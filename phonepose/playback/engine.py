@@ -40,7 +40,7 @@ from phonepose.geometry import Pose
 from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages
-from phonepose.pipeline.trackers import make_trackers, split_names
+from phonepose.pipeline.trackers import NAME_RULE, check_unique_names, is_safe_name, make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
@@ -116,9 +116,12 @@ class PlaybackEngine:
 
     def __init__(self, context: SessionContext, stages: Stages, trackers: list[Tracker], *,
                  writer: SessionWriter | None = None, rerun_logger: PlaybackRerunLogger | None = None):
-        names = [t.name for t in trackers]
-        if len(set(names)) != len(names):
-            raise ConfigError(f"tracker given twice: {', '.join(names)}")
+        # make_trackers checks both (a user's tracker when it is loaded); a tracker_factory may not
+        unsafe = [t for t in trackers if not is_safe_name(t.name)]
+        if unsafe:   # a name is a file name below: trajectories/<name>.tum
+            raise ConfigError(f"tracker {type(unsafe[0]).__name__} is named {unsafe[0].name!r}: a tracker's name is "
+                              f"{NAME_RULE}")
+        check_unique_names([t.name for t in trackers])
         self.context = context
         self.stages = stages
         self.trackers = trackers
