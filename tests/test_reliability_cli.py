@@ -460,7 +460,11 @@ CASES = [
     Case("config-binary", "a binary `--config`",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", bytes(range(256)) * 4))], 5,
-         r"config file .*c\.toml: not a TOML file \(not UTF-8 text\)$"),
+         r"config file .*c\.toml: not a TOML file \(binary data: a NUL byte at byte 0\)$"),
+    Case("config-not-utf8", "a `--config` that is not UTF-8 text",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
+                       "--config", str(_write(d / "c.toml", b"[camera]\nrate_hz = 30 # \xff\n"))], 5,
+         r"config file .*c\.toml: not a TOML file \(not UTF-8 text: byte 24\)$"),
     Case("config-nested", "a deeply nested `--config` (`a = [[[[...]]]]`, 20 KB)",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", b"a = " + b"[" * 10_000 + b"]" * 10_000 + b"\n"))], 5,
@@ -468,10 +472,44 @@ CASES = [
     Case("config-huge", "a `--config` over 32 KiB (tomllib is quadratic in a dotted key's depth)",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", b"[" + b".".join([b"a"] * 100_000) + b"]\n"))], 5,
-         r"config file .*c\.toml: larger than 32 KiB \(every parameter with comments is \d\.\d KiB\)$"),
+         r"config file .*c\.toml: larger than 32 KiB, the most phonepose reads as a TOML file "
+         r"\(every parameter with comments is \d\.\d KiB\): check that it is the right file$"),
     Case("config-fifo", "a FIFO as `--config`",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--config", str(_fifo(d / "c.toml"))], 5,
          r"config file .*c\.toml: not a regular file \(a FIFO, socket or device\): give a TOML file$"),
+    Case("trajectory-sparse-10g", "a 10 GB (sparse) file as `evaluate --gt` (was read whole: MemoryError)",
+         lambda g, d: ["evaluate", "--gt", str(_sparse(d / "big.txt", 10 << 30)), "--est", str(d / "big.txt")], 2,
+         r"big\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file \(1 GiB of TUM lines is "
+         r"~13 million poses, 37 hours at 100 Hz\): check that it is the right file$"),
+    Case("motion-sparse-10g", "a 10 GB (sparse) file as `record sim --motion`",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--motion", str(_sparse(d / "m.txt", 10 << 30))],
+         2, r"m\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file"),
+    Case("playback-gt-sparse-10g", "a 10 GB (sparse) file as `playback --gt`",
+         lambda g, d: ["playback", str(g), "-q", "--gt", str(_sparse(d / "gt.txt", 10 << 30)), "--out", str(d / "o")],
+         2, r"gt\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file"),
+    Case("trajectory-nul-tail", "a valid trajectory followed by NUL bytes",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS + bytes(4096))), "--est", str(d / "gt.txt")],
+         2, r"gt\.txt: not a trajectory file \(binary data: a NUL byte at byte 420\)$"),
+    Case("in-view-binary", "a binary `--in-view` file",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
+                       "--metric", "paper", "--in-view", str(_write(d / "iv.txt", b"0.0 1\n\x00\x01"))], 2,
+         r"iv\.txt: not an in-view file \(binary data: a NUL byte at byte 6\)$"),
+    Case("trajectory-extreme", "a trajectory at 1e308 m (overflowed the alignment's SVD, inf metrics, `--json` failed)",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "huge.txt", b"".join(
+             b"%.1f 1e308 1e308 1e308 0 0 0 1\n" % (k / 10) for k in range(20)))), "--est", str(d / "huge.txt")], 2,
+         r"huge\.txt:1: position 1e\+308 m is not one on Earth \(beyond ±1e7 m\): check the file's columns and units$"),
+    Case("rpe-steps-1e160", "`evaluate --metric rpe --json` with positions stepping by 1e160 m",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "step.txt", b"".join(
+             b"%.1f %g 0 0 0 0 0 1\n" % (k / 10, k * 1e160) for k in range(20)))), "--est", str(d / "step.txt"),
+             "--metric", "rpe", "--json"], 2, r"step\.txt:2: position 1e\+160 m is not one on Earth"),
+    Case("trajectory-stamp-1e300", "a trajectory stamped 1e300 s",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "t.txt", b"".join(
+             b"%g 0 0 0 0 0 0 1\n" % (1e300 + k) for k in range(3)))), "--est", str(d / "t.txt")], 2,
+         r"t\.txt:1: stamp 1e\+300 s is not a time \(beyond ±9e9 s, the year 2262\)"),
+    Case("motion-extreme", "`record sim --motion` at 1e308 m (\"y must contain only finite values\")",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--motion", str(_write(d / "m.txt", b"".join(
+             b"%.1f %g 0 0 0 0 0 1\n" % (k / 10, 1e308 * (k % 2)) for k in range(300))))], 2,
+         r"m\.txt:2: position 1e\+308 m is not one on Earth"),
     Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
          lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
          r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),
@@ -491,6 +529,13 @@ CASES = [
          lambda g, d: ["batch", str(g), "--scheduler", "not a url", "--out", str(d / "r.parquet")], 5,
          r"--scheduler 'not a url': expected a Dask scheduler address such as tcp://host:8786$"),
 ]
+
+
+def _sparse(path: Path, size: int) -> Path:
+    """A file of ``size`` bytes that takes no space on the disk (NUL bytes only)."""
+    with open(path, "wb") as f:
+        f.truncate(size)
+    return path
 
 
 def _fifo(path: Path) -> Path:

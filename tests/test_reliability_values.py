@@ -1,0 +1,51 @@
+"""Values a user's files and options may hold: text inputs read within a bound, finite but absurd numbers
+refused where they are read, never printed or written as metrics (docs/reliability.md, "Bad inputs tried").
+
+The one-line errors themselves are cases of tests/test_reliability_cli.py (they generate the docs table);
+these tests check what those cases cannot: what is still accepted, and how the checks read.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from phonepose.errors import InputFileError
+from phonepose.files import read_text_input
+
+BOM = b"\xef\xbb\xbf"
+TUM = b"".join(b"%.1f %.3f %.3f 0 0 0 0 1\n" % (k / 10, k / 50, (k % 7) / 40) for k in range(40))
+
+
+def test_read_text_input_stops_at_the_limit_and_at_the_first_nul(tmp_path):
+    p = tmp_path / "t.txt"
+    p.write_bytes(b"a" * 101)
+    with pytest.raises(InputFileError, match=r"t\.txt: larger than 100 bytes, the most phonepose reads as a "
+                                             r"trajectory file \(why\): check that it is the right file$"):
+        read_text_input(p, "trajectory file", limit=100, note="why")
+    assert read_text_input(p, "trajectory file", limit=101) == "a" * 101
+    # a NUL far into the file (past the first chunk) is found where it is
+    p.write_bytes(b"1 2 3\n" * 400_000 + b"\0" + b"x" * 10)
+    with pytest.raises(InputFileError, match=r"not a trajectory file \(binary data: a NUL byte at byte 2400000\)$"):
+        read_text_input(p, "trajectory file")
+    p.write_bytes(BOM + "é\n".encode())
+    assert read_text_input(p) == "é\n"
+
+
+def test_a_byte_order_mark_is_accepted_in_tum_euroc_and_toml(tmp_path, cli):
+    from phonepose.record.sim.config import load_config
+
+    (tmp_path / "gt.txt").write_bytes(BOM + TUM)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "gt.txt", "--json")
+    assert code == 0 and err == "", err
+    assert json.loads(out)["n_matched"] == 40
+    csv = b"#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n" + b"".join(
+        b"%d,%.3f,0,0,1,0,0,0\n" % (k * 10**8, k / 50) for k in range(40))
+    (tmp_path / "gt.csv").write_bytes(BOM + csv)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.csv", "--est", tmp_path / "gt.csv", "--format", "euroc",
+                         "--metric", "ape", "--json")
+    assert code == 0 and err == "", err
+    (tmp_path / "c.toml").write_bytes(BOM + b"[camera]\nrate_hz = 24\n")
+    assert load_config(tmp_path / "c.toml").camera.rate_hz == 24
+
