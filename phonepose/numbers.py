@@ -18,10 +18,18 @@ WORKERS_MAX = 256         # local worker processes (batch --workers, experiment 
 UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
 
 
-def _show(value) -> str:
+def show_number(value) -> str:
+    """A number as a message shows it: compact (``1e+300``, not 301 digits), an integer of up to 24 digits whole."""
     if isinstance(value, float):
         return str(int(value)) if value.is_integer() and abs(value) < 1e16 else f"{value:g}"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**24:
+        digits = str(abs(value))       # not float(value): 10**400 overflows it
+        mantissa = f"{digits[0]}.{digits[1:6]}".rstrip("0").rstrip(".")
+        return f"{'-' if value < 0 else ''}{mantissa}e+{len(digits) - 1}"
     return str(value)
+
+
+_show = show_number
 
 
 def _range_text(lo, hi, lo_open: bool, hi_open: bool, integer: bool) -> str:

@@ -510,6 +510,14 @@ CASES = [
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--motion", str(_write(d / "m.txt", b"".join(
              b"%.1f %g 0 0 0 0 0 1\n" % (k / 10, 1e308 * (k % 2)) for k in range(300))))], 2,
          r"m\.txt:2: position 1e\+308 m is not one on Earth"),
+    Case("evaluate-stationary", "`evaluate` (rpg) on a ground truth that does not move",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "still.txt", b"".join(
+             b"%.1f 1 2 3 0 0 0 1\n" % (k / 10) for k in range(20)))), "--est", str(d / "still.txt")], 4,
+         r"still\.txt: its path is 0 m long, too short for the default RE lengths \(10-50 % of it, whole cm\): "
+         r"give --lengths in m, or use --metric ape$"),
+    Case("seed-300-digits", "`record sim --seed` with 301 digits (printed whole before)",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--seed", str(10**300)], 5,
+         r"^phonepose: error: --seed 1e\+300: expected an integer in \[0, 4294967295\]$"),
     Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
          lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
          r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),

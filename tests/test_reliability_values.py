@@ -8,6 +8,7 @@ these tests check what those cases cannot: what is still accepted, and how the c
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
@@ -49,3 +50,34 @@ def test_a_byte_order_mark_is_accepted_in_tum_euroc_and_toml(tmp_path, cli):
     (tmp_path / "c.toml").write_bytes(BOM + b"[camera]\nrate_hz = 24\n")
     assert load_config(tmp_path / "c.toml").camera.rate_hz == 24
 
+
+def test_a_non_finite_metric_is_never_printed_nor_written(tmp_path, cli, monkeypatch):
+    """Whatever still overflows is one line, never a NaN in the table or a failing --json."""
+    from phonepose.evaluation import evo_metrics
+
+    real = evo_metrics.evaluate_ape
+
+    def overflowing(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result["ape"]["rmse"] = math.inf
+        return result
+
+    monkeypatch.setattr(evo_metrics, "evaluate_ape", overflowing)
+    (tmp_path / "gt.txt").write_bytes(TUM)
+    for extra in ((), ("--json",)):
+        code, out, err = cli("evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "gt.txt", "--metric", "ape",
+                             *extra)
+        assert code == 4 and out == "", out
+        assert err.strip().endswith("gt.txt are not finite numbers (ape.rmse): check the trajectories' values and "
+                                    "units"), err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_georeferenced_trajectories_still_load(tmp_path, cli):
+    """UTM-like coordinates (northing 5.4e6 m) are within the bound, and evaluate as well as near the origin."""
+    rows = b"".join(b"%.1f %.3f %.3f 310.5 0 0 0 1\n" % (k / 10, 500000 + k / 50, 5400000 + (k % 7) / 40)
+                    for k in range(40))
+    (tmp_path / "utm.txt").write_bytes(rows)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "utm.txt", "--est", tmp_path / "utm.txt", "--json")
+    assert code == 0 and err == "", err
+    assert json.loads(out)["ate"]["trans_m"]["rmse"] < 1e-6
