@@ -243,6 +243,26 @@ HOSTILE_NUMBERS = [
 ]
 
 
+# Board spec values beyond what a printable board can be: (id, --board, other options, the docs' text, the line)
+BOARD_CASES = [
+    ("page-209-gib", "squares=10x10 square_mm=500 dictionary=DICT_5X5_100", ["--paper", "fit", "--dpi", "1200"],
+     "`board --paper fit --dpi 1200` of 10x10 squares of 500 mm (1000 mm asked for 209 GiB)",
+     r"^phonepose: error: the page would be 237638 x 238299 px \(5030 x 5044 mm at 1200 dpi\), more than the 300 Mpx "
+     r"phonepose draws: use a lower --dpi, smaller squares or fewer of them$"),
+    ("square-1000", "squares=10x10 square_mm=1000", ["--paper", "fit", "--dpi", "1200"], "",
+     r"board square_mm=1000: expected a side in \[1, 500\] mm \(what a printer or plotter prints\)$"),
+    ("square-1e-300", "square_mm=1e-300 marker_mm=1e-301", [], "`board --board 'square_mm=1e-300 marker_mm=1e-301'` "
+     "(a SystemError in OpenCV)",
+     r"board square_mm=1e-300: expected a side in \[1, 500\] mm"),
+    ("marker-subpixel", "square_mm=1 marker_mm=0.005", ["--paper", "fit"],
+     "`board --board 'square_mm=1 marker_mm=0.005'` (an OpenCV assertion)",
+     r"board marker_mm=0\.005 is 0\.059 px at 300 dpi, less than its 7 cells: use markers of at least 0\.59 mm or a "
+     r"higher --dpi$"),
+    ("squares-huge", f"squares={10**300}x3", [], "`board --board squares=Nx3` with N of 301 digits",
+     r"board squares 1e\+300x3: expected 2 to 100 squares a side, at least 6 in all$"),
+]
+
+
 @dataclass
 class Case:
     id: str
@@ -518,6 +538,10 @@ CASES = [
     Case("seed-300-digits", "`record sim --seed` with 301 digits (printed whole before)",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--seed", str(10**300)], 5,
          r"^phonepose: error: --seed 1e\+300: expected an integer in \[0, 4294967295\]$"),
+    *[Case(f"board-{cid}", why or f"`board --board '{spec}'`",
+           lambda g, d, spec=spec, extra=extra: ["board", "--out", str(d / "b.png"), "--board", spec, *extra], 5,
+           message)
+      for cid, spec, extra, why, message in BOARD_CASES],
     Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
          lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
          r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),
