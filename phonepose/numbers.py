@@ -14,6 +14,9 @@ from phonepose.errors import ConfigError
 SEED_MAX = 2**32 - 1      # the seeds a session records (int64 field) and numpy takes, with room for derived ones
 SECONDS_MAX = 1e6         # a time offset into a session: 11.6 days is far past any recording
 RATE_MAX_HZ = 1000.0      # ticks per second: 8x the fastest camera the simulator has (120 Hz)
+# The slowest: a tick every 10 s, the longest stretch the scheduler ticks through (docs/reliability.md, "Work is
+# bounded by the data"); a rate of 5e-324 Hz overflowed the tick period (1e9 / rate ns) instead
+RATE_MIN_HZ = 0.1
 WORKERS_MAX = 256         # local worker processes (batch --workers, experiment --jobs)
 UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
 
