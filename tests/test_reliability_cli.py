@@ -547,6 +547,29 @@ CASES = [
            lambda g, d, spec=spec, extra=extra: ["board", "--out", str(d / "b.png"), "--board", spec, *extra], 5,
            message)
       for cid, spec, extra, why, message in BOARD_CASES],
+    Case("hand-eye-list", "`playback --hand-eye` with a YAML list (an OpenCV `isMap()` assertion)",
+         lambda g, d: ["playback", str(g), "-q", "--hand-eye", str(_write(d / "l.yaml", b"- 1\n- 2\n")),
+                       "--out", str(d / "o")], 2,
+         r"l\.yaml: not an OpenCV YAML/XML calibration file \(its top level is a list; expected `key: value` lines, "
+         r"as phonepose writes them\)$"),
+    Case("gt-calibration-nested-list", "`evaluate --gt-calibration` whose T_controller_gt is a nested list",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, b"T_controller_gt: [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]"))], 2,
+         r"c\.yaml: T_controller_gt is not a matrix \(found a list; expected an !!opencv-matrix with rows, cols, dt "
+         r"and data\)$"),
+    Case("gt-calibration-offset-text", "a calibration whose `time_offset_s` is \"abc\" (read as 1.8e308)",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, IDENTITY_4X4 + b'time_offset_s: "abc"\n'))], 2,
+         r"c\.yaml: time_offset_s is not a number \(found text\)$"),
+    Case("gt-calibration-offset-huge", "a calibration whose `time_offset_s` is 1e300",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, IDENTITY_4X4 + b"time_offset_s: 1e300\n"))], 2,
+         r"c\.yaml: time_offset_s 1e\+300 is not a clock offset in seconds \(expected at most 10 s either way\)$"),
+    Case("gt-calibration-80gb-matrix", "a calibration matrix claiming 100000 x 100000 (80 GB for OpenCV)",
+         lambda g, d: ["playback", str(g), "-q", "--out", str(d / "o"), "--hand-eye",
+                       str(_gt_calibration(d, IDENTITY_4X4.replace(b"rows: 4", b"rows: 100000")
+                                           .replace(b"cols: 4", b"cols: 100000")))], 2,
+         r"c\.yaml: T_controller_gt is not a matrix of at most 64 numbers \(its rows, cols and data disagree\)$"),
     Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
          lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
          r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),
@@ -566,6 +589,15 @@ CASES = [
          lambda g, d: ["batch", str(g), "--scheduler", "not a url", "--out", str(d / "r.parquet")], 5,
          r"--scheduler 'not a url': expected a Dask scheduler address such as tcp://host:8786$"),
 ]
+
+
+IDENTITY_4X4 = (b"T_controller_gt: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n"
+                b"   data: [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]\n")
+
+
+def _gt_calibration(d: Path, body: bytes, name: str = "c.yaml") -> Path:
+    """A ground-truth calibration file (phonepose.calibration.gt_calibration) with ``body`` as its keys."""
+    return _write(d / name, b"%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 1\n" + body + b"\n")
 
 
 def _sparse(path: Path, size: int) -> Path:

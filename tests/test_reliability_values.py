@@ -81,3 +81,21 @@ def test_georeferenced_trajectories_still_load(tmp_path, cli):
     code, out, err = cli("evaluate", "--gt", tmp_path / "utm.txt", "--est", tmp_path / "utm.txt", "--json")
     assert code == 0 and err == "", err
     assert json.loads(out)["ate"]["trans_m"]["rmse"] < 1e-6
+
+
+@pytest.mark.parametrize("body, message", [
+    (b"- 1\n- 2\n", r"not an OpenCV YAML/XML calibration file \(its top level is a list"),
+    (b"camera_matrix: [[1,0,0],[0,1,0],[0,0,1]]\n", r"camera_matrix is not a matrix \(found a list"),
+    (b"camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1,0,0,0,1,0,0,0,1]\n"
+     b"distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0,0,0,0,0]\n"
+     b"image_width: wide\nimage_height: 480\n", r"image_width is not a number \(found text\)$"),
+    (b"camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1,0,0,0,1,0,0,0,1]\n"
+     b"distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0,0,0,0,0]\n"
+     b"image_width: 1e300\nimage_height: 480\n", r"image_width 1e\+300, image_height 480: expected whole pixels"),
+])
+def test_a_camera_calibration_file_is_read_node_by_node(tmp_path, body, message):
+    from phonepose.calibration import load_calibration
+
+    (tmp_path / "c.yaml").write_bytes(b"%YAML:1.0\n---\n" + body)
+    with pytest.raises(InputFileError, match=message):
+        load_calibration(tmp_path / "c.yaml")
