@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -99,3 +103,66 @@ def test_a_camera_calibration_file_is_read_node_by_node(tmp_path, body, message)
     (tmp_path / "c.yaml").write_bytes(b"%YAML:1.0\n---\n" + body)
     with pytest.raises(InputFileError, match=message):
         load_calibration(tmp_path / "c.yaml")
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width`` x ``height`` px (OpenCV refuses to decode more than 2^30 px)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(bytes(100))) + chunk(b"IEND", b""))
+
+
+def _phonepose(*args, cwd: Path):
+    """A real process: its stderr writes a non-UTF-8 name as the terminal shows it (backslash-escaped)."""
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], cwd=cwd, capture_output=True, text=True,
+                          errors="backslashreplace")
+
+
+def test_images_opencv_cannot_decode_and_names_that_are_not_utf8(tmp_path):
+    """--images: a header claiming 60000x60000 px (an OpenCV assertion) is skipped with a warning like an empty
+    file; an image whose name is not UTF-8 (cv2.imread: SIGSEGV) is read; a --video of such a name is one line."""
+    import cv2
+    from test_calibration import synth_images
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i, image in enumerate(synth_images(6, seed=1)[0]):
+        name = f"v{i}.png" if i else os.fsdecode(b"i\xfe.png")
+        (folder / name).write_bytes(cv2.imencode(".png", image)[1].tobytes())
+    (folder / "huge.png").write_bytes(_png_claiming(60000, 60000))
+    (folder / "zero.png").write_bytes(b"")
+    r = _phonepose("calibrate-camera", "-q", "--images", "imgs", "--out", "c.yaml", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "phonepose: warning: huge.png: not an image OpenCV can read" in r.stderr.splitlines()
+    assert "phonepose: warning: zero.png: not an image OpenCV can read" in r.stderr.splitlines()
+    assert "6 with board / 6 read" in r.stdout
+    (tmp_path / os.fsdecode(b"v\xfe.avi")).write_bytes(b"not a video")
+    r = _phonepose("calibrate-camera", "-q", "--video", os.fsdecode(b"v\xfe.avi"), "--out", "c2.yaml", cwd=tmp_path)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == ("phonepose: error: v\\udcfe.avi: OpenCV cannot open a video whose name is not UTF-8 text; "
+                        "rename it\n")
+
+
+def test_a_calibration_file_whose_name_is_not_utf8_is_read(tmp_path):
+    """The YAML is parsed from memory: a non-UTF-8 name crashed cv2.FileStorage (SIGSEGV)."""
+    from phonepose.calibration.gt_calibration import load_gt_calibration
+
+    name = tmp_path / os.fsdecode(b"h\xfe.yaml")
+    name.write_bytes(b"%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 1\ntime_offset_s: 0.25\n"
+                     b"T_controller_gt: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n"
+                     b"   data: [1,0,0,0, 0,1,0,0, 0,0,1,0.5, 0,0,0,1]\n")
+    cal = load_gt_calibration(name)
+    assert cal.time_offset_s == 0.25 and cal.T_controller_gt.translation[2] == 0.5
+
+
+def test_record_rehearse_refuses_an_out_folder_opencv_cannot_write_into(tmp_path):
+    r = _phonepose("record", "rehearse", "--out", os.fsdecode(b"o\xfe"), cwd=tmp_path)
+    assert r.returncode == 6 and r.stderr == (
+        "phonepose: error: o\\udcfe: OpenCV cannot open a --out folder (camera.avi is written there by OpenCV) whose "
+        "name is not UTF-8 text; choose another --out\n")
+    assert list(tmp_path.iterdir()) == []
