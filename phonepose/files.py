@@ -86,6 +86,44 @@ def check_input(path: str | os.PathLike, what: str = "file") -> Path:
     return p
 
 
+# The largest text input read whole (a trajectory, an in-view file): 1 GiB of TUM lines (~80 bytes each) is
+# ~13 million poses, 37 hours at 100 Hz; a larger "trajectory" is the wrong file (a sparse 10 GB one ran the
+# reader out of memory). Smaller kinds pass their own limit (a TOML config, a calibration file).
+MAX_TEXT_INPUT_BYTES = 1 << 30
+_TEXT_CHUNK_BYTES = 1 << 20
+
+
+def read_text_input(path: str | os.PathLike, what: str = "text file", *, limit: int = MAX_TEXT_INPUT_BYTES,
+                    note: str = "") -> str:
+    """The text of a text input, checked as :func:`check_input` and read in chunks: more than ``limit`` bytes
+    (``note`` says why that is enough) or a NUL byte (binary data) is refused as soon as it is seen, never read
+    whole first; a UTF-8 byte-order mark is dropped. Otherwise InputFileError, one line naming the file."""
+    p = check_input(path, what)
+    unit, scale = next((u, s) for u, s in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10), ("bytes", 1))
+                       if limit >= s or s == 1)
+    limit_text = f"{limit / scale:.4g} {unit}"
+    too_large = InputFileError(f"{p}: larger than {limit_text}, the most phonepose reads as {_a(what)}"
+                               f"{f' ({note})' if note else ''}: check that it is the right file")
+    data = bytearray()
+    try:
+        with open(p, "rb") as f:
+            if os.fstat(f.fileno()).st_size > limit:
+                raise too_large
+            while chunk := f.read(min(_TEXT_CHUNK_BYTES, limit + 1 - len(data))):
+                nul = chunk.find(b"\0")
+                if nul >= 0:
+                    raise InputFileError(f"{p}: not {_a(what)} (binary data: a NUL byte at byte {len(data) + nul})")
+                data += chunk
+                if len(data) > limit:     # it grew since it was measured
+                    raise too_large
+    except OSError as exc:
+        raise InputFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{p}: not {_a(what)} (not UTF-8 text: byte {exc.start})") from None
+
+
 def _same_file(a: Path, b: Path) -> bool:
     """Same path after resolving symlinks, or the same inode (a hard link)."""
     try:

@@ -14,14 +14,25 @@ from phonepose.errors import ConfigError
 SEED_MAX = 2**32 - 1      # the seeds a session records (int64 field) and numpy takes, with room for derived ones
 SECONDS_MAX = 1e6         # a time offset into a session: 11.6 days is far past any recording
 RATE_MAX_HZ = 1000.0      # ticks per second: 8x the fastest camera the simulator has (120 Hz)
+# The slowest: a tick every 10 s, the longest stretch the scheduler ticks through (docs/reliability.md, "Work is
+# bounded by the data"); a rate of 5e-324 Hz overflowed the tick period (1e9 / rate ns) instead
+RATE_MIN_HZ = 0.1
 WORKERS_MAX = 256         # local worker processes (batch --workers, experiment --jobs)
 UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
 
 
-def _show(value) -> str:
+def show_number(value) -> str:
+    """A number as a message shows it: compact (``1e+300``, not 301 digits), an integer of up to 24 digits whole."""
     if isinstance(value, float):
         return str(int(value)) if value.is_integer() and abs(value) < 1e16 else f"{value:g}"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**24:
+        digits = str(abs(value))       # not float(value): 10**400 overflows it
+        mantissa = f"{digits[0]}.{digits[1:6]}".rstrip("0").rstrip(".")
+        return f"{'-' if value < 0 else ''}{mantissa}e+{len(digits) - 1}"
     return str(value)
+
+
+_show = show_number
 
 
 def _range_text(lo, hi, lo_open: bool, hi_open: bool, integer: bool) -> str:

@@ -223,7 +223,7 @@ def test_missing_and_binary_files(tmp_path):
     with pytest.raises(InputFileError, match="no such file"):
         load_tum(tmp_path / "nope.txt")
     (tmp_path / "b.txt").write_bytes(b"\x89PNG\x00\xff\xfe")
-    with pytest.raises(InputFileError, match="not a text file"):
+    with pytest.raises(InputFileError, match=r"not a trajectory file \(binary data: a NUL byte at byte 4\)"):
         load_tum(tmp_path / "b.txt")
     (tmp_path / "k.txt").write_text("1 0 0 0 0 1 0 0 0 0 1\n")
     with pytest.raises(InputFileError, match="11 values, expected 12"):

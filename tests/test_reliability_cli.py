@@ -223,9 +223,11 @@ def _gt(d: Path) -> str:
 # (id, command, valid arguments without the option, option, value, as the message shows it, expected range)
 HOSTILE_NUMBERS = [
     ("rate-inf", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--rate", "inf", "inf",
-     r"a finite number in \(0, 1000\] Hz"),
+     r"a finite number in \[0\.1, 1000\] Hz"),
     ("rate-huge", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--rate", "1e9", "1000000000",
-     r"a finite number in \(0, 1000\] Hz"),
+     r"a finite number in \[0\.1, 1000\] Hz"),
+    ("rate-tiny", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--rate", "5e-324", "4.94066e-324",
+     r"a finite number in \[0\.1, 1000\] Hz"),
     ("start-nan", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--start", "nan", "nan",
      r"a finite number in \[0, 1000000\] s"),
     ("end-overflow", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--end", "1e400", "inf",
@@ -258,6 +260,26 @@ HOSTILE_NUMBERS = [
      "nan", "nan", r"a finite number in \(0, 1000000\] s"),
     ("align-frames-zero", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")],
      "--align-frames", "0", "0", r"an integer >= 1 or -1"),
+]
+
+
+# Board spec values beyond what a printable board can be: (id, --board, other options, the docs' text, the line)
+BOARD_CASES = [
+    ("page-209-gib", "squares=10x10 square_mm=500 dictionary=DICT_5X5_100", ["--paper", "fit", "--dpi", "1200"],
+     "`board --paper fit --dpi 1200` of 10x10 squares of 500 mm (1000 mm asked for 209 GiB)",
+     r"^phonepose: error: the page would be 237638 x 238299 px \(5030 x 5044 mm at 1200 dpi\), more than the 300 Mpx "
+     r"phonepose draws: use a lower --dpi, smaller squares or fewer of them$"),
+    ("square-1000", "squares=10x10 square_mm=1000", ["--paper", "fit", "--dpi", "1200"], "",
+     r"board square_mm=1000: expected a side in \[1, 500\] mm \(what a printer or plotter prints\)$"),
+    ("square-1e-300", "square_mm=1e-300 marker_mm=1e-301", [], "`board --board 'square_mm=1e-300 marker_mm=1e-301'` "
+     "(a SystemError in OpenCV)",
+     r"board square_mm=1e-300: expected a side in \[1, 500\] mm"),
+    ("marker-subpixel", "square_mm=1 marker_mm=0.005", ["--paper", "fit"],
+     "`board --board 'square_mm=1 marker_mm=0.005'` (an OpenCV assertion)",
+     r"board marker_mm=0\.005 is 0\.059 px at 300 dpi, less than its 7 cells: use markers of at least 0\.59 mm or a "
+     r"higher --dpi$"),
+    ("squares-huge", f"squares={10**300}x3", [], "`board --board squares=Nx3` with N of 301 digits",
+     r"board squares 1e\+300x3: expected 2 to 100 squares a side, at least 6 in all$"),
 ]
 
 
@@ -370,7 +392,7 @@ CASES = [
          r"unknown tracker 'T99'; valid: T1, T2, T3, T4, T5, T6, T7, .*all, paper, or package\.module:ClassName$"),
     Case("bad-rate", "bad option value (`--rate -1`)",
          lambda g, d: ["playback", str(g), "-q", "--rate", "-1", "--out", str(d / "o")], 5,
-         r"^phonepose: error: --rate -1: expected a finite number in \(0, 1000\] Hz$"),
+         r"^phonepose: error: --rate -1: expected a finite number in \[0\.1, 1000\] Hz$"),
     Case("bad-correction-math", "bad option value (`--correction-math foo`)",
          lambda g, d: ["playback", str(g), "-q", "--correction-math", "foo", "--out", str(d / "o")], 5,
          r"playback: Invalid value for '--correction-math': 'foo' is not one of 'paper', 'se3'\. "
@@ -479,14 +501,21 @@ CASES = [
       for cid, command, base, option, value, shown, expected in HOSTILE_NUMBERS],
     Case("param-inf", "`batch --param rate_hz=inf`",
          lambda g, d: ["batch", str(g), "-p", "rate_hz=inf", "--out", str(d / "r.parquet")], 5,
-         r"^phonepose: error: --param rate_hz=inf: expected a finite number in \(0, 1000\] Hz$"),
+         r"^phonepose: error: --param rate_hz=inf: expected a finite number in \[0\.1, 1000\] Hz$"),
+    Case("param-tiny", "`batch --param rate_hz=1e-300` (was an error row and exit 1)",
+         lambda g, d: ["batch", str(g), "-p", "rate_hz=1e-300", "--out", str(d / "r.parquet")], 5,
+         r"^phonepose: error: --param rate_hz=1e-300: expected a finite number in \[0\.1, 1000\] Hz$"),
     Case("lengths-inf", "`evaluate --lengths 1,inf`",
          lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
                        "--lengths", "1,inf"], 5, r"--lengths '1,inf': expected positive metres"),
     Case("config-binary", "a binary `--config`",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", bytes(range(256)) * 4))], 5,
-         r"config file .*c\.toml: not a TOML file \(not UTF-8 text\)$"),
+         r"config file .*c\.toml: not a TOML file \(binary data: a NUL byte at byte 0\)$"),
+    Case("config-not-utf8", "a `--config` that is not UTF-8 text",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
+                       "--config", str(_write(d / "c.toml", b"[camera]\nrate_hz = 30 # \xff\n"))], 5,
+         r"config file .*c\.toml: not a TOML file \(not UTF-8 text: byte 24\)$"),
     Case("config-nested", "a deeply nested `--config` (`a = [[[[...]]]]`, 20 KB)",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", b"a = " + b"[" * 10_000 + b"]" * 10_000 + b"\n"))], 5,
@@ -494,10 +523,79 @@ CASES = [
     Case("config-huge", "a `--config` over 32 KiB (tomllib is quadratic in a dotted key's depth)",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"),
                        "--config", str(_write(d / "c.toml", b"[" + b".".join([b"a"] * 100_000) + b"]\n"))], 5,
-         r"config file .*c\.toml: larger than 32 KiB \(every parameter with comments is \d\.\d KiB\)$"),
+         r"config file .*c\.toml: larger than 32 KiB, the most phonepose reads as a TOML file "
+         r"\(every parameter with comments is \d\.\d KiB\): check that it is the right file$"),
     Case("config-fifo", "a FIFO as `--config`",
          lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--config", str(_fifo(d / "c.toml"))], 5,
          r"config file .*c\.toml: not a regular file \(a FIFO, socket or device\): give a TOML file$"),
+    Case("trajectory-sparse-10g", "a 10 GB (sparse) file as `evaluate --gt` (was read whole: MemoryError)",
+         lambda g, d: ["evaluate", "--gt", str(_sparse(d / "big.txt", 10 << 30)), "--est", str(d / "big.txt")], 2,
+         r"big\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file \(1 GiB of TUM lines is "
+         r"~13 million poses, 37 hours at 100 Hz\): check that it is the right file$"),
+    Case("motion-sparse-10g", "a 10 GB (sparse) file as `record sim --motion`",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--motion", str(_sparse(d / "m.txt", 10 << 30))],
+         2, r"m\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file"),
+    Case("playback-gt-sparse-10g", "a 10 GB (sparse) file as `playback --gt`",
+         lambda g, d: ["playback", str(g), "-q", "--gt", str(_sparse(d / "gt.txt", 10 << 30)), "--out", str(d / "o")],
+         2, r"gt\.txt: larger than 1 GiB, the most phonepose reads as a trajectory file"),
+    Case("trajectory-nul-tail", "a valid trajectory followed by NUL bytes",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS + bytes(4096))), "--est", str(d / "gt.txt")],
+         2, r"gt\.txt: not a trajectory file \(binary data: a NUL byte at byte 420\)$"),
+    Case("in-view-binary", "a binary `--in-view` file",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "gt.txt", TUM_ROWS)), "--est", str(d / "gt.txt"),
+                       "--metric", "paper", "--in-view", str(_write(d / "iv.txt", b"0.0 1\n\x00\x01"))], 2,
+         r"iv\.txt: not an in-view file \(binary data: a NUL byte at byte 6\)$"),
+    Case("trajectory-extreme", "a trajectory at 1e308 m (overflowed the alignment's SVD, inf metrics, `--json` failed)",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "huge.txt", b"".join(
+             b"%.1f 1e308 1e308 1e308 0 0 0 1\n" % (k / 10) for k in range(20)))), "--est", str(d / "huge.txt")], 2,
+         r"huge\.txt:1: position 1e\+308 m is not one on Earth \(beyond ±1e7 m\): check the file's columns and units$"),
+    Case("rpe-steps-1e160", "`evaluate --metric rpe --json` with positions stepping by 1e160 m",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "step.txt", b"".join(
+             b"%.1f %g 0 0 0 0 0 1\n" % (k / 10, k * 1e160) for k in range(20)))), "--est", str(d / "step.txt"),
+             "--metric", "rpe", "--json"], 2, r"step\.txt:2: position 1e\+160 m is not one on Earth"),
+    Case("trajectory-stamp-1e300", "a trajectory stamped 1e300 s",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "t.txt", b"".join(
+             b"%g 0 0 0 0 0 0 1\n" % (1e300 + k) for k in range(3)))), "--est", str(d / "t.txt")], 2,
+         r"t\.txt:1: stamp 1e\+300 s is not a time \(beyond ±9e9 s, the year 2262\)"),
+    Case("motion-extreme", "`record sim --motion` at 1e308 m (\"y must contain only finite values\")",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--motion", str(_write(d / "m.txt", b"".join(
+             b"%.1f %g 0 0 0 0 0 1\n" % (k / 10, 1e308 * (k % 2)) for k in range(300))))], 2,
+         r"m\.txt:2: position 1e\+308 m is not one on Earth"),
+    Case("evaluate-stationary", "`evaluate` (rpg) on a ground truth that does not move",
+         lambda g, d: ["evaluate", "--gt", str(_write(d / "still.txt", b"".join(
+             b"%.1f 1 2 3 0 0 0 1\n" % (k / 10) for k in range(20)))), "--est", str(d / "still.txt")], 4,
+         r"still\.txt: its path is 0 m long, too short for the default RE lengths \(10-50 % of it, whole cm\): "
+         r"give --lengths in m, or use --metric ape$"),
+    Case("seed-300-digits", "`record sim --seed` with 301 digits (printed whole before)",
+         lambda g, d: ["record", "sim", "-q", "--out", str(d / "s.mcap"), "--seed", str(10**300)], 5,
+         r"^phonepose: error: --seed 1e\+300: expected an integer in \[0, 4294967295\]$"),
+    *[Case(f"board-{cid}", why or f"`board --board '{spec}'`",
+           lambda g, d, spec=spec, extra=extra: ["board", "--out", str(d / "b.png"), "--board", spec, *extra], 5,
+           message)
+      for cid, spec, extra, why, message in BOARD_CASES],
+    Case("hand-eye-list", "`playback --hand-eye` with a YAML list (an OpenCV `isMap()` assertion)",
+         lambda g, d: ["playback", str(g), "-q", "--hand-eye", str(_write(d / "l.yaml", b"- 1\n- 2\n")),
+                       "--out", str(d / "o")], 2,
+         r"l\.yaml: not an OpenCV YAML/XML calibration file \(its top level is a list; expected `key: value` lines, "
+         r"as phonepose writes them\)$"),
+    Case("gt-calibration-nested-list", "`evaluate --gt-calibration` whose T_controller_gt is a nested list",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, b"T_controller_gt: [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]"))], 2,
+         r"c\.yaml: T_controller_gt is not a matrix \(found a list; expected an !!opencv-matrix with rows, cols, dt "
+         r"and data\)$"),
+    Case("gt-calibration-offset-text", "a calibration whose `time_offset_s` is \"abc\" (read as 1.8e308)",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, IDENTITY_4X4 + b'time_offset_s: "abc"\n'))], 2,
+         r"c\.yaml: time_offset_s is not a number \(found text\)$"),
+    Case("gt-calibration-offset-huge", "a calibration whose `time_offset_s` is 1e300",
+         lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt"), "--gt-calibration",
+                       str(_gt_calibration(d, IDENTITY_4X4 + b"time_offset_s: 1e300\n"))], 2,
+         r"c\.yaml: time_offset_s 1e\+300 is not a clock offset in seconds \(expected at most 10 s either way\)$"),
+    Case("gt-calibration-80gb-matrix", "a calibration matrix claiming 100000 x 100000 (80 GB for OpenCV)",
+         lambda g, d: ["playback", str(g), "-q", "--out", str(d / "o"), "--hand-eye",
+                       str(_gt_calibration(d, IDENTITY_4X4.replace(b"rows: 4", b"rows: 100000")
+                                           .replace(b"cols: 4", b"cols: 100000")))], 2,
+         r"c\.yaml: T_controller_gt is not a matrix of at most 64 numbers \(its rows, cols and data disagree\)$"),
     Case("trajectory-fifo", "a FIFO as `evaluate --gt`",
          lambda g, d: ["evaluate", "--gt", str(_fifo(d / "gt.tum")), "--est", str(_write(d / "e.tum", TUM_ROWS))], 2,
          r"gt\.tum: not a regular file \(a FIFO, socket or device\): give a trajectory file$"),
@@ -517,6 +615,22 @@ CASES = [
          lambda g, d: ["batch", str(g), "--scheduler", "not a url", "--out", str(d / "r.parquet")], 5,
          r"--scheduler 'not a url': expected a Dask scheduler address such as tcp://host:8786$"),
 ]
+
+
+IDENTITY_4X4 = (b"T_controller_gt: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n"
+                b"   data: [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]\n")
+
+
+def _gt_calibration(d: Path, body: bytes, name: str = "c.yaml") -> Path:
+    """A ground-truth calibration file (phonepose.calibration.gt_calibration) with ``body`` as its keys."""
+    return _write(d / name, b"%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 1\n" + body + b"\n")
+
+
+def _sparse(path: Path, size: int) -> Path:
+    """A file of ``size`` bytes that takes no space on the disk (NUL bytes only)."""
+    with open(path, "wb") as f:
+        f.truncate(size)
+    return path
 
 
 def _fifo(path: Path) -> Path:

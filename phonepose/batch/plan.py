@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from phonepose.errors import ConfigError
-from phonepose.numbers import RATE_MAX_HZ, SECONDS_MAX, check_number
+from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ, SECONDS_MAX, check_number
 
 
 def _float(key: str, text: str) -> float:
@@ -28,7 +28,7 @@ def _float(key: str, text: str) -> float:
 
 
 def _rate(key: str, text: str) -> float:
-    return check_number(f"--param {key}=", _float(key, text), 0, RATE_MAX_HZ, lo_open=True, unit="Hz")
+    return check_number(f"--param {key}=", _float(key, text), RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz")
 
 
 def _seconds_or_none(key: str, text: str) -> float | None:

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from phonepose.errors import ConfigError
+from phonepose.numbers import show_number
 
 MM_PER_INCH = 25.4
 
@@ -28,6 +29,16 @@ FIT_MIN_WIDTH_MM = 140.0   # a "fit" page is at least this wide: the 50 mm bar a
 TEXT_HEIGHT_MM = 2.5       # capital letters of the printed description
 TEXT_GAP_MM = 4.0          # between the board and the first line of text
 LINE_MM = 5.0              # line pitch of the text under the board
+
+
+# What a printable board can be (BoardSpec checks each value; `phonepose board --help` states them): squares a
+# printer or plotter can hold, from 1 mm to 0.5 m, and at most 100 of them a side (OpenCV's samples print 5x7,
+# and a 4X4_1000 dictionary holds 1000 markers). square_mm=1e-300 became a SystemError in OpenCV, 100000 a 44 TiB page.
+SQUARES_MAX = 100
+SQUARE_MM = (1.0, 500.0)
+# The most pixels a page is drawn with, checked before it is allocated: A3 at 1200 dpi is 278 Mpx (278 MB of
+# grayscale); a 10 m board on --paper fit at 1200 dpi asked for 209 GiB.
+MAX_PAGE_PIXELS = 300_000_000
 
 
 @dataclass(frozen=True)
@@ -44,11 +55,18 @@ class BoardSpec:
     legacy: bool = False
 
     def __post_init__(self) -> None:
-        if self.squares_x < 2 or self.squares_y < 2 or self.squares_x * self.squares_y < 6:
-            raise ConfigError(f"board squares {self.squares_x}x{self.squares_y}: need at least 2 x 2 and 6 squares")
-        if not (self.square_mm > 0 and 0 < self.marker_mm < self.square_mm):
-            raise ConfigError(f"board square {self.square_mm:g} mm, marker {self.marker_mm:g} mm: "
-                              "need 0 < marker < square")
+        sx, sy = show_number(self.squares_x), show_number(self.squares_y)
+        if not (2 <= self.squares_x <= SQUARES_MAX and 2 <= self.squares_y <= SQUARES_MAX) \
+                or self.squares_x * self.squares_y < 6:
+            raise ConfigError(f"board squares {sx}x{sy}: expected 2 to {SQUARES_MAX} squares a side, "
+                              "at least 6 in all")
+        lo, hi = SQUARE_MM
+        if not lo <= self.square_mm <= hi:     # NaN too
+            raise ConfigError(f"board square_mm={self.square_mm:g}: expected a side in [{lo:g}, {hi:g}] mm "
+                              "(what a printer or plotter prints)")
+        if not 0 < self.marker_mm < self.square_mm:
+            raise ConfigError(f"board marker_mm={self.marker_mm:g}: expected a side in (0, {self.square_mm:g}) mm "
+                              "(inside its square, square_mm)")
         n_markers = self.squares_x * self.squares_y // 2
         dict_size = _dictionary(self.dictionary).bytesList.shape[0]
         if n_markers > dict_size:
@@ -167,7 +185,16 @@ def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = 
     if min(text_x_mm, margin_y) < 5.0:
         raise ConfigError(f"a {bw_mm:g} x {bh_mm:g} mm board does not fit {paper} paper with margins; "
                           "use --paper a3, --paper fit or smaller squares")
-    page = np.full((round(page_h_mm * scale), round(page_w_mm * scale)), 255, np.uint8)
+    page_px = (round(page_h_mm * scale), round(page_w_mm * scale))
+    if page_px[0] * page_px[1] > MAX_PAGE_PIXELS:
+        raise ConfigError(f"the page would be {page_px[1]} x {page_px[0]} px ({page_w_mm:.0f} x {page_h_mm:.0f} mm at "
+                          f"{dpi} dpi), more than the {MAX_PAGE_PIXELS / 1e6:g} Mpx phonepose draws: use a lower --dpi, "
+                          "smaller squares or fewer of them")
+    bits = _dictionary(board.dictionary).markerSize + 2       # the marker's cells and its black border
+    if board.marker_mm * scale < bits:
+        raise ConfigError(f"board marker_mm={board.marker_mm:g} is {board.marker_mm * scale:.2g} px at {dpi} dpi, "
+                          f"less than its {bits} cells: use markers of at least {bits / scale:.2g} mm or a higher --dpi")
+    page = np.full(page_px, 255, np.uint8)
     # OpenCV draws the board; we only place it. Its size is rounded to whole pixels: at 300 dpi a
     # 30 mm square is 354.33 px, drawn as 354 px (0.03 mm short), far below what a printer holds.
     bw_px, bh_px = round(bw_mm * scale), round(bh_mm * scale)

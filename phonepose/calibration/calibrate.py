@@ -30,7 +30,7 @@ import numpy as np
 
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
-from phonepose.errors import ConfigError, InputFileError, SessionContentError
+from phonepose.errors import ConfigError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.files import check_input
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -137,7 +137,7 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
         check_input(path, "image")    # a FIFO or device among the images: refused before reading any
     views, skipped, size, examined = [], [], None, 0
     for path in files:
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        image = _decode_image(path)
         if image is None:
             skipped.append(f"{path.name}: not an image OpenCV can read")
             continue
@@ -156,6 +156,34 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
     if examined == 0:
         raise InputFileError(f"{directory}: none of its {len(files)} image files can be read")
     return _Collected(views, size, examined, len(views), skipped)
+
+
+def _decode_image(path: Path) -> np.ndarray | None:
+    """The grayscale image in ``path``, or None when OpenCV cannot decode it (an empty or damaged file, a header
+    claiming more than its ``CV_IO_MAX_IMAGE_PIXELS``). The bytes are read here and decoded from memory: a path
+    that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if data.size == 0:
+        return None
+    try:
+        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    except cv2.error:           # e.g. 60000x60000 px: "CV_IO_MAX_IMAGE_PIXELS" asserted
+        return None
+
+
+def opencv_path(path: Path, what: str, fix: str = "rename it", error: type[PhoneposeError] = InputFileError) -> str:
+    """``path`` as the str OpenCV is given (a video, which it opens by name), or an InputFileError when the name
+    is not UTF-8: OpenCV crashes on one (SIGSEGV)."""
+    name = os.fspath(path)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise error(f"{name.encode('utf-8', 'backslashreplace').decode()}: OpenCV cannot open {what} whose "
+                             f"name is not UTF-8 text; {fix}") from None
+    return name
 
 
 @contextlib.contextmanager
@@ -241,8 +269,9 @@ def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, ev
 def views_from_video(path: str | Path, finder: BoardFinder, max_views: int = 40,
                      progress: Progress | None = None) -> _Collected:
     path = check_input(path, "video file")
+    name = opencv_path(path, "a video")
     with _quiet_opencv():
-        cap = cv2.VideoCapture(str(path))
+        cap = cv2.VideoCapture(name)
     if not cap.isOpened():
         raise InputFileError(f"{path}: not a video OpenCV can read")
     n_frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from phonepose.errors import InputFileError, OutputError
+from phonepose.numbers import show_number
 
 
 @dataclass(frozen=True)
@@ -65,27 +66,91 @@ def save_calibration(path: str | Path, calib: CameraCalibrationFile, option: str
                       suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)
 
 
+# A calibration file is a few KiB (a 4x4 matrix and a dozen numbers); one beyond this is the wrong file.
+MAX_CALIBRATION_BYTES = 1 << 20
+MAX_MATRIX_ELEMENTS = 64      # the largest matrix a calibration file holds is 4x4 (distortion: at most 1x14)
+MAX_IMAGE_SIDE_PX = 100_000
+
+
 def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
-    """An OpenCV YAML/XML file opened for reading (one it cannot parse is an InputFileError) or for
-    writing (OutputError)."""
+    """An OpenCV YAML/XML file opened for reading (one it cannot parse, or whose top level is not a map of keys,
+    is an InputFileError) or for writing (OutputError).
+
+    A file is read by phonepose.files (size, binary content, a UTF-8 byte-order mark) and parsed from memory, so no
+    path reaches OpenCV: one that is not UTF-8 crashed it (SIGSEGV)."""
     if not write:
-        from phonepose.files import check_input
+        from phonepose.files import read_text_input
         try:
-            check_input(path, f"{what} file")     # a FIFO or device is refused, never opened
+            text = read_text_input(path, f"{what} file", limit=MAX_CALIBRATION_BYTES,
+                                   note="a calibration file is a few KiB")
         except InputFileError:
             if not os.path.lexists(path):
                 raise InputFileError(f"{path}: no such {what} file") from None
             raise
     error = ""
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE if write else cv2.FILE_STORAGE_READ)
+        if write:
+            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+        else:
+            fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY) if text.strip() else None
     except (cv2.error, SystemError) as exc:   # opencv-python 5.0 reports a YAML parse error as SystemError
         fs, error = None, f": {exc}"
     if fs is None or not fs.isOpened():
         if write:
             raise OutputError(f"cannot write {path}{error}")
         raise InputFileError(f"{path}: not an OpenCV YAML/XML {what} file")
+    if not write and not fs.root().isMap():
+        kind = "a list" if fs.root().isSeq() else "not a map of keys"
+        fs.release()
+        raise InputFileError(f"{path}: not an OpenCV YAML/XML {what} file (its top level is {kind}; expected "
+                             "`key: value` lines, as phonepose writes them)")
     return fs
+
+
+def yaml_number(path: Path, fs: cv2.FileStorage, key: str, default: float | None = None) -> float | None:
+    """``key``'s number (``default`` when it is absent); a node of another type is one line naming it
+    (``node.real()`` reads a string or a list as 1.8e308)."""
+    node = fs.getNode(key)
+    if node.empty():
+        return default
+    if not (node.isReal() or node.isInt()):
+        raise InputFileError(f"{path}: {key} is not a number (found {_node_kind(node)})")
+    return float(node.real())
+
+
+def yaml_text(path: Path, fs: cv2.FileStorage, key: str) -> str:
+    """``key``'s text ("" when it is absent); a node of another type is one line naming it."""
+    node = fs.getNode(key)
+    if node.empty():
+        return ""
+    if not node.isString():
+        raise InputFileError(f"{path}: {key} is not text (found {_node_kind(node)})")
+    return node.string()
+
+
+def yaml_matrix(path: Path, fs: cv2.FileStorage, key: str) -> np.ndarray | None:
+    """``key``'s ``!!opencv-matrix`` (None when it is absent), its type and size checked before OpenCV reads it: a
+    nested list was an OpenCV assertion, and ``rows: 100000 cols: 100000`` asks it for 80 GB."""
+    node = fs.getNode(key)
+    if node.empty():
+        return None
+    if not node.isMap() or not {"rows", "cols", "data"} <= set(node.keys()):
+        raise InputFileError(f"{path}: {key} is not a matrix (found {_node_kind(node)}; expected an "
+                             "!!opencv-matrix with rows, cols, dt and data)")
+    rows, cols, data = node.getNode("rows"), node.getNode("cols"), node.getNode("data")
+    if not (rows.isInt() and cols.isInt() and data.isSeq()) or not (
+            0 < rows.real() * cols.real() <= MAX_MATRIX_ELEMENTS) or data.size() != rows.real() * cols.real():
+        raise InputFileError(f"{path}: {key} is not a matrix of at most {MAX_MATRIX_ELEMENTS} numbers "
+                             "(its rows, cols and data disagree)")
+    try:
+        return np.asarray(node.mat(), dtype=float)
+    except (cv2.error, SystemError, TypeError, ValueError):
+        raise InputFileError(f"{path}: {key} is not a matrix of numbers") from None
+
+
+def _node_kind(node: cv2.FileNode) -> str:
+    return ("a list" if node.isSeq() else "a map" if node.isMap() else "text" if node.isString()
+            else "a number" if node.isReal() or node.isInt() else "no value")
 
 
 def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
@@ -93,18 +158,21 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     path = Path(path)
     fs = open_yaml(path, "calibration")
     try:
-        K = fs.getNode("camera_matrix").mat()
-        D = fs.getNode("distortion_coefficients").mat()
-        width, height = fs.getNode("image_width").real(), fs.getNode("image_height").real()
-        rms_node, board_node = fs.getNode("reprojection_error"), fs.getNode("board")
-        rms = rms_node.real() if not rms_node.empty() else float("nan")
-        board = board_node.string() if not board_node.empty() else ""
+        K = yaml_matrix(path, fs, "camera_matrix")
+        D = yaml_matrix(path, fs, "distortion_coefficients")
+        width, height = yaml_number(path, fs, "image_width", 0), yaml_number(path, fs, "image_height", 0)
+        rms = yaml_number(path, fs, "reprojection_error", float("nan"))
+        board = yaml_text(path, fs, "board")
     finally:
         fs.release()
+    assert width is not None and height is not None and rms is not None      # given defaults
     if K is None or K.shape != (3, 3) or D is None or D.size not in (4, 5, 8, 12, 14) or width <= 0 or height <= 0:
         raise InputFileError(f"{path}: needs camera_matrix (3x3), distortion_coefficients, image_width, image_height")
     if not (np.isfinite(K).all() and np.isfinite(D).all()):
         raise InputFileError(f"{path}: camera_matrix or distortion_coefficients are not finite")
+    if not (width <= MAX_IMAGE_SIDE_PX and height <= MAX_IMAGE_SIDE_PX and width.is_integer() and height.is_integer()):
+        raise InputFileError(f"{path}: image_width {show_number(width)}, image_height {show_number(height)}: expected "
+                             f"whole pixels in [1, {MAX_IMAGE_SIDE_PX}]")
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
     return CameraCalibrationFile(K.astype(float), D5, int(width), int(height), float(rms), board)

@@ -32,6 +32,7 @@ import numpy as np
 
 from phonepose.errors import InputFileError
 from phonepose.geometry import Pose
+from phonepose.numbers import show_number
 
 FORMAT = "phonepose-gt-calibration"
 VERSION = 1
@@ -120,60 +121,73 @@ def save_gt_calibration(path: str | os.PathLike, cal: GtCalibration, option: str
     write_text_output(path, calibration_text(cal), option, inputs=inputs, suffixes=SUFFIXES, what=WHAT)
 
 
-def _real(fs: cv2.FileStorage, key: str, default: float = float("nan")) -> float:
-    node = fs.getNode(key)
-    return node.real() if not node.empty() else default
-
-
-def _text(fs: cv2.FileStorage, key: str) -> str:
-    node = fs.getNode(key)
-    return node.string() if not node.empty() and node.isString() else ""
-
-
 def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | None:
-    node = fs.getNode(key)
-    if node.empty():
+    from phonepose.calibration.camera_file import yaml_matrix
+    from phonepose.evaluation.trajectory import MAX_POSITION_M
+
+    T = yaml_matrix(path, fs, key)
+    if T is None:
         if required:
             raise InputFileError(f"{path}: not a ground-truth calibration file (expected a 4x4 matrix {key})")
         return None
-    T = node.mat()
-    if T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+    if T.shape != (4, 4) or not np.isfinite(T).all():
         raise InputFileError(f"{path}: {key} is not a finite 4x4 matrix")
     R = T[:3, :3]
     if abs(np.linalg.det(R) - 1) > 1e-6 or not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
         raise InputFileError(f"{path}: {key}'s rotation part is not a rotation matrix")
+    if np.abs(T[:3, 3]).max() > MAX_POSITION_M:     # as a trajectory's positions (1e300 overflowed the metrics)
+        raise InputFileError(f"{path}: {key}'s translation {np.abs(T[:3, 3]).max():g} m is beyond ±1e7 m "
+                             "(not a place on Earth)")
     return Pose.from_matrix(T)
 
 
 def load_gt_calibration(path: str | os.PathLike, what: str = "calibration") -> GtCalibration:
     """A file of ``save_gt_calibration`` or an older hand-eye file; a bad one is an InputFileError (exit 2)."""
-    from phonepose.calibration.camera_file import open_yaml
+    from phonepose.calibration.camera_file import open_yaml, yaml_number, yaml_text
 
     path = Path(path)
     fs = open_yaml(path, what)
     try:
-        fmt = _text(fs, "format")
-        version = int(_real(fs, "version", 0)) if fmt else 0
+        def real(key: str, default: float = float("nan")) -> float:
+            value = yaml_number(path, fs, key, default)
+            assert value is not None      # a default is given
+            return value
+
+        def count(*keys: str) -> int:
+            for key in keys:
+                value = real(key)
+                if not math.isnan(value):
+                    if not (value.is_integer() and 0 <= value <= 1e9):
+                        raise InputFileError(f"{path}: {key} {show_number(value)} is not a count")
+                    return int(value)
+            return 0
+
+        fmt = yaml_text(path, fs, "format")
+        version = real("version", 0) if fmt else 0.0
         if fmt and fmt != FORMAT:
             raise InputFileError(f"{path}: format {fmt!r}, expected {FORMAT!r}")
+        if not (version.is_integer() and 0 <= version):
+            raise InputFileError(f"{path}: version {show_number(version)} is not a version of this file ({VERSION})")
         if version > VERSION:
-            raise InputFileError(f"{path}: version {version} is newer than this phonepose reads ({VERSION})")
+            raise InputFileError(f"{path}: version {show_number(version)} is newer than this phonepose reads ({VERSION})")
         X = _pose(path, fs, "T_controller_gt" if version else "T_controller_mocap", required=True)
-        offset = _real(fs, "time_offset_s", 0.0)
+        offset = real("time_offset_s", 0.0)
         assert X is not None   # required=True: a missing matrix raised above
         cal = GtCalibration(
             T_controller_gt=X, time_offset_s=float(offset),
             T_world_display_vio=_pose(path, fs, "T_world_display_vio", required=False),
             T_world_camera=_pose(path, fs, "T_world_camera", required=False),
-            method=_text(fs, "method") or "calibrate-hand-eye",
-            samples=int(_real(fs, "sightings", _real(fs, "motions", _real(fs, "pairs", 0)))),
-            residual_mm=_real(fs, "residual_mm"), residual_deg=_real(fs, "residual_deg"),
-            sigma={k: _real(fs, k) for k in SIGMA_KEYS if not fs.getNode(k).empty()},
-            session=_text(fs, "session"), ground_truth=_text(fs, "ground_truth"), version=version)
+            method=yaml_text(path, fs, "method") or "calibrate-hand-eye",
+            samples=count("sightings", "motions", "pairs"),
+            residual_mm=real("residual_mm"), residual_deg=real("residual_deg"),
+            sigma={k: real(k) for k in SIGMA_KEYS if not fs.getNode(k).empty()},
+            session=yaml_text(path, fs, "session"), ground_truth=yaml_text(path, fs, "ground_truth"),
+            version=int(version))
     finally:
         fs.release()
     if not (math.isfinite(cal.time_offset_s) and abs(cal.time_offset_s) <= 10):
-        raise InputFileError(f"{path}: time_offset_s {cal.time_offset_s!r} is not a clock offset in seconds")
+        raise InputFileError(f"{path}: time_offset_s {show_number(cal.time_offset_s)} is not a clock offset in "
+                             "seconds (expected at most 10 s either way)")
     return cal
 
 
@@ -209,5 +223,6 @@ def ground_truth_setup(calibration: str | os.PathLike | GtCalibration | None, ca
 
         series = file_ground_truth(gt_file, gt_format)
         note = {**(note or {}), "ground_truth_file": os.fspath(gt_file)}
-        params["gt_file"] = hashlib.sha256(Path(gt_file).read_bytes()).hexdigest()
+        with open(gt_file, "rb") as f:        # in chunks: the file may be up to 1 GiB (phonepose.files)
+            params["gt_file"] = hashlib.file_digest(f, "sha256").hexdigest()
     return GroundTruthSetup(cal, path, series, note, params)

@@ -29,10 +29,12 @@ PNG: dict[str, Any] = dict(suffixes=(".png",), what="a PNG image")
 @app.command("board")
 def board(
     out: Path = typer.Option(..., "--out", "-o", help="PNG file to write."),
-    spec: str = typer.Option(DEFAULT_SPEC, "--board", help="Board description: squares=CxR square_mm= marker_mm= "
+    spec: str = typer.Option(DEFAULT_SPEC, "--board", help="Board description: squares=CxR (2..100 each) square_mm= "
+                             "(1..500) marker_mm= (less than square_mm, and at least one pixel per marker cell at --dpi) "
                              "dictionary= (keys left out keep the default)."),
     dpi: int = typer.Option(300, "--dpi", callback=number(50, 1200, integer=True),
-                            help="Print resolution (50..1200); the PNG records it."),
+                            help="Print resolution (50..1200); the PNG records it. A page has at most 300 Mpx "
+                                 "(A3 at 1200 dpi)."),
     paper: Paper = typer.Option(Paper.a4, "--paper", case_sensitive=False,
                                 help="a4, a3, letter (landscape) or fit (board + margin)."),
 ) -> None:

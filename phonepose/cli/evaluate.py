@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,28 @@ def _parse_lengths(text: str | None) -> list[float] | None:
     if not vals or any(not (0 < v < float("inf")) for v in vals):
         raise ConfigError(f"--lengths {text!r}: expected positive metres, e.g. 1,2.5,5")
     return vals
+
+
+def _first_non_finite(doc, where: str = "") -> str | None:
+    """The key path of the first NaN/inf number in a result document, or None."""
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for key, value in items:
+        path = f"{where}.{key}" if where else str(key)
+        if isinstance(value, float) and not math.isfinite(value):
+            return path
+        found = _first_non_finite(value, path) if isinstance(value, (dict, list)) else None
+        if found:
+            return found
+    return None
+
+
+def _check_finite(result: dict, gt: Path, est: Path) -> None:
+    """Never print or write a NaN/inf metric as if it were one (and ``--json`` never fails on one): the
+    readers bound what a trajectory holds, so this is one line for whatever still overflows."""
+    bad = _first_non_finite(result)
+    if bad is not None:
+        raise SessionContentError(f"the errors of {est} against {gt} are not finite numbers ({bad}): check the "
+                                  "trajectories' values and units")
 
 
 def _fmt(v) -> str:
@@ -203,6 +226,7 @@ def evaluate(
     else:
         result = evaluate_rpe(gt_traj, est_traj, pose_relation, delta, delta_unit, all_pairs, pairs_from_reference,
                               0.1, align or "none", align_frames, 0.01 if max_diff is None else max_diff)
+    _check_finite(result, gt, est)
     if as_json:
         typer.echo(json.dumps(result, indent=2, allow_nan=False))
         return

@@ -14,7 +14,7 @@ from phonepose.cli import app
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
 from phonepose.cli.output import stdout_console
 from phonepose.errors import ConfigError
-from phonepose.numbers import RATE_MAX_HZ
+from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
 from phonepose.schemas.topics import Topic
 
 
@@ -57,7 +57,7 @@ def playback(
     tracker: list[str] = typer.Option(["all"], "--tracker", "-t", help=TRACKER_HELP),
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (equations 1-6) or se3."),
-    rate: float = typer.Option(20.0, "--rate", callback=number(0, RATE_MAX_HZ, lo_open=True, unit="Hz"),
+    rate: float = typer.Option(20.0, "--rate", callback=number(RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz"),
                                help="Ticks per second."),
     start: float | None = typer.Option(None, "--start", **SECONDS, help="Start, seconds after the session start."),
     end: float | None = typer.Option(None, "--end", **SECONDS, help="End, seconds after the session start."),

@@ -45,6 +45,10 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
     e_scale = scale_errors_perc(g.translation, e_al.translation, rpg_quirk=scale_quirk)
     if lengths is None:
         lengths = default_lengths(gt.positions)
+        if not all(x > 0 for x in lengths):     # what is wrong is the trajectory, not a --lengths the user gave
+            raise SessionContentError(
+                f"{gt.source or 'the ground truth'}: its path is {gt.path_length():.3g} m long, too short for the "
+                "default RE lengths (10-50 % of it, whole cm): give --lengths in m, or use --metric ape")
     lengths = [float(x) for x in lengths]
     if any(not (x > 0) for x in lengths):
         raise ConfigError(f"--lengths {lengths}: sub-trajectory lengths must be > 0 m")

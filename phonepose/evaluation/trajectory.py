@@ -56,19 +56,37 @@ def path_length(positions: np.ndarray) -> float:
 
 
 # ----------------------------------------------------------------------------- reading
-def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarray:
-    """All numeric rows of a text file (``#`` comments and blank lines skipped), ``ncols`` or more each."""
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(f"{path}: no such file")
-    if p.is_dir():
-        raise InputFileError(f"{path}: is a directory, expected a {what} file")
-    try:
-        text = p.read_text()
-    except UnicodeDecodeError:
-        raise InputFileError(f"{path}: not a text file (expected {what})") from None
-    except OSError as exc:
-        raise InputFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+# Bounds on what a trajectory file holds, checked when it is read (one line naming the file and line). A
+# position beyond 1e7 m is not one on or near the Earth: UTM northings stay below 1e7 m and ECEF coordinates
+# below 6.4e6 m, so georeferenced trajectories still load, while 1e308 overflowed the alignment's SVD and the
+# metrics (inf/NaN). Squares of 1e7 (1e14) summed over millions of poses stay far inside float64.
+MAX_POSITION_M = 1e7
+# Stamps become int64 nanoseconds (the session's clock), which end at 9.2e9 s (the year 2262).
+MAX_STAMP_S = 9e9
+
+
+# (columns, bound, what a value beyond it is): a TUM file's columns
+TUM_BOUNDS = (([0], MAX_STAMP_S, "stamp {v:g} s is not a time (beyond ±9e9 s, the year 2262)"),
+              ([1, 2, 3], MAX_POSITION_M, "position {v:g} m is not one on Earth (beyond ±1e7 m)"))
+
+
+def _check_bounds(path, m: np.ndarray, lines: list[int], bounds) -> None:
+    """The first value beyond its bound, as one line naming the file and line (values are finite here)."""
+    for cols, bound, text in bounds:
+        bad = np.flatnonzero(np.any(np.abs(m[:, cols]) > bound, axis=1))
+        if bad.size:
+            row = m[bad[0], cols]
+            v = float(row[np.argmax(np.abs(row))])
+            raise InputFileError(f"{path}:{lines[bad[0]]}: {text.format(v=v)}: check the file's columns and units")
+
+
+def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) -> np.ndarray:
+    """All numeric rows of a text file (``#`` comments and blank lines skipped), ``ncols`` or more each,
+    each value within ``bounds`` (:data:`TUM_BOUNDS`)."""
+    from phonepose.files import read_text_input
+
+    text = read_text_input(path, "trajectory file",
+                           note="1 GiB of TUM lines is ~13 million poses, 37 hours at 100 Hz")
     rows = []
     lines = []
     for lineno, line in enumerate(text.splitlines(), start=1):
@@ -83,6 +101,7 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarr
     except ValueError:
         m = None
     if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])):
+        _check_bounds(path, m, lines, bounds)
         return m
     # slow path: find the first bad line and name it
     width = None
@@ -96,6 +115,7 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str) -> np.ndarr
             raise InputFileError(f"{path}:{lineno}: {len(vals)} values, expected {ncols} ({what})")
         if not np.all(np.isfinite(vals[:ncols])):
             raise InputFileError(f"{path}:{lineno}: non-finite value ({what})")
+        _check_bounds(path, np.array([vals[:ncols]]), [lineno], bounds)
         if width is not None and len(vals) != width:
             raise InputFileError(f"{path}:{lineno}: {len(vals)} values, the lines before have {width} ({what})")
         width = len(vals)
@@ -133,7 +153,7 @@ def _drop_bad_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarra
 
 def load_tum(path) -> Trajectory:
     """TUM: ``t tx ty tz qx qy qz qw`` per line, time in seconds, quaternion w last."""
-    m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'")
+    m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'", TUM_BOUNDS)
     if m.shape[1] != 8:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 8 (TUM 't tx ty tz qx qy qz qw')")
     _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the pose
@@ -143,7 +163,9 @@ def load_tum(path) -> Trajectory:
 
 def load_euroc(path) -> Trajectory:
     """EuRoC/ASL csv: ``t[ns], px, py, pz, qw, qx, qy, qz[, ...]`` (as evo: stamps = t / 1e9)."""
-    m = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'")
+    m = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'",
+                     (([0], MAX_STAMP_S * 1e9, "stamp {v:g} ns is not a time (beyond ±9e18 ns, the year 2262)"),
+                      *TUM_BOUNDS[1:]))
     quat_xyzw = m[:, [5, 6, 7, 4]]
     _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the pose
     keep = _drop_bad_rows(path, m[:, 0], quat_xyzw)
@@ -153,14 +175,17 @@ def load_euroc(path) -> Trajectory:
 
 def load_kitti(path) -> Trajectory:
     """KITTI: 12 values per line, the row-major 3x4 ``[R|t]``; no stamps (poses matched by index)."""
-    m = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values")
+    m = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values",
+                     (([3, 7, 11], MAX_POSITION_M, "position {v:g} m is not one on Earth (beyond ±1e7 m)"),))
     if m.shape[1] != 12:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 12 (KITTI 3x4 row-major [R|t])")
     mat = np.zeros((len(m), 4, 4))
     mat[:, :3, :] = m.reshape(-1, 3, 4)
     mat[:, 3, 3] = 1.0
-    dets = np.linalg.det(mat[:, :3, :3])
-    bad = np.flatnonzero(~(np.abs(dets - 1.0) < 1e-3))
+    R = mat[:, :3, :3]
+    dets = np.linalg.det(R)
+    orthogonal = np.all(np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)) < 1e-3, axis=(1, 2))
+    bad = np.flatnonzero(~((np.abs(dets - 1.0) < 1e-3) & orthogonal))
     if bad.size:
         raise InputFileError(f"{path}: pose {int(bad[0])} is not a rotation (det {dets[bad[0]]:.4g})")
     return Trajectory(None, Pose.from_matrix(mat), str(path))
@@ -218,7 +243,8 @@ def read_session_tag(path: str | os.PathLike) -> str | None:
     """
     try:
         with open(path, errors="replace") as f:
-            for line in f:
+            # each line read up to 4096 characters: a binary file without newlines is never read whole
+            for line in iter(lambda: f.readline(4096), ""):
                 if not line.startswith("#"):
                     break
                 if line.startswith(SESSION_TAG):
@@ -278,11 +304,11 @@ def write_in_view(path: str | os.PathLike, stamps, inside, session: str | None =
 
 def load_in_view(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """(stamps in s, in-view flags) from a file written by :func:`write_in_view`."""
+    from phonepose.files import read_text_input
+
     path = Path(path)
-    if not path.is_file():
-        raise InputFileError(f"{path}: no such file")
     stamps, flags = [], []
-    for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    for n, line in enumerate(read_text_input(path, "in-view file").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue

@@ -18,6 +18,7 @@ import contextlib
 import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -88,7 +89,9 @@ class Camera:
         else:
             if not os.path.isfile(self.spec):
                 raise InputFileError(f"{self.spec}: no such video file (or give a camera index such as 0)")
-            cap = cv2.VideoCapture(self.spec)
+            from phonepose.calibration.calibrate import opencv_path
+
+            cap = cv2.VideoCapture(opencv_path(Path(self.spec), "a video"))   # a non-UTF-8 name: refused, not a SIGSEGV
             if not cap.isOpened():
                 raise InputFileError(f"{self.spec}: OpenCV cannot read this video file")
         self.cap = cap

@@ -52,6 +52,8 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
     """Rehearse one recording into the folder ``out_dir`` (phonepose.files' rule: written under a temporary
     name, in place when complete): source.mcap, camera.avi, camera.yaml, live.mcap, gt-calibration.yaml
     (with the headset), rehearsal.json (the scores)."""
+    from phonepose.calibration.calibrate import opencv_path
+    from phonepose.errors import OutputError
     from phonepose.files import OutputPlan, check_input
     from phonepose.record.rehearse.browser import find_iwer
     from phonepose.record.rehearse.scene import build_scene, rehearsal_config
@@ -61,6 +63,9 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
 
     check_choice(scenario, path, trial)
     check_seed(seed)
+    # OpenCV writes camera.avi into the folder (a name that is not UTF-8 crashed it: SIGSEGV)
+    opencv_path(Path(out_dir), "a --out folder (camera.avi is written there by OpenCV)", "choose another --out",
+                OutputError)
     if config is not None:
         check_input(config, "TOML file")
     cfg = rehearsal_config(config)

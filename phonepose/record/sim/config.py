@@ -202,24 +202,18 @@ def load_config(path: str | os.PathLike | None = None, overrides: dict | None = 
     """Defaults, then the TOML file at ``path`` (any subset), then ``overrides`` (same nesting)."""
     data = tomllib.loads(default_toml_text())
     if path is not None:
-        from phonepose.files import check_input
+        from phonepose.files import read_text_input
 
         try:
-            check_input(path, "TOML file")    # a FIFO or device: refused, never opened (it could block)
-            with open(path, "rb") as f:
-                text = f.read(MAX_CONFIG_BYTES + 1)
-            if len(text) > MAX_CONFIG_BYTES:
-                raise ConfigError(f"config file {os.fspath(path)}: larger than {MAX_CONFIG_BYTES // 1024} KiB "
-                                  f"(every parameter with comments is {len(default_toml_text()) / 1024:.1f} KiB)")
-            user = tomllib.loads(text.decode("utf-8"))
+            # a FIFO or device: refused, never opened (it could block); a binary or huge file: refused while
+            # read; a UTF-8 byte-order mark (which tomllib refuses) dropped
+            text = read_text_input(path, "TOML file", limit=MAX_CONFIG_BYTES,
+                                   note=f"every parameter with comments is {len(default_toml_text()) / 1024:.1f} KiB")
+            user = tomllib.loads(text)
         except InputFileError as exc:
             raise ConfigError(f"config file {exc}") from None
-        except OSError as exc:
-            raise ConfigError(f"config file {os.fspath(path)}: cannot read ({exc.strerror or exc})") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {os.fspath(path)}: invalid TOML ({exc})") from None
-        except UnicodeDecodeError:
-            raise ConfigError(f"config file {os.fspath(path)}: not a TOML file (not UTF-8 text)") from None
         except RecursionError:
             raise ConfigError(f"config file {os.fspath(path)}: invalid TOML (nested too deeply)") from None
         _merge(data, user, "")

@@ -1,0 +1,168 @@
+"""Values a user's files and options may hold: text inputs read within a bound, finite but absurd numbers
+refused where they are read, never printed or written as metrics (docs/reliability.md, "Bad inputs tried").
+
+The one-line errors themselves are cases of tests/test_reliability_cli.py (they generate the docs table);
+these tests check what those cases cannot: what is still accepted, and how the checks read.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from phonepose.errors import InputFileError
+from phonepose.files import read_text_input
+
+BOM = b"\xef\xbb\xbf"
+TUM = b"".join(b"%.1f %.3f %.3f 0 0 0 0 1\n" % (k / 10, k / 50, (k % 7) / 40) for k in range(40))
+
+
+def test_read_text_input_stops_at_the_limit_and_at_the_first_nul(tmp_path):
+    p = tmp_path / "t.txt"
+    p.write_bytes(b"a" * 101)
+    with pytest.raises(InputFileError, match=r"t\.txt: larger than 100 bytes, the most phonepose reads as a "
+                                             r"trajectory file \(why\): check that it is the right file$"):
+        read_text_input(p, "trajectory file", limit=100, note="why")
+    assert read_text_input(p, "trajectory file", limit=101) == "a" * 101
+    # a NUL far into the file (past the first chunk) is found where it is
+    p.write_bytes(b"1 2 3\n" * 400_000 + b"\0" + b"x" * 10)
+    with pytest.raises(InputFileError, match=r"not a trajectory file \(binary data: a NUL byte at byte 2400000\)$"):
+        read_text_input(p, "trajectory file")
+    p.write_bytes(BOM + "é\n".encode())
+    assert read_text_input(p) == "é\n"
+
+
+def test_a_byte_order_mark_is_accepted_in_tum_euroc_and_toml(tmp_path, cli):
+    from phonepose.record.sim.config import load_config
+
+    (tmp_path / "gt.txt").write_bytes(BOM + TUM)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "gt.txt", "--json")
+    assert code == 0 and err == "", err
+    assert json.loads(out)["n_matched"] == 40
+    csv = b"#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n" + b"".join(
+        b"%d,%.3f,0,0,1,0,0,0\n" % (k * 10**8, k / 50) for k in range(40))
+    (tmp_path / "gt.csv").write_bytes(BOM + csv)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.csv", "--est", tmp_path / "gt.csv", "--format", "euroc",
+                         "--metric", "ape", "--json")
+    assert code == 0 and err == "", err
+    (tmp_path / "c.toml").write_bytes(BOM + b"[camera]\nrate_hz = 24\n")
+    assert load_config(tmp_path / "c.toml").camera.rate_hz == 24
+
+
+def test_a_non_finite_metric_is_never_printed_nor_written(tmp_path, cli, monkeypatch):
+    """Whatever still overflows is one line, never a NaN in the table or a failing --json."""
+    from phonepose.evaluation import evo_metrics
+
+    real = evo_metrics.evaluate_ape
+
+    def overflowing(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result["ape"]["rmse"] = math.inf
+        return result
+
+    monkeypatch.setattr(evo_metrics, "evaluate_ape", overflowing)
+    (tmp_path / "gt.txt").write_bytes(TUM)
+    for extra in ((), ("--json",)):
+        code, out, err = cli("evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "gt.txt", "--metric", "ape",
+                             *extra)
+        assert code == 4 and out == "", out
+        assert err.strip().endswith("gt.txt are not finite numbers (ape.rmse): check the trajectories' values and "
+                                    "units"), err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_georeferenced_trajectories_still_load(tmp_path, cli):
+    """UTM-like coordinates (northing 5.4e6 m) are within the bound, and evaluate as well as near the origin."""
+    rows = b"".join(b"%.1f %.3f %.3f 310.5 0 0 0 1\n" % (k / 10, 500000 + k / 50, 5400000 + (k % 7) / 40)
+                    for k in range(40))
+    (tmp_path / "utm.txt").write_bytes(rows)
+    code, out, err = cli("evaluate", "--gt", tmp_path / "utm.txt", "--est", tmp_path / "utm.txt", "--json")
+    assert code == 0 and err == "", err
+    assert json.loads(out)["ate"]["trans_m"]["rmse"] < 1e-6
+
+
+@pytest.mark.parametrize("body, message", [
+    (b"- 1\n- 2\n", r"not an OpenCV YAML/XML calibration file \(its top level is a list"),
+    (b"camera_matrix: [[1,0,0],[0,1,0],[0,0,1]]\n", r"camera_matrix is not a matrix \(found a list"),
+    (b"camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1,0,0,0,1,0,0,0,1]\n"
+     b"distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0,0,0,0,0]\n"
+     b"image_width: wide\nimage_height: 480\n", r"image_width is not a number \(found text\)$"),
+    (b"camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1,0,0,0,1,0,0,0,1]\n"
+     b"distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0,0,0,0,0]\n"
+     b"image_width: 1e300\nimage_height: 480\n", r"image_width 1e\+300, image_height 480: expected whole pixels"),
+])
+def test_a_camera_calibration_file_is_read_node_by_node(tmp_path, body, message):
+    from phonepose.calibration import load_calibration
+
+    (tmp_path / "c.yaml").write_bytes(b"%YAML:1.0\n---\n" + body)
+    with pytest.raises(InputFileError, match=message):
+        load_calibration(tmp_path / "c.yaml")
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width`` x ``height`` px (OpenCV refuses to decode more than 2^30 px)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(bytes(100))) + chunk(b"IEND", b""))
+
+
+def _phonepose(*args, cwd: Path):
+    """A real process: its stderr writes a non-UTF-8 name as the terminal shows it (backslash-escaped)."""
+    return subprocess.run([sys.executable, "-m", "phonepose", *args], cwd=cwd, capture_output=True, text=True,
+                          errors="backslashreplace")
+
+
+def test_images_opencv_cannot_decode_and_names_that_are_not_utf8(tmp_path):
+    """--images: a header claiming 60000x60000 px (an OpenCV assertion) is skipped with a warning like an empty
+    file; an image whose name is not UTF-8 (cv2.imread: SIGSEGV) is read; a --video of such a name is one line."""
+    import cv2
+    from test_calibration import synth_images
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i, image in enumerate(synth_images(6, seed=1)[0]):
+        name = f"v{i}.png" if i else os.fsdecode(b"i\xfe.png")
+        (folder / name).write_bytes(cv2.imencode(".png", image)[1].tobytes())
+    (folder / "huge.png").write_bytes(_png_claiming(60000, 60000))
+    (folder / "zero.png").write_bytes(b"")
+    r = _phonepose("calibrate-camera", "-q", "--images", "imgs", "--out", "c.yaml", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "phonepose: warning: huge.png: not an image OpenCV can read" in r.stderr.splitlines()
+    assert "phonepose: warning: zero.png: not an image OpenCV can read" in r.stderr.splitlines()
+    assert "6 with board / 6 read" in r.stdout
+    (tmp_path / os.fsdecode(b"v\xfe.avi")).write_bytes(b"not a video")
+    r = _phonepose("calibrate-camera", "-q", "--video", os.fsdecode(b"v\xfe.avi"), "--out", "c2.yaml", cwd=tmp_path)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == ("phonepose: error: v\\udcfe.avi: OpenCV cannot open a video whose name is not UTF-8 text; "
+                        "rename it\n")
+
+
+def test_a_calibration_file_whose_name_is_not_utf8_is_read(tmp_path):
+    """The YAML is parsed from memory: a non-UTF-8 name crashed cv2.FileStorage (SIGSEGV)."""
+    from phonepose.calibration.gt_calibration import load_gt_calibration
+
+    name = tmp_path / os.fsdecode(b"h\xfe.yaml")
+    name.write_bytes(b"%YAML:1.0\n---\nformat: phonepose-gt-calibration\nversion: 1\ntime_offset_s: 0.25\n"
+                     b"T_controller_gt: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n"
+                     b"   data: [1,0,0,0, 0,1,0,0, 0,0,1,0.5, 0,0,0,1]\n")
+    cal = load_gt_calibration(name)
+    assert cal.time_offset_s == 0.25 and cal.T_controller_gt.translation[2] == 0.5
+
+
+def test_record_rehearse_refuses_an_out_folder_opencv_cannot_write_into(tmp_path):
+    r = _phonepose("record", "rehearse", "--out", os.fsdecode(b"o\xfe"), cwd=tmp_path)
+    assert r.returncode == 6 and r.stderr == (
+        "phonepose: error: o\\udcfe: OpenCV cannot open a --out folder (camera.avi is written there by OpenCV) whose "
+        "name is not UTF-8 text; choose another --out\n")
+    assert list(tmp_path.iterdir()) == []
