@@ -124,6 +124,24 @@ def read_text_input(path: str | os.PathLike, what: str = "text file", *, limit: 
         raise InputFileError(f"{p}: not {_a(what)} (not UTF-8 text: byte {exc.start})") from None
 
 
+def being_written(path: str | os.PathLike) -> bool:
+    """Does another phonepose hold ``path`` open to write it (a recording in progress: the output rule's
+    ``flock``)? Asked without blocking; a file that cannot be opened is not."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)    # (closing our descriptor releases our lock only, never the writer's)
+    return False
+
+
 def _same_file(a: Path, b: Path) -> bool:
     """Same path after resolving symlinks, or the same inode (a hard link)."""
     try:
@@ -240,6 +258,9 @@ class OutputFile(_Output):
             if st is not None and not stat.S_ISREG(st.st_mode):
                 raise OutputError(f"{self.option} {self.path}: not a regular file (a device, FIFO or socket); "
                                   f"give a file name")
+            if st is not None and being_written(self.target):   # a recording in progress: --force or not
+                raise OutputError(f"{self.option} {self.path}: another phonepose is writing it (a recording in "
+                                  f"progress); wait for it to finish or choose another {self.option}")
         if self.suffixes and self.path.suffix.lower() not in self.suffixes:
             raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
                               f"{_one_of(self.suffixes)}")
@@ -325,6 +346,9 @@ class OutputFile(_Output):
             else:
                 if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
                     raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+                if being_written(target):     # it may have begun since the check: a recording is never replaced
+                    raise OutputError(f"{self.option} {self.path}: another phonepose began writing it (a recording "
+                                      f"in progress); not replaced")
                 os.rename(tmp, target)
             _fsync_dir(target.parent)
         except FileExistsError:

@@ -305,6 +305,63 @@ def test_a_dangling_symlink_as_output_names_its_target(tmp_path, kind):
     assert sorted(p.name for p in tmp_path.iterdir()) == [link.name]
 
 
+@pytest.fixture
+def held(tmp_path):
+    """A recording in progress: a file another writer holds with the output rule's lock (flock, as a
+    recorder does for its whole run; another open file description conflicts as another process would)."""
+    import fcntl
+
+    path = tmp_path / "live.mcap"
+    path.write_bytes(b"\x89MCAP0\r\n being recorded")
+    fd = os.open(path, os.O_RDWR)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    yield path
+    os.close(fd)
+
+
+def test_a_recording_in_progress_is_not_replaced_even_with_force(held):
+    """A `recover --force` or a second `record live --force` onto the file a recorder is writing replaced it
+    under the recorder, which then reported a valid file that was not its own."""
+    plan = OutputPlan()
+    plan.file(held, "--out", session=True, force=True)
+    with pytest.raises(OutputError) as e:
+        with plan:
+            raise AssertionError("the block must not run")
+    assert str(e.value) == f"--out {held}: another phonepose is writing it (a recording in progress); wait for it " \
+                           f"to finish or choose another --out"
+    assert held.read_bytes() == b"\x89MCAP0\r\n being recorded"
+
+
+def test_a_recording_that_begins_while_the_command_works_is_not_replaced(tmp_path):
+    import fcntl
+
+    target = tmp_path / "s.mcap"
+    target.write_bytes(b"old")
+    plan = OutputPlan()
+    out = plan.file(target, "--out", session=True, force=True)
+    fd = None
+    with pytest.raises(OutputError) as e:
+        with plan:
+            assert out.tmp is not None
+            out.tmp.write_bytes(b"new")
+            fd = os.open(target, os.O_RDWR)          # a recorder starts on it meanwhile
+            fcntl.flock(fd, fcntl.LOCK_EX)
+    assert fd is not None
+    os.close(fd)
+    assert str(e.value) == f"--out {target}: another phonepose began writing it (a recording in progress); not replaced"
+    assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["s.mcap"]
+
+
+def test_reading_a_recording_in_progress_says_so_not_damaged(held):
+    """Its footer and index come last: while the recorder holds it, it is not done, not damaged."""
+    from phonepose.session import SessionReader
+
+    with pytest.raises(InputFileError) as e:
+        SessionReader(held)
+    assert str(e.value) == f"{held}: a recording in progress (another phonepose is writing it; its footer and " \
+                           f"index come last): wait for it to finish"
+
+
 def test_a_session_is_not_replaced_without_force(tmp_path):
     s = tmp_path / "s.mcap"
     s.write_bytes(b"old recording")

@@ -482,6 +482,16 @@ def test_cli_prints_the_url_and_sigint_finishes_a_valid_file(long_media, tmp_pat
                 url = line.strip()
                 break
         assert url is not None
+        # the output rule's lock, held for the whole recording: no other phonepose replaces the file meanwhile
+        # (tests/test_files.py), and reading it says what it is
+        from phonepose.files import being_written
+
+        assert being_written(out)
+        r = subprocess.run([sys.executable, "-m", "phonepose", "info", str(out)], capture_output=True, text=True,
+                           timeout=DEADLINE_S)
+        assert r.returncode == 2 and r.stderr == (f"phonepose: error: {out}: a recording in progress (another phonepose "
+                                                  "is writing it; its footer and index come last): wait for it to "
+                                                  "finish\n"), r.stderr
         sent = 0
 
         async def script():

@@ -48,17 +48,47 @@ def live(
     [bold]Start AR[/bold], hold the phone's screen in the camera's view and tap [bold]Anchor[/bold].
     Ctrl-C or SIGTERM stop the recording and leave a valid file. Guide: docs/recording-real-sessions.md.
     """
-    from phonepose.record.live import LiveSession  # here: keeps `phonepose --help` fast
-    from phonepose.session.writer import refuse_to_replace
+    from phonepose.files import OutputPlan
 
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
-    refuse_to_replace(out, force)
+    # the output rule (phonepose.files), as `record sim` follows it: a new recording is written under its own name,
+    # created exclusively and locked while it is written, so that no other phonepose (a `recover --force`, a second
+    # `record live --force`) can replace it under the running recorder; over an existing file, --force writes a
+    # temporary that replaces it only when this recording is complete
+    video = [Path(camera)] if not camera.isdigit() and Path(camera).is_file() else []
+    plan = OutputPlan(inputs=[calibration, *video])
+    session_out = plan.file(out, "--out", what="an MCAP session", in_place=True, force=force)
+    rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
+    plan.check()
+    with plan:
+        assert session_out.tmp is not None   # the plan's block made it
+        result, wall = _record(session_out.tmp, out, camera, calibration, host=host, port=port, tls_dir=tls_dir,
+                               dictionary=dictionary, marker_id=marker_id, marker_size=marker_size, duration=duration,
+                               pace=pace, rerun=rrd.tmp if rrd is not None else None, spawn=spawn, qr=qr,
+                               gt_controller=gt_controller)
+    r, c = result.record, result.counts
+    from phonepose.schemas.topics import Topic
+
+    status = "interrupted, file is valid" if r.interrupted else f"{result.stop_reason}, done"
+    typer.echo(f"{out}: {r.duration_ns / 1e9:.1f} s, {r.frames} frames, {c.get(Topic.CONTROLLER_VIO_POSE, 0)} poses, "
+               f"{c.get(Topic.CONTROLLER_IMU, 0)} IMU samples, {c.get(Topic.CONTROLLER_ANCHOR, 0)} anchors, "
+               f"{c.get(Topic.GT_CONTROLLER_POSE, 0)} ground-truth poses, "
+               f"{r.messages} messages in {wall:.1f} s; {status}")
+    for line in result.summary[1:]:
+        typer.echo(f"warning: {line}", err=True)
+
+
+def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str, port: int, tls_dir: Path | None,
+            dictionary: str, marker_id: int, marker_size: float | None, duration: float | None, pace: bool,
+            rerun: Path | None, spawn: bool, qr: bool, gt_controller: str):
+    """The recording into ``path`` (the output plan's file for ``out``, the name the user reads)."""
+    from phonepose.record.live import LiveSession
 
     def echo(line: str) -> None:
         typer.echo(f"[{time.strftime('%H:%M:%S')}] {line}", err=True)
 
-    session = LiveSession(out, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
+    session = LiveSession(path, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
                           marker_id=marker_id, marker_size_m=marker_size, duration_s=duration, pace=pace,
                           rerun_path=rerun, spawn=spawn, echo=echo, gt_controller=gt_controller)
     url = session.start()
@@ -80,14 +110,4 @@ def live(
     sys.stdout.flush()
     t0 = time.perf_counter()
     result = session.run()
-    wall = time.perf_counter() - t0
-    r, c = result.record, result.counts
-    from phonepose.schemas.topics import Topic
-
-    status = "interrupted, file is valid" if r.interrupted else f"{result.stop_reason}, done"
-    typer.echo(f"{out}: {r.duration_ns / 1e9:.1f} s, {r.frames} frames, {c.get(Topic.CONTROLLER_VIO_POSE, 0)} poses, "
-               f"{c.get(Topic.CONTROLLER_IMU, 0)} IMU samples, {c.get(Topic.CONTROLLER_ANCHOR, 0)} anchors, "
-               f"{c.get(Topic.GT_CONTROLLER_POSE, 0)} ground-truth poses, "
-               f"{r.messages} messages in {wall:.1f} s; {status}")
-    for line in result.summary[1:]:
-        typer.echo(f"warning: {line}", err=True)
+    return result, time.perf_counter() - t0

@@ -35,7 +35,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema, Statistics
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from phonepose.errors import DamagedFileError
+from phonepose.errors import DamagedFileError, InputFileError
+from phonepose.files import being_written
 
 log = logging.getLogger("phonepose")
 
@@ -103,13 +104,22 @@ def read_index(f: BinaryIO, path: str) -> SessionIndex:
 
 def _footer(f: BinaryIO, path: str, size: int) -> tuple:
     if size < 2 * len(MCAP_MAGIC) + _FOOTER_SIZE:
+        refuse_while_recorded(path)
         raise damaged(path, f"it ends after {size} bytes, before its footer (truncated)")
     f.seek(size - len(MCAP_MAGIC) - _FOOTER_SIZE)
     tail = f.read(_FOOTER_SIZE + len(MCAP_MAGIC))
     footer = _FOOTER.unpack_from(tail)
     if tail[_FOOTER_SIZE:] != MCAP_MAGIC or footer[0] != Opcode.FOOTER or footer[1] != _FOOTER_SIZE - 9:
+        refuse_while_recorded(path)
         raise damaged(path, "it ends without its footer (truncated: a recording killed, or a copy cut short)")
     return footer
+
+
+def refuse_while_recorded(path: str) -> None:
+    """A file without its footer that a recorder holds (the output rule's lock) is not damaged: it is not done."""
+    if being_written(path):
+        raise InputFileError(f"{path}: a recording in progress (another phonepose is writing it; its footer and "
+                             f"index come last): wait for it to finish")
 
 
 def _crc(f: BinaryIO, start: int, end: int) -> int:

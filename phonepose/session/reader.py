@@ -20,7 +20,15 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
-from phonepose.session.index import MCAP_MAGIC, SessionIndex, damaged, message_index_times, read_chunk, read_index
+from phonepose.session.index import (
+    MCAP_MAGIC,
+    SessionIndex,
+    damaged,
+    message_index_times,
+    read_chunk,
+    read_index,
+    refuse_while_recorded,
+)
 
 # protobuf schema name -> generated class, for every type a phonepose session uses
 _KNOWN_TYPES = {cls.DESCRIPTOR.full_name: cls for cls in TOPIC_TYPES.values()}
@@ -76,6 +84,8 @@ def check_mcap_file(path: str | os.PathLike) -> str:
             head = f.read(len(MCAP_MAGIC))
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if head != MCAP_MAGIC:
+        refuse_while_recorded(path)    # a recorder that has not written its header yet
     if len(head) == 0:
         raise InputFileError(f"{path}: empty file")
     if head != MCAP_MAGIC:
