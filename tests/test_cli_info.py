@@ -64,3 +64,38 @@ def test_info_shows_the_task_window(tmp_path, cli):
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[1] == "task window 0.30-1.80 s (seconds after the start)"
     assert json.loads(cli("info", str(path), "--json").stdout)["task_window_s"] == [0.3, 1.8]
+
+
+EVIL = "\x1b]0;PWNED\x07\x1b[2J\x1b[31mRED\nfake line\r\b\u202e [bold]x"
+
+
+def _evil_session(path):
+    """What anyone can write: topic, schema and encoding names with escape sequences, a newline, U+202E
+    and rich markup."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema(EVIL, EVIL, b"{}")
+        channel = w.register_channel(EVIL, EVIL, schema)
+        for k in range(5):
+            w.add_message(channel, log_time=k * 10**8, publish_time=k * 10**8, data=b"{}")
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize("command", ["info", "recover"])
+def test_a_sessions_own_text_is_shown_not_obeyed(tmp_path, cli, command):
+    """No escape sequence reaches the terminal, every row stays one line, markup is shown as written."""
+    from phonepose.text import printable
+
+    evil = _evil_session(tmp_path / "evil.mcap")
+    args = ["info", str(evil)] if command == "info" else ["recover", str(evil), "-o", str(tmp_path / "r.mcap")]
+    code, out, err = cli(*args)
+    assert code == 0, err
+    assert "\x1b" not in out and "\x07" not in out and "\u202e" not in out and "\r" not in out
+    shown = printable(EVIL)
+    assert shown == "\\x1b]0;PWNED\\x07\\x1b[2J\\x1b[31mRED\\nfake line\\r\\x08\\u202e [bold]x"
+    rows = [line for line in out.splitlines() if "PWNED" in line]
+    assert len(rows) == 1 and rows[0].count(shown) == (3 if command == "info" else 1), out

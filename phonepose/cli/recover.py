@@ -7,12 +7,14 @@ import json
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.output import stdout_console
 from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
+from phonepose.text import printable
 
 
 def _t(ns: int | None, t0: int | None) -> str:
@@ -87,7 +89,7 @@ def recover(
     typer.echo(f"{file} -> {out}")
     table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():
-        table.add_row(topic, str(n))
+        table.add_row(escape(printable(topic)), str(n))     # a damaged file's topic names: anyone's text
     console.print(table)
     for line in report_lines(r):
-        typer.echo(line)
+        typer.echo(printable(line))
