@@ -99,3 +99,22 @@ def test_a_sessions_own_text_is_shown_not_obeyed(tmp_path, cli, command):
     assert shown == "\\x1b]0;PWNED\\x07\\x1b[2J\\x1b[31mRED\\nfake line\\r\\x08\\u202e [bold]x"
     rows = [line for line in out.splitlines() if "PWNED" in line]
     assert len(rows) == 1 and rows[0].count(shown) == (3 if command == "info" else 1), out
+
+
+def test_an_error_quoting_a_sessions_text_stays_one_safe_line(tmp_path, cli):
+    """playback's error names the schema the file gives /controller/vio/pose: anyone's text, shown escaped."""
+    from mcap.writer import Writer
+
+    from phonepose.text import printable
+
+    path = tmp_path / "s.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        channel = w.register_channel("/controller/vio/pose", "protobuf", w.register_schema(EVIL, "protobuf", b""))
+        for k in range(5):
+            w.add_message(channel, log_time=k * 10**8, publish_time=k * 10**8, data=b"")
+        w.finish()
+    code, _, err = cli("playback", str(path), "-q", "-t", "T1", "-o", str(tmp_path / "o"))
+    assert code == 4 and err.count("\n") == 1 and "\x1b" not in err and "\r" not in err, err
+    assert f"has schema '{printable(EVIL)}'" in err

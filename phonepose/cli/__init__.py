@@ -8,6 +8,7 @@ SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the w
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import signal
 import sys
@@ -17,6 +18,7 @@ import typer
 
 from phonepose import __version__
 from phonepose.errors import ConfigError, PhoneposeError, quiet_library_warnings
+from phonepose.text import printable
 
 app = typer.Typer(
     name="phonepose",
@@ -57,8 +59,24 @@ from phonepose.cli import batch  # noqa: E402,F401
 
 
 def error(message: str, code: int = 1) -> None:
-    typer.echo(f"phonepose: error: {message}", err=True)
+    # printable: a message may quote anyone's text (a session's schema name, a file's line), whose escape sequences
+    # and newlines must not reach the terminal; the error stays the one line it is
+    typer.echo(f"phonepose: error: {printable(message)}", err=True)
     sys.exit(code)
+
+
+class _OneLine(logging.Filter):
+    """The same for every ``phonepose: warning:`` line (the "phonepose" logger's records)."""
+
+    def filter(self, entry: logging.LogRecord) -> bool:
+        entry.msg, entry.args = printable(entry.getMessage()), None
+        return True
+
+
+def _one_line_warnings() -> None:
+    logger = logging.getLogger("phonepose")
+    if not any(isinstance(f, _OneLine) for f in logger.filters):
+        logger.addFilter(_OneLine())
 
 
 def _click_exceptions():
@@ -156,6 +174,7 @@ def main(argv: list[str] | None = None) -> None:
     ClickException = _click_exceptions().ClickException
 
     quiet_library_warnings()
+    _one_line_warnings()
     in_main = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
