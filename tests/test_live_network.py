@@ -21,6 +21,7 @@ import test_record_live
 from conftest import DEADLINE_S, wait_until, wait_until_async
 from test_record_live import STAMP_ROUNDING_NS, Phone, _finish, _messages, _start, _wait_video_start
 
+from phonepose.record.live.recording import LiveRecording
 from phonepose.schemas.topics import Topic
 
 media = test_record_live.media              # the same fixtures: a video of the marker and its calibration
@@ -162,6 +163,92 @@ def test_a_malformed_first_sample_never_becomes_the_offset(long_media, tmp_path)
     assert np.min(delays) - 2 * STAMP_ROUNDING_NS <= np.min(stamps - true) <= np.max(stamps - true) \
         <= np.max(delays) + 2 * STAMP_ROUNDING_NS, (stamps - true, delays)
     assert s.source.recording.malformed_kinds["imu 't' is not on the page's clock"] == 1
+
+
+@pytest.mark.parametrize("phase", ["settled", "waiting for a pong", "no pong ever"])
+def test_a_huge_finite_t_is_one_malformed_message_and_loses_no_good_sample(long_media, tmp_path, phase):
+    """docs/reliability.md: nothing well-formed is dropped. A ``t`` of 1e305 ms is finite but no time the
+    recorder's int64-ns clock can hold: one malformed message; the good sample before it and the 50 after it
+    are all recorded, whether the offset is known, samples wait for a first pong, or no pong ever comes."""
+    n_after = 50
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = SlowPhone(s, s.port, s.token, pong_delay_s={"settled": 0.0, "waiting for a pong": 1.5}.get(phase))
+    _wait_video_start(s)
+
+    def conn():
+        return s.source.server.current.get("phone")
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            if phase == "settled":
+                await wait_until_async(lambda: conn() is not None and conn().settled, what="the clock offset")
+            await _imu(phone, ws, 1)
+            await ws.send_str(json.dumps({"type": "imu", "t": 1e305, "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}))
+            await ws.send_str(json.dumps({"type": "pose", "t": -1e305, "p": [0, 0, 0], "q": [0, 0, 0, 1]}))
+            await _imu(phone, ws, n_after)
+            if phase == "settled":
+                await wait_until_async(lambda: s.source.recording.stats["imu"] >= 1 + n_after, what="the samples")
+            else:   # all 51 wait for a pong (the bad ones never join them)
+                await wait_until_async(lambda: not conn().settled and len(conn().pending) == 1 + n_after,
+                                       what="the samples waiting for a pong")
+                if phase == "waiting for a pong":
+                    await wait_until_async(lambda: s.source.recording.stats["imu"] >= 1 + n_after,
+                                           what="the samples stamped at the first pongs")
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    rec = s.source.recording
+    assert rec.malformed_kinds == {"imu 't' is out of range": 1, "pose 't' is out of range": 1}
+    msgs = _messages(tmp_path / "s.mcap")
+    imu = [m for m in msgs if m.topic == Topic.CONTROLLER_IMU]
+    assert len(imu) == 1 + n_after
+    assert not any(m.topic == Topic.CONTROLLER_VIO_POSE for m in msgs)
+    logs = [m.msg.message for m in msgs if m.topic == Topic.LOG]
+    assert sum("'t' is out of range" in line for line in lines) == 2   # each kind once
+    assert sum("'t' is out of range" in t for t in logs) == 3          # and in the closing summary
+    assert any("malformed messages ignored: 2 (" in t for t in logs)
+    assert not any("could not be handled" in t for t in logs)
+
+
+def test_a_sample_that_raises_while_waiting_costs_only_itself(long_media, tmp_path, monkeypatch):
+    """A waiting sample whose handling raises (a recorder bug, not the page's fault) is counted and logged
+    once; the samples waiting behind it are still stamped and written."""
+    n = 40
+    on_imu = LiveRecording.on_imu
+
+    def fragile(self, capture_ns, receipt_ns, gyro, accel):
+        if gyro[0] == 9.0:
+            raise OverflowError("a bug")
+        on_imu(self, capture_ns, receipt_ns, gyro, accel)
+
+    monkeypatch.setattr(LiveRecording, "on_imu", fragile)
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = SlowPhone(s, s.port, s.token, pong_delay_s=None)
+    _wait_video_start(s)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            await _imu(phone, ws, 1)
+            for _ in range(3):
+                await ws.send_str(json.dumps({"type": "imu", "t": phone.phone_ms(phone.clock.now_ns()),
+                                              "gyro": [9.0, 0, 0], "accel": [0, 0, 9.8]}))
+            await _imu(phone, ws, n)
+            await wait_until_async(lambda: len(s.source.server.current["phone"].pending) == n + 4,
+                                   what="the samples waiting for a pong")
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in _messages(tmp_path / "s.mcap")) == 1 + n
+    assert s.source.recording.malformed_kinds == {"could not be handled (OverflowError)": 3}
+    assert sum("a message could not be handled (OverflowError: a bug)" in line for line in lines) == 1
 
 
 def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):
