@@ -251,6 +251,43 @@ def test_a_sample_that_raises_while_waiting_costs_only_itself(long_media, tmp_pa
     assert sum("a message could not be handled (OverflowError: a bug)" in line for line in lines) == 1
 
 
+EVIL = "\x1b]0;owned\x07\x1b[2J\rfake: anchor set\n\u202eevil"      # a title, a clear, a forged line, bidi
+EVIL_SHOWN = "\\x1b]0;owned\\x07\\x1b[2J\\rfake: anchor set\\n\\u202eevil"
+
+
+def test_page_text_reaches_the_terminal_escaped_and_cut(long_media, tmp_path):
+    """docs/phone-page.md: every text a page sends (hello user agent and reason, marker dictionary,
+    xrsession space and message) is printed with its control characters escaped, cut to 200 characters."""
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = Phone(s, s.port, s.token)
+    _wait_video_start(s)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            await ws.send_str(json.dumps({"type": "hello", "user_agent": EVIL, "webxr": False, "message": EVIL}))
+            await ws.send_str(json.dumps({"type": "marker", "dictionary": EVIL, "id": 3, "size_m": 0.05}))
+            hs = await http.ws_connect(f"{phone.base}/ws?token={phone.token}&role=headset")
+            await hs.send_str(json.dumps({"type": "hello", "user_agent": "A" * 300, "webxr": True, "message": ""}))
+            await hs.send_str(json.dumps({"type": "xrsession", "state": "started", "space": EVIL, "message": EVIL}))
+            await hs.send_str(json.dumps({"type": "xrsession", "state": "ended", "message": EVIL}))
+            await wait_until_async(lambda: sum(EVIL_SHOWN in line for line in lines) >= 4, what="the page's lines",
+                                   timeout=30)
+            await hs.close()
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    assert all(line.isprintable() for line in lines), [line for line in lines if not line.isprintable()]
+    # hello (agent, reason), marker, started (space, message), ended
+    assert sum(line.count(EVIL_SHOWN) for line in lines) == 6
+    assert not any(line.startswith("fake") for line in lines)
+    assert sum(("A" * 197 + "...; WebXR immersive-vr available") in line for line in lines) == 1
+    assert not any("A" * 198 in line for line in lines)
+
+
 def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):
     """docs/phone-page.md: such a message is ignored and logged once per kind, the connection stays."""
     s, out, th, lines = _start(long_media, tmp_path)

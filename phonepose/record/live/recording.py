@@ -30,6 +30,9 @@ from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
 from phonepose.session.codec import encode_pose, pose_in_frame
+from phonepose.text import printable
+
+TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, dictionary) shown in a log line
 
 ANCHOR_MAX_DT_NS = 100_000_000       # the anchor's camera frame lies within this of the tap
 ANCHOR_WAIT_NS = 1_500_000_000       # how long the anchor waits for frames after the tap
@@ -121,16 +124,17 @@ class LiveRecording:
 
     # ------------------------------------------------------------------ page messages
     def on_hello(self, who: str, msg: dict) -> None:
-        ua = msg["user_agent"] or "unknown browser"
+        ua = printable(msg["user_agent"] or "unknown browser", TEXT_LIMIT)
+        reason = printable(msg["message"] or "no reason given", TEXT_LIMIT)
         if msg["webxr"]:
             self.log(f"{who}: {ua}; WebXR immersive-ar available")
         else:
-            self.log(f"{who}: {ua}; no WebXR immersive-ar ({msg['message'] or 'no reason given'}): no 6DoF pose "
+            self.log(f"{who}: {ua}; no WebXR immersive-ar ({reason}): no 6DoF pose "
                      f"will come, only IMU", level="warning")
 
     def on_marker(self, who: str, msg: dict) -> str | None:
         if msg["dictionary"] != self.marker_dictionary or msg["id"] != self.marker_id:
-            text = (f"the page shows {msg['dictionary']} id {msg['id']}, the recorder looks for "
+            text = (f"the page shows {printable(msg['dictionary'], TEXT_LIMIT)} id {msg['id']}, the recorder looks for "
                     f"{self.marker_dictionary} id {self.marker_id}: reload the page")
             self.log(f"{who}: {text}", level="error")
             return text
@@ -200,7 +204,8 @@ class LiveRecording:
     def refused(self, remote: str, path: str, had_token: bool) -> None:
         self.stats["refused"] += 1
         if self.stats["refused"] <= 10:
-            self.log(f"refused {path} from {remote}: {'wrong' if had_token else 'no'} token"
+            self.log(f"refused {printable(path, TEXT_LIMIT)} from {printable(remote, TEXT_LIMIT)}: "
+                     f"{'wrong' if had_token else 'no'} token"
                      + (" (further refusals are only counted)" if self.stats["refused"] == 10 else ""),
                      level="warning")
 

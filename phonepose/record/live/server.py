@@ -241,7 +241,7 @@ class _RequestErrors(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         exc = record.exc_info[1] if record.exc_info else None
-        kind = type(exc).__name__ if exc is not None else record.getMessage()[:60]
+        kind = type(exc).__name__ if exc is not None else printable(record.getMessage(), 60)
         self.recording.repeated(f"bad HTTP requests ({kind})", "http")
 
 
