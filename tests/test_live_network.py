@@ -21,7 +21,7 @@ import test_record_live
 from conftest import DEADLINE_S, wait_until, wait_until_async
 from test_record_live import STAMP_ROUNDING_NS, Phone, _finish, _messages, _start, _wait_video_start
 
-from phonepose.record.live.recording import LiveRecording
+from phonepose.record.live.recording import SIZE_MISMATCH, LiveRecording
 from phonepose.schemas.topics import Topic
 
 media = test_record_live.media              # the same fixtures: a video of the marker and its calibration
@@ -286,6 +286,63 @@ def test_page_text_reaches_the_terminal_escaped_and_cut(long_media, tmp_path):
     assert not any(line.startswith("fake") for line in lines)
     assert sum(("A" * 197 + "...; WebXR immersive-vr available") in line for line in lines) == 1
     assert not any("A" * 198 in line for line in lines)
+
+
+@pytest.mark.parametrize("cli_size", [None, 0.05])
+def test_a_page_repeating_marker_and_xrsession_messages_gets_a_few_lines_and_counts(long_media, tmp_path, cli_size):
+    """docs/phone-page.md: 300 marker messages with a changing size, 300 of another marker and 300 xrsession
+    messages from one connection each give at most 3 lines (1 for another marker), the rest is counted in
+    the closing summary."""
+    n = 300
+    s, out, th, lines = _start(long_media, tmp_path, marker_size_m=cli_size)
+    phone = Phone(s, s.port, s.token)
+    _wait_video_start(s)
+    rec = s.source.recording
+
+    def logged(kind: str) -> int:
+        return sum(k for (_, what), k in rec._logged.items() if what == kind)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            for i in range(n):
+                await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_4X4_50", "id": 7,
+                                              "size_m": 0.04 + i * 1e-4}))
+                await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_5X5_100", "id": i,
+                                              "size_m": 0.05}))
+            hs = await http.ws_connect(f"{phone.base}/ws?token={phone.token}&role=headset")
+            for i in range(n):
+                await hs.send_str(json.dumps({"type": "xrsession", "state": ("started", "ended")[i % 2],
+                                              "space": "local-floor"}))
+            # each connection's messages are handled in order: its last one's count says all were
+            await wait_until_async(lambda: logged("immersive session ends") == n // 2, what="the xrsession messages")
+            await wait_until_async(lambda: logged("reports of another marker") == n, what="the marker messages")
+            await hs.close()
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    logs = [m.msg.message for m in _messages(tmp_path / "s.mcap") if m.topic == Topic.LOG]
+    assert sum("immersive-vr session started" in t for t in logs) == 3
+    assert sum("the immersive session ended" in t for t in logs) == 3
+    assert sum("the recorder looks for DICT_4X4_50 id 7" in t for t in logs) == 1
+    if cli_size is None:   # every size differs from the one before: 300 changes, 3 lines
+        assert sum("marker side " in t and "mm (ppi" in t for t in logs) == 3
+        assert rec.unlogged == {"immersive session starts": n // 2 - 3, "immersive session ends": n // 2 - 3,
+                                "reports of another marker": n - 1, "marker side changes": n - 3}
+        assert any(f"the session's marker side: {(0.04 + (n - 1) * 1e-4) * 1000:.1f} mm" in t for t in logs)
+    else:                  # --marker-size: one line, the count is the existing "marker size" summary line
+        assert sum("the session uses --marker-size 50.0 mm" in t for t in logs) == 1
+        assert rec.unlogged == {"immersive session starts": n // 2 - 3, "immersive session ends": n // 2 - 3,
+                                "reports of another marker": n - 1}
+        ignored = sum(abs(0.04 + i * 1e-4 - 0.05) > 0.05 * SIZE_MISMATCH for i in range(n))
+        assert rec.stats["marker size changes ignored"] == ignored
+        assert any(f"the page reported another marker size {ignored} time(s)" in t for t in logs)
+    summary = next(t for t in logs if t.startswith("lines not repeated (only counted): "))
+    assert f"reports of another marker: {n - 1}" in summary and f"immersive session starts: {n // 2 - 3}" in summary
+    assert len(logs) < 40
 
 
 def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):

@@ -27,6 +27,7 @@ from phonepose.session.codec import pose_in_frame
 from phonepose.text import printable
 
 TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, space) shown in a log line
+SESSION_LINES = 3  # immersive session starts (and ends) logged per connection (then only counted)
 
 GT_HANDS = ("right", "left")
 CONTROLLER_GRACE_NS = 1_000_000_000    # controllers may appear a little after the XR session starts
@@ -129,13 +130,14 @@ class HeadsetGroundTruth:
     def on_session(self, who: str, msg: dict) -> None:
         message = printable(msg["message"], TEXT_LIMIT)
         if msg["state"] == "ended":
-            self.rec.log(f"{who}: the immersive session ended{': ' + message if message else ''}")
+            self.rec.limited(who, "immersive session ends", f"the immersive session ended"
+                             f"{': ' + message if message else ''}", limit=SESSION_LINES)
             return
         note = f" ({message})" if message else ""
         level = "info" if msg["space"] == "local-floor" else "warning"
-        self.rec.log(f"{who}: immersive-vr session started, poses in its '{printable(msg['space'], TEXT_LIMIT)}' "
-                     f"reference space{note}",
-                     level=level)
+        self.rec.limited(who, "immersive session starts", f"immersive-vr session started, poses in its "
+                         f"'{printable(msg['space'], TEXT_LIMIT)}' reference space{note}", level=level,
+                         limit=SESSION_LINES)
 
     def on_frame(self, who: str, capture_ns: int, viewer, controllers) -> None:
         self.frames += 1
