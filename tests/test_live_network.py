@@ -21,6 +21,7 @@ import test_record_live
 from conftest import DEADLINE_S, wait_until, wait_until_async
 from test_record_live import STAMP_ROUNDING_NS, Phone, _finish, _messages, _start, _wait_video_start
 
+from phonepose.record.live.recording import SIZE_MISMATCH, LiveRecording
 from phonepose.schemas.topics import Topic
 
 media = test_record_live.media              # the same fixtures: a video of the marker and its calibration
@@ -162,6 +163,186 @@ def test_a_malformed_first_sample_never_becomes_the_offset(long_media, tmp_path)
     assert np.min(delays) - 2 * STAMP_ROUNDING_NS <= np.min(stamps - true) <= np.max(stamps - true) \
         <= np.max(delays) + 2 * STAMP_ROUNDING_NS, (stamps - true, delays)
     assert s.source.recording.malformed_kinds["imu 't' is not on the page's clock"] == 1
+
+
+@pytest.mark.parametrize("phase", ["settled", "waiting for a pong", "no pong ever"])
+def test_a_huge_finite_t_is_one_malformed_message_and_loses_no_good_sample(long_media, tmp_path, phase):
+    """docs/reliability.md: nothing well-formed is dropped. A ``t`` of 1e305 ms is finite but no time the
+    recorder's int64-ns clock can hold: one malformed message; the good sample before it and the 50 after it
+    are all recorded, whether the offset is known, samples wait for a first pong, or no pong ever comes."""
+    n_after = 50
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = SlowPhone(s, s.port, s.token, pong_delay_s={"settled": 0.0, "waiting for a pong": 1.5}.get(phase))
+    _wait_video_start(s)
+
+    def conn():
+        return s.source.server.current.get("phone")
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            if phase == "settled":
+                await wait_until_async(lambda: conn() is not None and conn().settled, what="the clock offset")
+            await _imu(phone, ws, 1)
+            await ws.send_str(json.dumps({"type": "imu", "t": 1e305, "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}))
+            await ws.send_str(json.dumps({"type": "pose", "t": -1e305, "p": [0, 0, 0], "q": [0, 0, 0, 1]}))
+            await _imu(phone, ws, n_after)
+            if phase == "settled":
+                await wait_until_async(lambda: s.source.recording.stats["imu"] >= 1 + n_after, what="the samples")
+            else:   # all 51 wait for a pong (the bad ones never join them)
+                await wait_until_async(lambda: not conn().settled and len(conn().pending) == 1 + n_after,
+                                       what="the samples waiting for a pong")
+                if phase == "waiting for a pong":
+                    await wait_until_async(lambda: s.source.recording.stats["imu"] >= 1 + n_after,
+                                           what="the samples stamped at the first pongs")
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    rec = s.source.recording
+    assert rec.malformed_kinds == {"imu 't' is out of range": 1, "pose 't' is out of range": 1}
+    msgs = _messages(tmp_path / "s.mcap")
+    imu = [m for m in msgs if m.topic == Topic.CONTROLLER_IMU]
+    assert len(imu) == 1 + n_after
+    assert not any(m.topic == Topic.CONTROLLER_VIO_POSE for m in msgs)
+    logs = [m.msg.message for m in msgs if m.topic == Topic.LOG]
+    assert sum("'t' is out of range" in line for line in lines) == 2   # each kind once
+    assert sum("'t' is out of range" in t for t in logs) == 3          # and in the closing summary
+    assert any("malformed messages ignored: 2 (" in t for t in logs)
+    assert not any("could not be handled" in t for t in logs)
+
+
+def test_a_sample_that_raises_while_waiting_costs_only_itself(long_media, tmp_path, monkeypatch):
+    """A waiting sample whose handling raises (a recorder bug, not the page's fault) is counted and logged
+    once; the samples waiting behind it are still stamped and written."""
+    n = 40
+    on_imu = LiveRecording.on_imu
+
+    def fragile(self, capture_ns, receipt_ns, gyro, accel):
+        if gyro[0] == 9.0:
+            raise OverflowError("a bug")
+        on_imu(self, capture_ns, receipt_ns, gyro, accel)
+
+    monkeypatch.setattr(LiveRecording, "on_imu", fragile)
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = SlowPhone(s, s.port, s.token, pong_delay_s=None)
+    _wait_video_start(s)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            await _imu(phone, ws, 1)
+            for _ in range(3):
+                await ws.send_str(json.dumps({"type": "imu", "t": phone.phone_ms(phone.clock.now_ns()),
+                                              "gyro": [9.0, 0, 0], "accel": [0, 0, 9.8]}))
+            await _imu(phone, ws, n)
+            await wait_until_async(lambda: len(s.source.server.current["phone"].pending) == n + 4,
+                                   what="the samples waiting for a pong")
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    assert sum(m.topic == Topic.CONTROLLER_IMU for m in _messages(tmp_path / "s.mcap")) == 1 + n
+    assert s.source.recording.malformed_kinds == {"could not be handled (OverflowError)": 3}
+    assert sum("a message could not be handled (OverflowError: a bug)" in line for line in lines) == 1
+
+
+EVIL = "\x1b]0;owned\x07\x1b[2J\rfake: anchor set\n\u202eevil"      # a title, a clear, a forged line, bidi
+EVIL_SHOWN = "\\x1b]0;owned\\x07\\x1b[2J\\rfake: anchor set\\n\\u202eevil"
+
+
+def test_page_text_reaches_the_terminal_escaped_and_cut(long_media, tmp_path):
+    """docs/phone-page.md: every text a page sends (hello user agent and reason, marker dictionary,
+    xrsession space and message) is printed with its control characters escaped, cut to 200 characters."""
+    s, out, th, lines = _start(long_media, tmp_path)
+    phone = Phone(s, s.port, s.token)
+    _wait_video_start(s)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            await ws.send_str(json.dumps({"type": "hello", "user_agent": EVIL, "webxr": False, "message": EVIL}))
+            await ws.send_str(json.dumps({"type": "marker", "dictionary": EVIL, "id": 3, "size_m": 0.05}))
+            hs = await http.ws_connect(f"{phone.base}/ws?token={phone.token}&role=headset")
+            await hs.send_str(json.dumps({"type": "hello", "user_agent": "A" * 300, "webxr": True, "message": ""}))
+            await hs.send_str(json.dumps({"type": "xrsession", "state": "started", "space": EVIL, "message": EVIL}))
+            await hs.send_str(json.dumps({"type": "xrsession", "state": "ended", "message": EVIL}))
+            await wait_until_async(lambda: sum(EVIL_SHOWN in line for line in lines) >= 4, what="the page's lines",
+                                   timeout=30)
+            await hs.close()
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    assert all(line.isprintable() for line in lines), [line for line in lines if not line.isprintable()]
+    # hello (agent, reason), marker, started (space, message), ended
+    assert sum(line.count(EVIL_SHOWN) for line in lines) == 6
+    assert not any(line.startswith("fake") for line in lines)
+    assert sum(("A" * 197 + "...; WebXR immersive-vr available") in line for line in lines) == 1
+    assert not any("A" * 198 in line for line in lines)
+
+
+@pytest.mark.parametrize("cli_size", [None, 0.05])
+def test_a_page_repeating_marker_and_xrsession_messages_gets_a_few_lines_and_counts(long_media, tmp_path, cli_size):
+    """docs/phone-page.md: 300 marker messages with a changing size, 300 of another marker and 300 xrsession
+    messages from one connection each give at most 3 lines (1 for another marker), the rest is counted in
+    the closing summary."""
+    n = 300
+    s, out, th, lines = _start(long_media, tmp_path, marker_size_m=cli_size)
+    phone = Phone(s, s.port, s.token)
+    _wait_video_start(s)
+    rec = s.source.recording
+
+    def logged(kind: str) -> int:
+        return sum(k for (_, what), k in rec._logged.items() if what == kind)
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            ws, reader = await phone.connect(http)
+            for i in range(n):
+                await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_4X4_50", "id": 7,
+                                              "size_m": 0.04 + i * 1e-4}))
+                await ws.send_str(json.dumps({"type": "marker", "dictionary": "DICT_5X5_100", "id": i,
+                                              "size_m": 0.05}))
+            hs = await http.ws_connect(f"{phone.base}/ws?token={phone.token}&role=headset")
+            for i in range(n):
+                await hs.send_str(json.dumps({"type": "xrsession", "state": ("started", "ended")[i % 2],
+                                              "space": "local-floor"}))
+            # each connection's messages are handled in order: its last one's count says all were
+            await wait_until_async(lambda: logged("immersive session ends") == n // 2, what="the xrsession messages")
+            await wait_until_async(lambda: logged("reports of another marker") == n, what="the marker messages")
+            await hs.close()
+            await ws.close()
+            reader.cancel()
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    logs = [m.msg.message for m in _messages(tmp_path / "s.mcap") if m.topic == Topic.LOG]
+    assert sum("immersive-vr session started" in t for t in logs) == 3
+    assert sum("the immersive session ended" in t for t in logs) == 3
+    assert sum("the recorder looks for DICT_4X4_50 id 7" in t for t in logs) == 1
+    if cli_size is None:   # every size differs from the one before: 300 changes, 3 lines
+        assert sum("marker side " in t and "mm (ppi" in t for t in logs) == 3
+        assert rec.unlogged == {"immersive session starts": n // 2 - 3, "immersive session ends": n // 2 - 3,
+                                "reports of another marker": n - 1, "marker side changes": n - 3}
+        assert any(f"the session's marker side: {(0.04 + (n - 1) * 1e-4) * 1000:.1f} mm" in t for t in logs)
+    else:                  # --marker-size: one line, the count is the existing "marker size" summary line
+        assert sum("the session uses --marker-size 50.0 mm" in t for t in logs) == 1
+        assert rec.unlogged == {"immersive session starts": n // 2 - 3, "immersive session ends": n // 2 - 3,
+                                "reports of another marker": n - 1}
+        ignored = sum(abs(0.04 + i * 1e-4 - 0.05) > 0.05 * SIZE_MISMATCH for i in range(n))
+        assert rec.stats["marker size changes ignored"] == ignored
+        assert any(f"the page reported another marker size {ignored} time(s)" in t for t in logs)
+    summary = next(t for t in logs if t.startswith("lines not repeated (only counted): "))
+    assert f"reports of another marker: {n - 1}" in summary and f"immersive session starts: {n // 2 - 3}" in summary
+    assert len(logs) < 40
 
 
 def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):

@@ -151,6 +151,15 @@ def test_certificate_is_made_once_then_reused(tmp_path):
     ('{"type": "pong", "id": "a", "t": 1}', "pong 'id' is not an integer"),
     ('{"type": "imu", "t": 1' + "0" * 400 + ', "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}', "imu 't' is not a finite number"),
     ("[" * 100000 + "]" * 100000, "not JSON"),
+    # finite but beyond what the int64-ns stamping holds (MAX_STAMP_MS), or beyond any sensor (MAX_VALUE)
+    ('{"type": "imu", "t": 1e305, "gyro": [0, 0, 0], "accel": [0, 0, 9.8]}', "imu 't' is out of range"),
+    ('{"type": "pose", "t": -4.1e12, "p": [0, 0, 0], "q": [0, 0, 0, 1]}', "pose 't' is out of range"),
+    ('{"type": "pong", "id": 1, "t": 1e305}', "pong 't' is out of range"),
+    ('{"type": "xrframe", "t": 1e305, "viewer": null, "controllers": []}', "xrframe 't' is out of range"),
+    ('{"type": "pose", "t": 1, "p": [1e308, 0, 0], "q": [0, 0, 0, 1]}', "pose 'p' is out of range"),
+    ('{"type": "imu", "t": 1, "gyro": [0, 0, 0], "accel": [0, -2e6, 9.8]}', "imu 'accel' is out of range"),
+    ('{"type": "pong", "id": 123456789012345678901234567890, "t": 1}', "pong 'id' is out of range"),
+    ('{"type": "marker", "dictionary": "DICT_4X4_50", "id": -1, "size_m": 0.05}', "marker 'id' is out of range"),
 ])
 def test_malformed_messages_are_named(text, kind):
     with pytest.raises(Malformed) as exc:

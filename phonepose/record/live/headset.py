@@ -24,6 +24,10 @@ from phonepose.record.live.webxr import xr_to_gt_world
 from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
 from phonepose.session.codec import pose_in_frame
+from phonepose.text import printable
+
+TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, space) shown in a log line
+SESSION_LINES = 3  # immersive session starts (and ends) logged per connection (then only counted)
 
 GT_HANDS = ("right", "left")
 CONTROLLER_GRACE_NS = 1_000_000_000    # controllers may appear a little after the XR session starts
@@ -111,10 +115,11 @@ class HeadsetGroundTruth:
     # ------------------------------------------------------------------ messages
     def on_hello(self, who: str, msg: dict) -> None:
         ua = msg["user_agent"] or "unknown browser"
+        shown, reason = printable(ua, TEXT_LIMIT), printable(msg["message"] or "no reason given", TEXT_LIMIT)
         if msg["webxr"]:
-            self.rec.log(f"{who}: {ua}; WebXR immersive-vr available")
+            self.rec.log(f"{who}: {shown}; WebXR immersive-vr available")
         else:
-            self.rec.log(f"{who}: {ua}; no WebXR immersive-vr ({msg['message'] or 'no reason given'}): no ground "
+            self.rec.log(f"{who}: {shown}; no WebXR immersive-vr ({reason}): no ground "
                          "truth will come from this page (open the headset link in the headset's own browser)",
                          level="warning")
         source = f"webxr-headset ({device_of(ua)}, {self.gt_hand} controller)"
@@ -123,13 +128,16 @@ class HeadsetGroundTruth:
             self.rec.ground_truth_source_changed(source)
 
     def on_session(self, who: str, msg: dict) -> None:
+        message = printable(msg["message"], TEXT_LIMIT)
         if msg["state"] == "ended":
-            self.rec.log(f"{who}: the immersive session ended{': ' + msg['message'] if msg['message'] else ''}")
+            self.rec.limited(who, "immersive session ends", f"the immersive session ended"
+                             f"{': ' + message if message else ''}", limit=SESSION_LINES)
             return
-        note = f" ({msg['message']})" if msg["message"] else ""
+        note = f" ({message})" if message else ""
         level = "info" if msg["space"] == "local-floor" else "warning"
-        self.rec.log(f"{who}: immersive-vr session started, poses in its '{msg['space']}' reference space{note}",
-                     level=level)
+        self.rec.limited(who, "immersive session starts", f"immersive-vr session started, poses in its "
+                         f"'{printable(msg['space'], TEXT_LIMIT)}' reference space{note}", level=level,
+                         limit=SESSION_LINES)
 
     def on_frame(self, who: str, capture_ns: int, viewer, controllers) -> None:
         self.frames += 1

@@ -30,6 +30,10 @@ from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
 from phonepose.session.codec import encode_pose, pose_in_frame
+from phonepose.text import printable
+
+TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, dictionary) shown in a log line
+MARKER_SIDE_LINES = 3   # marker side changes logged per connection before the anchor (then only counted)
 
 ANCHOR_MAX_DT_NS = 100_000_000       # the anchor's camera frame lies within this of the tap
 ANCHOR_WAIT_NS = 1_500_000_000       # how long the anchor waits for frames after the tap
@@ -65,6 +69,8 @@ class LiveRecording:
         self.stats: Counter = Counter()
         self.malformed_kinds: Counter = Counter()
         self.repeats: Counter = Counter()            # kind -> harmless repeated messages (see repeated())
+        self.unlogged: Counter = Counter()           # kind -> warnings only counted (see limited())
+        self._logged: Counter = Counter()            # (connection, kind) -> lines logged
         self.backwards: Counter = Counter()          # topic -> samples whose capture time did not increase
         self._last_capture: dict[str, int] = {}
         self.anchor_set = False
@@ -121,24 +127,25 @@ class LiveRecording:
 
     # ------------------------------------------------------------------ page messages
     def on_hello(self, who: str, msg: dict) -> None:
-        ua = msg["user_agent"] or "unknown browser"
+        ua = printable(msg["user_agent"] or "unknown browser", TEXT_LIMIT)
+        reason = printable(msg["message"] or "no reason given", TEXT_LIMIT)
         if msg["webxr"]:
             self.log(f"{who}: {ua}; WebXR immersive-ar available")
         else:
-            self.log(f"{who}: {ua}; no WebXR immersive-ar ({msg['message'] or 'no reason given'}): no 6DoF pose "
+            self.log(f"{who}: {ua}; no WebXR immersive-ar ({reason}): no 6DoF pose "
                      f"will come, only IMU", level="warning")
 
     def on_marker(self, who: str, msg: dict) -> str | None:
         if msg["dictionary"] != self.marker_dictionary or msg["id"] != self.marker_id:
-            text = (f"the page shows {msg['dictionary']} id {msg['id']}, the recorder looks for "
+            text = (f"the page shows {printable(msg['dictionary'], TEXT_LIMIT)} id {msg['id']}, the recorder looks for "
                     f"{self.marker_dictionary} id {self.marker_id}: reload the page")
-            self.log(f"{who}: {text}", level="error")
+            self.limited(who, "reports of another marker", text, level="error")
             return text
         size = msg["size_m"]
         detail = f"{size * 1000:.1f} mm (ppi {msg['ppi']:g}, device pixel ratio {msg['device_pixel_ratio']:g})"
         if not self.marker_spec_written:      # the size in effect until the anchor fixes it
             if size != self.marker_size_m:    # logged when it changes, not at every message (a reconnect repeats it)
-                self.log(f"{who}: marker side {detail}")
+                self.limited(who, "marker side changes", f"marker side {detail}", limit=MARKER_SIDE_LINES)
             self.marker_size_m = size
             return None
         assert self.marker_size_m is not None   # the spec is written with the size
@@ -146,13 +153,13 @@ class LiveRecording:
             return None
         self.stats["marker size changes ignored"] += 1
         if self.marker_size_from_cli:
-            self.log(f"{who}: the page reports a marker side of {detail}; the session uses --marker-size "
-                     f"{self.marker_size_m * 1000:.1f} mm", level="warning")
+            self.limited(who, "other marker sizes", f"the page reports a marker side of {detail}; the session uses "
+                         f"--marker-size {self.marker_size_m * 1000:.1f} mm", level="warning", count=False)
             return None
         text = (f"the marker's size changed to {size * 1000:.1f} mm after the anchor; the session keeps "
                 f"{self.marker_size_m * 1000:.1f} mm, so marker poses from now on are off: restore the layout "
                 f"(controls, rotation) the phone had when anchoring")
-        self.log(f"{who}: {text}", level="warning")
+        self.limited(who, "other marker sizes", text, level="warning", count=False)
         return text
 
     def write_marker_spec(self, t_ns: int | None = None) -> None:
@@ -191,6 +198,21 @@ class LiveRecording:
         msg.timestamp.FromNanoseconds(capture_ns)
         self.emit(Topic.CONTROLLER_IMU, msg, receipt_ns)
 
+    def limited(self, who: str, kind: str, text: str, level: str = "info", limit: int = 1,
+                count: bool = True) -> None:
+        """A line a page's message causes, at most ``limit`` times per connection and ``kind`` (a page repeating
+        a message must not flood the terminal); the last of them says so, later ones are only counted
+        (``unlogged``, closing summary; ``count`` False: the caller counts them itself)."""
+        self._logged[(who, kind)] += 1
+        n = self._logged[(who, kind)]
+        if n < limit:
+            self.log(f"{who}: {text}", level=level)
+        elif n == limit:
+            self.log(f"{who}: {text} (further {kind} from this connection are only counted: closing summary)",
+                     level=level)
+        elif count:
+            self.unlogged[kind] += 1
+
     def repeated(self, kind: str, who: str) -> None:
         """A harmless message the page should not repeat: logged the first time, counted (closing summary)."""
         self.repeats[kind] += 1
@@ -200,7 +222,8 @@ class LiveRecording:
     def refused(self, remote: str, path: str, had_token: bool) -> None:
         self.stats["refused"] += 1
         if self.stats["refused"] <= 10:
-            self.log(f"refused {path} from {remote}: {'wrong' if had_token else 'no'} token"
+            self.log(f"refused {printable(path, TEXT_LIMIT)} from {printable(remote, TEXT_LIMIT)}: "
+                     f"{'wrong' if had_token else 'no'} token"
                      + (" (further refusals are only counted)" if self.stats["refused"] == 10 else ""),
                      level="warning")
 

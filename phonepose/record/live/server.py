@@ -14,7 +14,8 @@ Every route but ``/static/`` needs the recording's token (``secrets.compare_dige
 the answer is 403 and nothing from that request reaches the session. One phone and one headset at a
 time (:data:`ROLES`): a new connection replaces the previous one of its role (a reloaded page). A
 malformed message (not JSON, unknown type, one of the other role's types, missing or non-finite fields,
-a non-unit quaternion) is counted, logged once per kind and connection (terminal, ``/log``, an
+a number out of range (:data:`MAX_STAMP_MS`, :data:`MAX_VALUE`), a non-unit quaternion) is counted,
+logged once per kind and connection (terminal, ``/log``, an
 ``error`` message to the page) and ignored; the connection stays.
 
 Stamping: each connection has its own :class:`~phonepose.record.live.clock.OffsetEstimator`
@@ -44,6 +45,7 @@ from phonepose.record.live.clock import OffsetEstimator
 from phonepose.record.live.gate import ConnectionGate
 from phonepose.record.live.recording import LiveRecording
 from phonepose.record.live.websocket import PageSocket
+from phonepose.text import printable
 
 STATIC_DIR = Path(__file__).parent / "static"
 PING_AT_CONNECT = 5
@@ -65,6 +67,12 @@ CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's cl
 ROLES = ("phone", "headset")          # one connection of each at a time
 MAX_XR_INPUTS = 8                     # controllers listed in one xrframe (a headset has 2; hands and trackers add some)
 HANDS = ("left", "right", "none")     # XRInputSource.handedness
+# A page time ``t`` (ms; performance.timeOrigin + now, ~1.8e12 today) must be within this: ~2096 as Unix ms,
+# so ``t * 1e6`` ns and any difference of two such stay within int64 (9.2e18 ns), what MCAP and the
+# protobuf Timestamp hold; a bigger finite ``t`` (1e305) would overflow the stamping arithmetic.
+MAX_STAMP_MS = 4e12
+MAX_VALUE = 1e6                       # |every other number| (m, rad/s, m/s^2, ppi): far beyond any sensor
+MAX_ID = 2**31 - 1                    # a marker or ping id
 # the message types each role may send (samples wait for the clock offset, see Connection.settle)
 MESSAGE_TYPES = {"phone": ("hello", "marker", "pose", "imu", "anchor", "pong"),
                  "headset": ("hello", "xrsession", "xrframe", "pong")}
@@ -94,17 +102,39 @@ def _field(msg: dict, name: str):
     return msg[name]
 
 
-def _number(msg: dict, name: str) -> float:
+def _in_range(v, bound: float) -> bool:
+    return _finite(v) and -bound <= v <= bound
+
+
+def _number(msg: dict, name: str, bound: float = MAX_VALUE) -> float:
     v = _field(msg, name)
     if not _finite(v):
         raise Malformed(f"{msg['type']} '{name}' is not a finite number", repr(v)[:40])
+    if not -bound <= v <= bound:
+        raise Malformed(f"{msg['type']} '{name}' is out of range", f"{float(v):.3g}, limit +-{bound:g}")
     return float(v)
+
+
+def _stamp(msg: dict) -> float:
+    """The page time ``t`` (ms), one the recorder's int64-ns arithmetic can take (:data:`MAX_STAMP_MS`)."""
+    return _number(msg, "t", MAX_STAMP_MS)
+
+
+def _id(msg: dict, what: str) -> int:
+    i = _field(msg, "id")
+    if not isinstance(i, int) or isinstance(i, bool):
+        raise Malformed(f"{what} 'id' is not an integer")
+    if not 0 <= i <= MAX_ID:
+        raise Malformed(f"{what} 'id' is out of range", f"limit {MAX_ID}")
+    return i
 
 
 def _vector(msg: dict, name: str, n: int) -> list[float]:
     v = _field(msg, name)
     if not isinstance(v, list) or len(v) != n or not all(_finite(x) for x in v):
         raise Malformed(f"{msg['type']} '{name}' is not {n} finite numbers", repr(v)[:60])
+    if not all(-MAX_VALUE <= x <= MAX_VALUE for x in v):
+        raise Malformed(f"{msg['type']} '{name}' is out of range", f"limit +-{MAX_VALUE:g}")
     return [float(x) for x in v]
 
 
@@ -132,22 +162,20 @@ def parse_message(text: str) -> dict:
         d, i = _field(msg, "dictionary"), _field(msg, "id")
         if not isinstance(d, str) or not isinstance(i, int) or isinstance(i, bool):
             raise Malformed("marker 'dictionary' must be a string and 'id' an integer")
+        i = _id(msg, "marker")
         size = _number(msg, "size_m")
         if not 0.0 < size < 1.0:
             raise Malformed("marker 'size_m' must be in (0, 1) m", repr(size))
-        return {"type": kind, "dictionary": d, "id": i, "size_m": size,
-                "ppi": float(msg["ppi"]) if _finite(msg.get("ppi")) else float("nan"),
-                "device_pixel_ratio": float(msg["device_pixel_ratio"]) if _finite(msg.get("device_pixel_ratio"))
-                else float("nan")}
+        return {"type": kind, "dictionary": d[:100], "id": i, "size_m": size,
+                "ppi": float(msg["ppi"]) if _in_range(msg.get("ppi"), MAX_VALUE) else float("nan"),
+                "device_pixel_ratio": float(msg["device_pixel_ratio"])
+                if _in_range(msg.get("device_pixel_ratio"), MAX_VALUE) else float("nan")}
     if kind in ("pose", "anchor"):
-        return {"type": kind, "t": _number(msg, "t"), "p": _vector(msg, "p", 3), "q": _quaternion(msg)}
+        return {"type": kind, "t": _stamp(msg), "p": _vector(msg, "p", 3), "q": _quaternion(msg)}
     if kind == "imu":
-        return {"type": kind, "t": _number(msg, "t"), "gyro": _vector(msg, "gyro", 3), "accel": _vector(msg, "accel", 3)}
+        return {"type": kind, "t": _stamp(msg), "gyro": _vector(msg, "gyro", 3), "accel": _vector(msg, "accel", 3)}
     if kind == "pong":
-        pid = _field(msg, "id")
-        if not isinstance(pid, int) or isinstance(pid, bool):
-            raise Malformed("pong 'id' is not an integer")
-        return {"type": kind, "id": pid, "t": _number(msg, "t")}
+        return {"type": kind, "id": _id(msg, "pong"), "t": _stamp(msg)}
     if kind == "xrsession":
         state, space = _field(msg, "state"), msg.get("space", "")
         if state not in ("started", "ended") or not isinstance(space, str):
@@ -172,7 +200,7 @@ def _xrframe(msg: dict) -> dict:
     """One XR frame of the headset page: the viewer's pose (or null: not tracked) and every controller's
     grip pose (``hand`` and no ``p``/``q``: that controller is not tracked this frame); WebXR's numbers,
     converted in phonepose/record/live/webxr.py."""
-    t = _number(msg, "t")
+    t = _stamp(msg)
     viewer = msg.get("viewer")
     controllers = _field(msg, "controllers")
     if not isinstance(controllers, list) or len(controllers) > MAX_XR_INPUTS:
@@ -213,7 +241,7 @@ class _RequestErrors(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         exc = record.exc_info[1] if record.exc_info else None
-        kind = type(exc).__name__ if exc is not None else record.getMessage()[:60]
+        kind = type(exc).__name__ if exc is not None else printable(record.getMessage(), 60)
         self.recording.repeated(f"bad HTTP requests ({kind})", "http")
 
 
@@ -280,6 +308,7 @@ class Connection:
         if self.clock.best() is None:
             if not self.pending:
                 return
+            # every waiting t is within MAX_STAMP_MS (parse_message), so this is plain int64-range arithmetic
             self.fallback_offset_ns = int(statistics.median(int(round(m["t"] * 1e6)) - r for m, r in self.pending))
             self.rec.log(f"{self.name}: no answer to the clock pings; {len(self.pending)} samples stamped assuming zero "
                          f"network delay (page clock offset {self.fallback_offset_ns / 1e6:+.1f} ms) until one arrives",
@@ -296,9 +325,13 @@ class Connection:
                          f"saving?); samples wait for one, none is dropped", level="warning")
 
     def flush_pending(self) -> None:
+        """Stamp every waiting sample; one that fails (a bug, not the page's fault) costs only itself."""
         pending, self.pending = self.pending, []
         for msg, receipt in pending:
-            self.dispatch(msg, receipt)
+            try:
+                self.dispatch(msg, receipt)
+            except Exception as exc:   # noqa: BLE001 - the samples behind it must still be written
+                self.unexpected(exc)
 
     def _log_offset(self, force: bool = False) -> None:
         best = self.clock.best()
@@ -363,9 +396,21 @@ class Connection:
         self.rec.malformed_kinds[exc.kind] += 1
         if exc.kind not in self.malformed_kinds:   # once per kind and connection
             self.malformed_kinds.add(exc.kind)
-            self.rec.log(f"{self.name}: ignored a malformed message ({exc}); further ones of this kind are only counted",
+            self.rec.log(f"{self.name}: ignored a malformed message ({printable(str(exc), 200)}); further ones of this "
+                         f"kind are only counted",
                          level="warning")
             self.send_soon({"type": "error", "message": f"ignored malformed message: {exc}"})
+
+    def unexpected(self, exc: Exception) -> None:
+        """A message that passed the checks and still raised (a recorder bug): counted as malformed, logged
+        once per exception type and connection, ignored; the connection and the messages after it go on."""
+        kind = f"could not be handled ({type(exc).__name__})"
+        self.rec.stats["malformed"] += 1
+        self.rec.malformed_kinds[kind] += 1
+        if kind not in self.malformed_kinds:
+            self.malformed_kinds.add(kind)
+            self.rec.log(f"{self.name}: a message could not be handled ({type(exc).__name__}: "
+                         f"{printable(str(exc), 80)}); ignored, further ones are only counted", level="error")
 
     def dispatch(self, msg: dict, receipt_ns: int) -> None:
         kind = msg["type"]
@@ -541,10 +586,7 @@ class LiveServer:
             try:
                 conn.handle_frame(msg.data, receipt)
             except Exception as exc:   # noqa: BLE001 - one odd message must not end the connection
-                self.recording.stats["malformed"] += 1
-                self.recording.malformed_kinds["could not be handled"] += 1
-                self.recording.log(f"{conn.name}: a message could not be handled ({type(exc).__name__}: "
-                                   f"{str(exc)[:80]}); ignored", level="error")
+                conn.unexpected(exc)
         elif msg.type == WSMsgType.BINARY:
             conn.received += 1
             self.recording.stats["messages"] += 1

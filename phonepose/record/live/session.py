@@ -326,6 +326,10 @@ class LiveSource:
                          + ", ".join(f"{k}: {n}" for k, n in rec.malformed_kinds.most_common()) + ")")
         if rec.repeats:
             lines.append("repeated messages ignored: " + ", ".join(f"{k}: {n}" for k, n in rec.repeats.most_common()))
+        if rec.unlogged:
+            lines.append("lines not repeated (only counted): " + ", ".join(f"{k}: {n}" for k, n in rec.unlogged.most_common()))
+            if rec.unlogged["marker side changes"] and rec.marker_size_m is not None:
+                lines.append(f"the session's marker side: {rec.marker_size_m * 1000:.1f} mm")
         if rec.stats["marker size changes ignored"]:
             assert rec.marker_size_m is not None   # counted only once the size was fixed
             lines.append(f"the page reported another marker size {rec.stats['marker size changes ignored']} time(s) after "
