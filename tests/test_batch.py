@@ -231,6 +231,43 @@ def test_bad_params_are_config_errors(params, message, tmp_path):
     assert not (tmp_path / "r.parquet").exists()
 
 
+def test_a_cross_product_over_the_unit_limit_is_refused_before_it_is_built(tmp_path, cli):
+    """2 sessions x 1000 x 1000 x 100 x 2 = 4*10^8 playbacks: one line from the value counts within
+    seconds (it used to build the product: 17.9 GB after 120 s, no line), nothing written."""
+    import time
+
+    from phonepose.batch.plan import MAX_UNITS
+
+    def values(lo, hi):
+        return ",".join(str(v) for v in range(lo, hi))
+
+    t0 = time.monotonic()
+    got, _, err = cli("batch", "a.mcap", "b.mcap", "./a.mcap", "-t", "paper", "-o", tmp_path / "big.parquet",
+                      "-p", f"rate_hz={values(1, 1001)}", "-p", f"start_s={values(0, 1000)}",
+                      "-p", f"end_s={values(1001, 1101)}", "-p", "correction_math=paper,se3,paper", "-q")
+    assert time.monotonic() - t0 < 20
+    assert got == 5 and err == ("phonepose: error: --param: 2 sessions x 1000 rate_hz x 2 correction_math x "
+                                "1000 start_s x 100 end_s = 400,000,000 playbacks, more than a batch's limit of "
+                                "100,000; split it into several batches (fewer sessions or --param values each, "
+                                "one --out per batch)\n")
+    assert MAX_UNITS == 100_000 and not (tmp_path / "big.parquet").exists()
+    # the Python API counts the same way: one playback over the limit
+    with pytest.raises(ConfigError, match=r"100,001 playbacks, more than a batch's limit of 100,000"):
+        run_batch(["x.mcap"], tmp_path / "r.parquet", trackers="paper",
+                  params={"start_s": list(range(100_001))})
+
+
+def test_many_values_of_one_key_are_parsed_in_linear_time():
+    import time
+
+    from phonepose.batch.plan import parse_param_options
+
+    t0 = time.monotonic()
+    got = parse_param_options(["start_s=" + ",".join(str(v) for v in range(20_000)) + ",1,none,null,0"])
+    assert time.monotonic() - t0 < 2     # a list's `in`: 3 s here
+    assert got["start_s"] == [float(v) for v in range(20_000)] + [None]
+
+
 def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     m = {"inside": {"frames": 3, "p_ate_m": 0.1}, "total": {"frames": 5, "p_ate_m": 0.2, "boundary_jump_max_m": 0.04,
                                                            "boundary_jump_rms_m": None}, "note": "x"}
