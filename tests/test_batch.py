@@ -268,6 +268,41 @@ def test_many_values_of_one_key_are_parsed_in_linear_time():
     assert got["start_s"] == [float(v) for v in range(20_000)] + [None]
 
 
+def test_a_repeated_failure_is_printed_three_times_then_counted(in_process, tmp_path, cli):
+    """7 playbacks of each of two broken sessions: 3 lines per cause, then one line per cause with the
+    rest (a sweep over a short session printed 64,650 identical lines in 120 s); every row is kept."""
+    missing, not_mcap = tmp_path / "missing.mcap", tmp_path / "not_mcap.mcap"
+    not_mcap.write_bytes(b"this is not an MCAP file")
+    out = tmp_path / "r.parquet"
+    got, _, err = cli("batch", missing, not_mcap, "-t", "T1", "-p", "start_s=0,1,2,3,4,5,6", "-o", out, "-q")
+    assert got == 1
+    lines = err.splitlines()
+    assert lines[0] == (f"2 sessions x 7 parameter combinations x 1 trackers = 14 rows; 0 already in {out} "
+                        "(skipped); 14 playbacks on 1 thread of the test process")
+    assert lines[1:] == [f"failed {missing} (start_s={i}): {missing}: no such file" for i in range(3)] + \
+        [f"failed {not_mcap} (start_s={i}): {not_mcap}: not an MCAP file" for i in range(3)] + \
+        [f"... and 4 more failures like this: {missing}: no such file",
+         f"... and 4 more failures like this: {not_mcap}: not an MCAP file",
+         f"phonepose: error: 14 of 14 rows failed (status error in {out}; the next run with the same --out "
+         "retries them)"]
+    rows = pq.read_table(out).to_pylist()
+    assert len(rows) == 14 and {r["status"] for r in rows} == {"error"}
+
+
+def test_failure_causes_ignore_the_session_and_numbers():
+    from phonepose.cli.batch import failure_cause
+
+    def row(session, error):
+        return {"session": session, "error": error}
+
+    no_tick = "--start/--end select no tick: the session runs {} s and its first tick is at 0.00 s"
+    assert failure_cause(row("a.mcap", no_tick.format("14.48"))) == \
+        failure_cause(row("b.mcap", no_tick.format("3.5e+02"))) == \
+        "--start/--end select no tick: the session runs # s and its first tick is at # s"
+    assert failure_cause(row("a.mcap", "a.mcap: no such file")) == failure_cause(row("b/c.mcap", "b/c.mcap: no such file"))
+    assert failure_cause(row("a.mcap", "a.mcap: no such file")) != failure_cause(row("a.mcap", "a.mcap: not an MCAP file"))
+
+
 def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     m = {"inside": {"frames": 3, "p_ate_m": 0.1}, "total": {"frames": 5, "p_ate_m": 0.2, "boundary_jump_max_m": 0.04,
                                                            "boundary_jump_rms_m": None}, "note": "x"}
