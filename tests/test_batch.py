@@ -303,6 +303,18 @@ def test_failure_causes_ignore_the_session_and_numbers():
     assert failure_cause(row("a.mcap", "a.mcap: no such file")) != failure_cause(row("a.mcap", "a.mcap: not an MCAP file"))
 
 
+def test_row_order_is_cached_per_params_text_and_survives_odd_params():
+    from phonepose.batch.table import _params_order, sort_key
+
+    a = {"session": "s", "params": '{"rate_hz":10.0,"start_s":null}', "tracker": "T10"}
+    b = {**a, "tracker": "T2"}
+    c = {**a, "params": '{"rate_hz":5.0,"start_s":null}'}
+    odd = {**a, "params": "[1]"}            # not an object: ordered as if empty, no exception
+    hits = _params_order.cache_info().hits
+    assert sorted([a, b, c, odd], key=sort_key) == [odd, c, b, a]
+    assert sort_key(a)[1] is sort_key(b)[1] and _params_order.cache_info().hits > hits
+
+
 def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     m = {"inside": {"frames": 3, "p_ate_m": 0.1}, "total": {"frames": 5, "p_ate_m": 0.2, "boundary_jump_max_m": 0.04,
                                                            "boundary_jump_rms_m": None}, "note": "x"}
