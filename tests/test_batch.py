@@ -289,6 +289,24 @@ def test_a_repeated_failure_is_printed_three_times_then_counted(in_process, tmp_
     assert len(rows) == 14 and {r["status"] for r in rows} == {"error"}
 
 
+def test_a_large_sweeps_summary_shows_its_first_rows_and_a_count():
+    from rich.console import Console
+
+    from phonepose.cli.batch import SUMMARY_ROWS_SHOWN, summary_table
+
+    entries = [{"tracker": "T1", "params": f"start_s={i}", "ok": 0, "errors": 1, "p_ate_m_total": (None, None),
+                "r_ate_deg_total": (None, None), "p_re_m_total": (None, None)} for i in range(1000)]
+    console = Console(width=200, record=True, file=open(os.devnull, "w"))
+    console.print(summary_table(entries, "r.parquet"))
+    text = console.export_text()
+    assert SUMMARY_ROWS_SHOWN == 100
+    assert "start_s=99 " in text and "start_s=100 " not in text
+    assert "... and 900 more rows (tracker x parameter combinations): read them from r.parquet" in " ".join(text.split())
+    console = Console(width=200, record=True, file=open(os.devnull, "w"))
+    console.print(summary_table(entries[:100], "r.parquet"))
+    assert "more rows" not in console.export_text()
+
+
 def test_failure_causes_ignore_the_session_and_numbers():
     from phonepose.cli.batch import failure_cause
 

@@ -53,10 +53,17 @@ class FailureLines:
                 f"{self.first[cause]}" for cause, n in self.counts.items() if n > self.shown]
 
 
-def summary_table(summary: list[dict]) -> Table:
+SUMMARY_ROWS_SHOWN = 100   # a sweep of 10^5 combinations would print 10^5 x trackers summary rows
+
+
+def summary_table(summary: list[dict], out: object = None, shown: int = SUMMARY_ROWS_SHOWN) -> Table:
     from phonepose.batch.driver import SUMMARY_METRICS
 
-    table = Table(title="batch summary: mean ± sd over sessions (total scope)")
+    more = len(summary) - shown
+    summary = summary[:shown] if more > 0 else summary
+    table = Table(title="batch summary: mean ± sd over sessions (total scope)",
+                  caption=f"... and {more:,} more rows (tracker x parameter combinations): read them from {out}"
+                  if more > 0 else None)
     table.add_column("tracker", style="bold")
     if any(e["params"] is not None for e in summary):
         table.add_column("params")
@@ -143,7 +150,7 @@ def batch(
             n = len(prepared.table.rows)
             raise type(exc)(f"{n} finished row{'s' if n != 1 else ''} {'are' if n != 1 else 'is'} in {out}; the next "
                             "run with the same --out goes on from there") from None
-    stdout_console().print(summary_table(summarize(result.rows)))
+    stdout_console().print(summary_table(summarize(result.rows), result.out))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "
                f"{result.skipped} rows skipped (already in the table) -> {result.out}")
