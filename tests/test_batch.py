@@ -231,6 +231,108 @@ def test_bad_params_are_config_errors(params, message, tmp_path):
     assert not (tmp_path / "r.parquet").exists()
 
 
+def test_a_cross_product_over_the_unit_limit_is_refused_before_it_is_built(tmp_path, cli):
+    """2 sessions x 1000 x 1000 x 100 x 2 = 4*10^8 playbacks: one line from the value counts within
+    seconds (it used to build the product: 17.9 GB after 120 s, no line), nothing written."""
+    import time
+
+    from phonepose.batch.plan import MAX_UNITS
+
+    def values(lo, hi):
+        return ",".join(str(v) for v in range(lo, hi))
+
+    t0 = time.monotonic()
+    got, _, err = cli("batch", "a.mcap", "b.mcap", "./a.mcap", "-t", "paper", "-o", tmp_path / "big.parquet",
+                      "-p", f"rate_hz={values(1, 1001)}", "-p", f"start_s={values(0, 1000)}",
+                      "-p", f"end_s={values(1001, 1101)}", "-p", "correction_math=paper,se3,paper", "-q")
+    assert time.monotonic() - t0 < 20
+    assert got == 5 and err == ("phonepose: error: --param: 2 sessions x 1000 rate_hz x 2 correction_math x "
+                                "1000 start_s x 100 end_s = 400,000,000 playbacks, more than a batch's limit of "
+                                "100,000; split it into several batches (fewer sessions or --param values each, "
+                                "one --out per batch)\n")
+    assert MAX_UNITS == 100_000 and not (tmp_path / "big.parquet").exists()
+    # the Python API counts the same way: one playback over the limit
+    with pytest.raises(ConfigError, match=r"100,001 playbacks, more than a batch's limit of 100,000"):
+        run_batch(["x.mcap"], tmp_path / "r.parquet", trackers="paper",
+                  params={"start_s": list(range(100_001))})
+
+
+def test_many_values_of_one_key_are_parsed_in_linear_time():
+    import time
+
+    from phonepose.batch.plan import parse_param_options
+
+    t0 = time.monotonic()
+    got = parse_param_options(["start_s=" + ",".join(str(v) for v in range(20_000)) + ",1,none,null,0"])
+    assert time.monotonic() - t0 < 2     # a list's `in`: 3 s here
+    assert got["start_s"] == [float(v) for v in range(20_000)] + [None]
+
+
+def test_a_repeated_failure_is_printed_three_times_then_counted(in_process, tmp_path, cli):
+    """7 playbacks of each of two broken sessions: 3 lines per cause, then one line per cause with the
+    rest (a sweep over a short session printed 64,650 identical lines in 120 s); every row is kept."""
+    missing, not_mcap = tmp_path / "missing.mcap", tmp_path / "not_mcap.mcap"
+    not_mcap.write_bytes(b"this is not an MCAP file")
+    out = tmp_path / "r.parquet"
+    got, _, err = cli("batch", missing, not_mcap, "-t", "T1", "-p", "start_s=0,1,2,3,4,5,6", "-o", out, "-q")
+    assert got == 1
+    lines = err.splitlines()
+    assert lines[0] == (f"2 sessions x 7 parameter combinations x 1 trackers = 14 rows; 0 already in {out} "
+                        "(skipped); 14 playbacks on 1 thread of the test process")
+    assert lines[1:] == [f"failed {missing} (start_s={i}): {missing}: no such file" for i in range(3)] + \
+        [f"failed {not_mcap} (start_s={i}): {not_mcap}: not an MCAP file" for i in range(3)] + \
+        [f"... and 4 more failures like this: {missing}: no such file",
+         f"... and 4 more failures like this: {not_mcap}: not an MCAP file",
+         f"phonepose: error: 14 of 14 rows failed (status error in {out}; the next run with the same --out "
+         "retries them)"]
+    rows = pq.read_table(out).to_pylist()
+    assert len(rows) == 14 and {r["status"] for r in rows} == {"error"}
+
+
+def test_a_large_sweeps_summary_shows_its_first_rows_and_a_count():
+    from rich.console import Console
+
+    from phonepose.cli.batch import SUMMARY_ROWS_SHOWN, summary_table
+
+    entries = [{"tracker": "T1", "params": f"start_s={i}", "ok": 0, "errors": 1, "p_ate_m_total": (None, None),
+                "r_ate_deg_total": (None, None), "p_re_m_total": (None, None)} for i in range(1000)]
+    console = Console(width=200, record=True, file=open(os.devnull, "w"))
+    console.print(summary_table(entries, "r.parquet"))
+    text = console.export_text()
+    assert SUMMARY_ROWS_SHOWN == 100
+    assert "start_s=99 " in text and "start_s=100 " not in text
+    assert "... and 900 more rows (tracker x parameter combinations): read them from r.parquet" in " ".join(text.split())
+    console = Console(width=200, record=True, file=open(os.devnull, "w"))
+    console.print(summary_table(entries[:100], "r.parquet"))
+    assert "more rows" not in console.export_text()
+
+
+def test_failure_causes_ignore_the_session_and_numbers():
+    from phonepose.cli.batch import failure_cause
+
+    def row(session, error):
+        return {"session": session, "error": error}
+
+    no_tick = "--start/--end select no tick: the session runs {} s and its first tick is at 0.00 s"
+    assert failure_cause(row("a.mcap", no_tick.format("14.48"))) == \
+        failure_cause(row("b.mcap", no_tick.format("3.5e+02"))) == \
+        "--start/--end select no tick: the session runs # s and its first tick is at # s"
+    assert failure_cause(row("a.mcap", "a.mcap: no such file")) == failure_cause(row("b/c.mcap", "b/c.mcap: no such file"))
+    assert failure_cause(row("a.mcap", "a.mcap: no such file")) != failure_cause(row("a.mcap", "a.mcap: not an MCAP file"))
+
+
+def test_row_order_is_cached_per_params_text_and_survives_odd_params():
+    from phonepose.batch.table import _params_order, sort_key
+
+    a = {"session": "s", "params": '{"rate_hz":10.0,"start_s":null}', "tracker": "T10"}
+    b = {**a, "tracker": "T2"}
+    c = {**a, "params": '{"rate_hz":5.0,"start_s":null}'}
+    odd = {**a, "params": "[1]"}            # not an object: ordered as if empty, no exception
+    hits = _params_order.cache_info().hits
+    assert sorted([a, b, c, odd], key=sort_key) == [odd, c, b, a]
+    assert sort_key(a)[1] is sort_key(b)[1] and _params_order.cache_info().hits > hits
+
+
 def test_metrics_are_flattened_generically_and_new_keys_become_columns():
     m = {"inside": {"frames": 3, "p_ate_m": 0.1}, "total": {"frames": 5, "p_ate_m": 0.2, "boundary_jump_max_m": 0.04,
                                                            "boundary_jump_rms_m": None}, "note": "x"}

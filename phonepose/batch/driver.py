@@ -14,7 +14,17 @@ from pathlib import Path
 from typing import Any
 
 from phonepose.batch.executor import open_executor
-from phonepose.batch.plan import PARAMS, Plan, Unit, make_plan, param_combinations, params_label, parse_param_options
+from phonepose.batch.plan import (
+    PARAMS,
+    Plan,
+    Unit,
+    check_unit_count,
+    make_plan,
+    param_combinations,
+    params_label,
+    parse_param_options,
+    session_key,
+)
 from phonepose.batch.run import error_rows, one_line, run_unit
 from phonepose.batch.table import ResultTable, sort_key
 from phonepose.errors import ConfigError
@@ -93,6 +103,7 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     names, refs = resolve_trackers(trackers)
     sweep = parse_param_options(params) if not isinstance(params, dict) else \
         parse_param_options(f"{k}={','.join('none' if v is None else str(v) for v in vs)}" for k, vs in params.items())
+    check_unit_count(len({session_key(s) for s in sessions}), sweep)   # before the product is built
     combos = param_combinations(sweep)
     if calibrate_gt:   # each session's ground truth calibrated from itself: its own rows (param_gt_calibration)
         combos = [{**c, "gt_calibration": "calibrate-gt"} for c in combos]

@@ -84,17 +84,45 @@ def parse_param_options(options: Iterable[str]) -> dict[str, list]:
             raise ConfigError(f"--param: unknown key {key!r}; valid: {', '.join(PARAMS)}")
         if key in out:
             raise ConfigError(f"--param {key} given twice; list its values in one option: {key}=V1,V2")
-        parsed = []
+        parsed: dict = {}   # a dict keeps the order and drops repeats in O(1) each (a list: O(n^2))
         for text in values.split(","):
-            v = spec.parse(key, text.strip())
-            if v not in parsed:
-                parsed.append(v)
-        out[key] = parsed
+            parsed.setdefault(spec.parse(key, text.strip()), None)
+        out[key] = list(parsed)
     return out
 
 
+# The most playbacks (sessions x parameter combinations) one batch plans. A real study is a few
+# hundred sessions x tens of combinations (10^3-10^4 units); planning holds every unit and row key
+# in memory (~1 KB a unit with its rows' keys, a few seconds to plan 10^5) and the table is
+# rewritten whole, so 10^5 units is far above any study and still safe to plan; a sweep typed with
+# one value too many per axis (2*10^8 units) would otherwise fill the machine's memory before the
+# first line. Counted from the value counts before any combination exists (check_unit_count).
+MAX_UNITS = 100_000
+
+
+def count_units(n_sessions: int, sweep: dict[str, list]) -> int:
+    """Sessions x the product of every swept key's value count (unswept keys: one value)."""
+    n = n_sessions
+    for key in PARAMS:
+        n *= max(1, len(sweep.get(key, ())))
+    return n
+
+
+def check_unit_count(n_sessions: int, sweep: dict[str, list], limit: int = MAX_UNITS) -> int:
+    """The batch's number of units, or ConfigError (one line) above ``limit``: before any list of them."""
+    n = count_units(n_sessions, sweep)
+    if n > limit:
+        counts = " x ".join([f"{n_sessions} session{'s' if n_sessions != 1 else ''}"]
+                            + [f"{len(sweep[k])} {k}" for k in PARAMS if len(sweep.get(k, ())) > 1])
+        raise ConfigError(f"--param: {counts} = {n:,} playbacks, more than a batch's limit of {limit:,}; "
+                          "split it into several batches (fewer sessions or --param values each, "
+                          "one --out per batch)")
+    return n
+
+
 def param_combinations(sweep: dict[str, list]) -> list[dict]:
-    """The cross product, every key present (defaults filled in), in PARAMS order; start < end checked."""
+    """The cross product, every key present (defaults filled in), in PARAMS order; start < end checked.
+    Callers check its size first (check_unit_count): it is a list."""
     axes = [sweep.get(k, [spec.default]) for k, spec in PARAMS.items()]
     combos = []
     for values in itertools.product(*axes):

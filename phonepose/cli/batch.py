@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
+import re
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -15,11 +18,52 @@ from phonepose.cli.options import TRACKER_HELP, number
 from phonepose.cli.output import ProgressBar, stdout_console
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX
 
+FAILURES_SHOWN = 3   # lines printed per cause of failure; the rest are counted, one line at the end
 
-def summary_table(summary: list[dict]) -> Table:
+
+def failure_cause(row: dict) -> str:
+    """What tells causes apart: the error without its session's path and with every number as #
+    (``the session runs 14.48 s`` is one cause whatever the session, the start, the rate)."""
+    text = row["error"] or ""
+    for path in sorted({row["session"], os.path.abspath(row["session"])}, key=len, reverse=True):
+        text = text.replace(path, "SESSION")
+    return re.sub(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", text)
+
+
+class FailureLines:
+    """``failed SESSION (params): error`` for the first FAILURES_SHOWN failures of each cause, then
+    one line per cause at the end: ``... and N more failures like this: error`` (every failure is a
+    row in the table anyway)."""
+
+    def __init__(self, print_line, shown: int = FAILURES_SHOWN):
+        self.print_line, self.shown = print_line, shown
+        self.counts: dict[str, int] = {}
+        self.first: dict[str, str] = {}
+
+    def failed(self, row: dict, params: str) -> None:
+        cause = failure_cause(row)
+        n = self.counts[cause] = self.counts.get(cause, 0) + 1
+        self.first.setdefault(cause, row["error"])
+        if n <= self.shown:
+            self.print_line(f"[red]failed[/red] {escape(row['session'])}{' (' + params + ')' if params else ''}: "
+                            f"{escape(row['error'] or '')}")
+
+    def more_lines(self) -> list[str]:
+        return [f"... and {n - self.shown:,} more failure{'s' if n - self.shown != 1 else ''} like this: "
+                f"{self.first[cause]}" for cause, n in self.counts.items() if n > self.shown]
+
+
+SUMMARY_ROWS_SHOWN = 100   # a sweep of 10^5 combinations would print 10^5 x trackers summary rows
+
+
+def summary_table(summary: list[dict], out: object = None, shown: int = SUMMARY_ROWS_SHOWN) -> Table:
     from phonepose.batch.driver import SUMMARY_METRICS
 
-    table = Table(title="batch summary: mean ± sd over sessions (total scope)")
+    more = len(summary) - shown
+    summary = summary[:shown] if more > 0 else summary
+    table = Table(title="batch summary: mean ± sd over sessions (total scope)",
+                  caption=f"... and {more:,} more rows (tracker x parameter combinations): read them from {out}"
+                  if more > 0 else None)
     table.add_column("tracker", style="bold")
     if any(e["params"] is not None for e in summary):
         table.add_column("params")
@@ -87,22 +131,26 @@ def batch(
                               f"{redo}; {where}", highlight=False, soft_wrap=True)
             bar.update(task, total=len(plan.units))
 
+        failures = FailureLines(lambda line: bar.console.print(line, highlight=False, soft_wrap=True))
+
         def progress(done: int, total: int, rows: list[dict]) -> None:
             counts["rows"] += len(rows)
             if rows and rows[0]["status"] != "ok":
                 counts["errors"] += len(rows)
-                params = params_label(json.loads(rows[0]["params"]), varying)
-                bar.console.print(f"[red]failed[/red] {rows[0]['session']}{' (' + params + ')' if params else ''}: "
-                                  f"{rows[0]['error']}", highlight=False, soft_wrap=True)
+                failures.failed(rows[0], params_label(json.loads(rows[0]["params"]), varying))
             bar.update(task, completed=done, total=total, **counts)
 
         try:
-            result = execute_batch(prepared, progress=progress, on_start=on_start)
+            try:
+                result = execute_batch(prepared, progress=progress, on_start=on_start)
+            finally:
+                for line in failures.more_lines():
+                    bar.console.print(line, highlight=False, soft_wrap=True, markup=False)
         except KeyboardInterrupt as exc:    # Ctrl-C or SIGTERM: the workers are gone, the finished rows kept
             n = len(prepared.table.rows)
             raise type(exc)(f"{n} finished row{'s' if n != 1 else ''} {'are' if n != 1 else 'is'} in {out}; the next "
                             "run with the same --out goes on from there") from None
-    stdout_console().print(summary_table(summarize(result.rows)))
+    stdout_console().print(summary_table(summarize(result.rows), result.out))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "
                f"{result.skipped} rows skipped (already in the table) -> {result.out}")
