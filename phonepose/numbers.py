@@ -32,17 +32,14 @@ def show_number(value) -> str:
     return str(value)
 
 
-_show = show_number
-
-
 def _range_text(lo, hi, lo_open: bool, hi_open: bool, integer: bool) -> str:
     kind = "an integer" if integer else "a finite number"
     if lo is not None and hi is not None:
-        return f"{kind} in {'(' if lo_open else '['}{_show(lo)}, {_show(hi)}{')' if hi_open else ']'}"
+        return f"{kind} in {'(' if lo_open else '['}{show_number(lo)}, {show_number(hi)}{')' if hi_open else ']'}"
     if lo is not None:
-        return f"{kind} {'>' if lo_open else '>='} {_show(lo)}"
+        return f"{kind} {'>' if lo_open else '>='} {show_number(lo)}"
     if hi is not None:
-        return f"{kind} {'<' if hi_open else '<='} {_show(hi)}"
+        return f"{kind} {'<' if hi_open else '<='} {show_number(hi)}"
     return kind
 
 
@@ -63,8 +60,8 @@ def check_number(name: str, value, lo=None, hi=None, *, lo_open: bool = False, h
         ok = not (lo is not None and (value < lo or (lo_open and value == lo))) and \
             not (hi is not None and (value > hi or (hi_open and value == hi)))
     if not ok:
-        extra = " or " + " or ".join(_show(a) for a in also) if also else ""
+        extra = " or " + " or ".join(show_number(a) for a in also) if also else ""
         sep = "" if name.endswith("=") else " "     # "--rate inf", "--param rate_hz=inf"
-        raise ConfigError(f"{name}{sep}{_show(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
+        raise ConfigError(f"{name}{sep}{show_number(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
                           f"{extra}{' ' + unit if unit else ''}")
     return value
