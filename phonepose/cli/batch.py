@@ -9,14 +9,15 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import TRACKER_HELP, number
 from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.cli.output import shown as shown_text
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX
+from phonepose.text import printable
 
 FAILURES_SHOWN = 3   # lines printed per cause of failure; the rest are counted, one line at the end
 
@@ -45,12 +46,12 @@ class FailureLines:
         n = self.counts[cause] = self.counts.get(cause, 0) + 1
         self.first.setdefault(cause, row["error"])
         if n <= self.shown:
-            self.print_line(f"[red]failed[/red] {escape(row['session'])}{' (' + params + ')' if params else ''}: "
-                            f"{escape(row['error'] or '')}")
+            self.print_line(f"[red]failed[/red] {shown_text(row['session'])}{' (' + params + ')' if params else ''}: "
+                            f"{shown_text(row['error'] or '')}")
 
     def more_lines(self) -> list[str]:
         return [f"... and {n - self.shown:,} more failure{'s' if n - self.shown != 1 else ''} like this: "
-                f"{self.first[cause]}" for cause, n in self.counts.items() if n > self.shown]
+                f"{printable(self.first[cause])}" for cause, n in self.counts.items() if n > self.shown]
 
 
 SUMMARY_ROWS_SHOWN = 100   # a sweep of 10^5 combinations would print 10^5 x trackers summary rows

@@ -7,21 +7,13 @@ import json
 from pathlib import Path
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import shown, stdout_console
 from phonepose.errors import SessionContentError
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
-from phonepose.text import printable
-
-
-def _shown(text: str) -> str:
-    """A session's own text (anyone's) for the table: escape sequences and newlines shown, not obeyed, and no
-    rich markup ("[red]") read in it."""
-    return escape(printable(text))
 
 
 def _task_window(reader: SessionReader, s) -> list[float] | None:
@@ -64,14 +56,14 @@ def info(
         }, indent=2))
         return
     console = stdout_console()     # piped: topic names are never cut to the terminal's 80 columns
-    console.print(f"[bold]{_shown(str(file))}[/bold]: {s.message_count} messages, {s.duration_s:.2f} s, start {start}")
+    console.print(f"[bold]{shown(str(file))}[/bold]: {s.message_count} messages, {s.duration_s:.2f} s, start {start}")
     if task is not None:   # what playback scores and --start/--end must overlap
         console.print(f"task window {task[0]:.2f}-{task[1]:.2f} s (seconds after the start)")
     if gt_source:
-        console.print(f"ground truth: {_shown(gt_source)}")
+        console.print(f"ground truth: {shown(gt_source)}")
     table = Table("topic", "schema", "encoding", "messages")
     for c in s.channels:
-        table.add_row(_shown(c.topic), _shown(c.schema), _shown(c.encoding), str(c.count))
+        table.add_row(shown(c.topic), shown(c.schema), shown(c.encoding), str(c.count))
     console.print(table)
     if verify:
         typer.echo(f"verified: {chunks} chunks intact (CRC checked)")

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import Progress
+
+from phonepose.text import printable
 
 
 class ProgressBar(Progress):
@@ -27,6 +30,12 @@ class ProgressBar(Progress):
     def __exit__(self, *exc) -> None:
         if self.live.is_started:
             self.stop()
+
+
+def shown(text: str) -> str:
+    """Anyone's text (a session's topic names, an error quoting them) for rich's console: escape sequences and
+    newlines shown, not obeyed (text.printable), and no markup ("[red]") read in it."""
+    return escape(printable(text))
 
 
 PIPED_WIDTH = 1000   # a table printed into a pipe or file is never cut to 80 columns

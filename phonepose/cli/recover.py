@@ -7,11 +7,10 @@ import json
 from pathlib import Path
 
 import typer
-from rich.markup import escape
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import shown, stdout_console
 from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
 from phonepose.text import printable
@@ -89,7 +88,7 @@ def recover(
     typer.echo(f"{file} -> {out}")
     table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():
-        table.add_row(escape(printable(topic)), str(n))     # a damaged file's topic names: anyone's text
+        table.add_row(shown(topic), str(n))     # a damaged file's topic names: anyone's text
     console.print(table)
     for line in report_lines(r):
         typer.echo(printable(line))
