@@ -11,12 +11,11 @@ import hashlib
 import os
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
-from phonepose.pipeline.markers import aruco_dictionary
+from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
 from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
@@ -47,7 +46,7 @@ def _check_camera(path: str, calib) -> None:
 
 
 def _marker_model(path: str, spec) -> MarkerModel:
-    known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    known = aruco_dictionary_names()
     if spec.dictionary not in known:
         raise SessionContentError(f"{path}: marker dictionary {spec.dictionary!r} ({Topic.CONTROLLER_MARKER}) is not "
                                   f"one OpenCV knows (DICT_4X4_50, DICT_APRILTAG_36h11, ...: {len(known)} in all)")

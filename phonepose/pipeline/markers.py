@@ -65,9 +65,14 @@ APRILTAG_SHIFT_PX = 0.5
 CONTOUR_EDGE_OFFSET_PX = 0.5
 
 
+def aruco_dictionary_names() -> list[str]:
+    """The names of OpenCV's predefined dictionaries (``DICT_4X4_50`` ...), sorted."""
+    return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+
+
 def aruco_dictionary(name: str) -> cv2.aruco.Dictionary:
     """OpenCV's predefined dictionary by name (``DICT_4X4_50`` ...); ConfigError if unknown."""
-    allowed = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    allowed = aruco_dictionary_names()
     if name not in allowed:
         raise ConfigError(f"unknown marker dictionary {name!r}; allowed: {', '.join(allowed)}")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
