@@ -26,7 +26,7 @@ from phonepose.schemas.topics import Topic
 from phonepose.session.codec import pose_in_frame
 from phonepose.text import printable
 
-TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, space) shown in a log line
+TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, space, dictionary) shown in a log line
 SESSION_LINES = 3  # immersive session starts (and ends) logged per connection (then only counted)
 
 GT_HANDS = ("right", "left")

@@ -24,7 +24,7 @@ from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary
 from phonepose.pipeline.types import CameraModel, MarkerModel
 from phonepose.record.live.camera import Frame
 from phonepose.record.live.clock import RecorderClock
-from phonepose.record.live.headset import HeadsetGroundTruth
+from phonepose.record.live.headset import TEXT_LIMIT, HeadsetGroundTruth
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame as F
@@ -32,7 +32,6 @@ from phonepose.schemas.topics import Topic
 from phonepose.session.codec import encode_pose, pose_in_frame
 from phonepose.text import printable
 
-TEXT_LIMIT = 200   # characters of a page's text (user agent, reason, dictionary) shown in a log line
 MARKER_SIDE_LINES = 3   # marker side changes logged per connection before the anchor (then only counted)
 
 ANCHOR_MAX_DT_NS = 100_000_000       # the anchor's camera frame lies within this of the tap

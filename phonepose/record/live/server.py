@@ -43,6 +43,7 @@ from aiohttp import WSMessage, WSMsgType, web
 from phonepose.geometry import QUAT_NORM_TOL
 from phonepose.record.live.clock import OffsetEstimator
 from phonepose.record.live.gate import ConnectionGate
+from phonepose.record.live.headset import TEXT_LIMIT
 from phonepose.record.live.recording import LiveRecording
 from phonepose.record.live.websocket import PageSocket
 from phonepose.text import printable
@@ -392,25 +393,25 @@ class Connection:
         self.dispatch(msg, receipt_ns)
 
     def malformed(self, exc: Malformed) -> None:
-        self.rec.stats["malformed"] += 1
-        self.rec.malformed_kinds[exc.kind] += 1
-        if exc.kind not in self.malformed_kinds:   # once per kind and connection
-            self.malformed_kinds.add(exc.kind)
-            self.rec.log(f"{self.name}: ignored a malformed message ({printable(str(exc), 200)}); further ones of this "
-                         f"kind are only counted",
-                         level="warning")
+        if self._count_malformed(exc.kind):
+            self.rec.log(f"{self.name}: ignored a malformed message ({printable(str(exc), TEXT_LIMIT)}); further ones "
+                         f"of this kind are only counted", level="warning")
             self.send_soon({"type": "error", "message": f"ignored malformed message: {exc}"})
 
     def unexpected(self, exc: Exception) -> None:
         """A message that passed the checks and still raised (a recorder bug): counted as malformed, logged
         once per exception type and connection, ignored; the connection and the messages after it go on."""
-        kind = f"could not be handled ({type(exc).__name__})"
-        self.rec.stats["malformed"] += 1
-        self.rec.malformed_kinds[kind] += 1
-        if kind not in self.malformed_kinds:
-            self.malformed_kinds.add(kind)
+        if self._count_malformed(f"could not be handled ({type(exc).__name__})"):
             self.rec.log(f"{self.name}: a message could not be handled ({type(exc).__name__}: "
                          f"{printable(str(exc), 80)}); ignored, further ones are only counted", level="error")
+
+    def _count_malformed(self, kind: str) -> bool:
+        """Count one ignored message of ``kind``; True the first time on this connection (log it then)."""
+        self.rec.stats["malformed"] += 1
+        self.rec.malformed_kinds[kind] += 1
+        first = kind not in self.malformed_kinds
+        self.malformed_kinds.add(kind)
+        return first
 
     def dispatch(self, msg: dict, receipt_ns: int) -> None:
         kind = msg["type"]
