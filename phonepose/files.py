@@ -599,7 +599,8 @@ def _tree_entries(root: Path) -> set[str]:
 def _listed_in_manifest(manifest: Path) -> set[str] | None:
     """The paths a manifest says phonepose wrote; None if it lists none (an older phonepose) or is not one."""
     try:
-        if not stat.S_ISREG(os.lstat(manifest).st_mode) or os.lstat(manifest).st_size > 64 * 2**20:
+        st = os.lstat(manifest)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > 64 * 2**20:
             return None
         files = json.loads(manifest.read_bytes()).get("files")
     except (OSError, ValueError, AttributeError):

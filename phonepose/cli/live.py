@@ -60,8 +60,7 @@ def live(
     plan = OutputPlan(inputs=[calibration, *video])
     session_out = plan.file(out, "--out", what="an MCAP session", in_place=True, force=force)
     rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
-    plan.check()
-    with plan:
+    with plan:                          # every check first, before the server starts
         assert session_out.tmp is not None   # the plan's block made it
         result, wall = _record(session_out.tmp, out, camera, calibration, host=host, port=port, tls_dir=tls_dir,
                                dictionary=dictionary, marker_id=marker_id, marker_size=marker_size, duration=duration,

@@ -65,9 +65,10 @@ MAX_POSITION_M = 1e7
 MAX_STAMP_S = 9e9
 
 
+_OFF_EARTH = "position {v:g} m is not one on Earth (beyond ±1e7 m)"
 # (columns, bound, what a value beyond it is): a TUM file's columns
 TUM_BOUNDS = (([0], MAX_STAMP_S, "stamp {v:g} s is not a time (beyond ±9e9 s, the year 2262)"),
-              ([1, 2, 3], MAX_POSITION_M, "position {v:g} m is not one on Earth (beyond ±1e7 m)"))
+              ([1, 2, 3], MAX_POSITION_M, _OFF_EARTH))
 
 
 def _check_bounds(path, m: np.ndarray, lines: list[int], bounds) -> None:
@@ -176,7 +177,7 @@ def load_euroc(path) -> Trajectory:
 def load_kitti(path) -> Trajectory:
     """KITTI: 12 values per line, the row-major 3x4 ``[R|t]``; no stamps (poses matched by index)."""
     m = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values",
-                     (([3, 7, 11], MAX_POSITION_M, "position {v:g} m is not one on Earth (beyond ±1e7 m)"),))
+                     (([3, 7, 11], MAX_POSITION_M, _OFF_EARTH),))
     if m.shape[1] != 12:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 12 (KITTI 3x4 row-major [R|t])")
     mat = np.zeros((len(m), 4, 4))

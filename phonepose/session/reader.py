@@ -86,10 +86,7 @@ def check_mcap_file(path: str | os.PathLike) -> str:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if head != MCAP_MAGIC:
         refuse_while_recorded(path)    # a recorder that has not written its header yet
-    if len(head) == 0:
-        raise InputFileError(f"{path}: empty file")
-    if head != MCAP_MAGIC:
-        raise InputFileError(f"{path}: not an MCAP file")
+        raise InputFileError(f"{path}: {'not an MCAP file' if head else 'empty file'}")
     return path
 
 
