@@ -82,6 +82,8 @@ SUMMARY = [
      lambda v: v <= 1.1),
     ("batch", "speedup_2_vs_1", "batch, 2 local workers vs 1 (wall, same rows)", "report (~1.6-1.9x)", None),
     ("batch", "dask_overhead_vs_local_2", "  same batch on a Dask LocalCluster (2) vs local 2", "report", None),
+    ("batch", "table_rewrite_vs_rows_hash", "batch table rewrite (200k rows), columns vs rows-JSON checksum", "report",
+     None),
 ]
 
 

@@ -11,7 +11,10 @@ start-up included: it is part of what a user waits for):
   to it, the cores the workers actually got (their CPU time / wall): on a machine shared with other
   jobs, 2 workers get less than 2 cores, and that, not the batch, bounds the speed-up;
 * a ``dask.distributed.LocalCluster`` (2 worker processes, 1 thread each) started beforehand, through
-  ``--scheduler``: its overhead against the local 2-worker pool (the cluster's start is reported apart).
+  ``--scheduler``: its overhead against the local 2-worker pool (the cluster's start is reported apart);
+* a rewrite of a large table (``TABLE_ROWS`` synthetic rows with every metric column), which is what a
+  stopped batch waits for: checksummed by its columns (now) against by its rows as JSON (before
+  2026-12-05), alternating, best of ``ROUNDS``.
 
     python -m bench batch         or         python bench/bench_batch.py
 """
@@ -27,6 +30,7 @@ from pathlib import Path
 ROUNDS = 3
 SESSIONS = (("TRI1", 1), ("TRI2", 1), ("REC1", 1), ("REC2", 1), ("TRI1", 2), ("TRI2", 2))
 PARAMS = ["correction_math=paper,se3"]
+TABLE_ROWS = 200_000
 
 
 def _record(tmp: Path) -> list[str]:
@@ -66,6 +70,36 @@ def _same_table(a: Path, b: Path) -> bool:
     return pq.read_table(a).drop_columns(list(RUNTIME_COLUMNS)).equals(pq.read_table(b).drop_columns(list(RUNTIME_COLUMNS)))
 
 
+def _table_rewrite(tmp: Path) -> dict:
+    """Seconds to rewrite a TABLE_ROWS-row table (sort, Arrow, checksum, Parquet), with either checksum."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from phonepose.batch.table import CHECKSUM_KEY, ROWS_CHECKSUM_KEY, columns_hash, rows_hash, to_arrow
+    from phonepose.evaluation.metrics import flat_columns
+
+    rng = np.random.default_rng(0)
+    trackers = ("T1", "T2", "T3", "T4", "T5", "T6", "T7", "T7L", "T8")
+    rows = [{"session": f"s{i // 90:05d}.mcap", "tracker": trackers[i % 9], "params": f'{{"rate_hz": {20 + i // 9 % 10}}}',
+             "status": "ok", "error": None, "n_ticks": 300, "n_task_ticks": 100, "runtime_s": 1.5,
+             **{c: int(rng.integers(100)) if kind is int else float(rng.random()) for c, kind in flat_columns().items()}}
+            for i in range(TABLE_ROWS)]
+    checksums = {"columns": lambda t: {CHECKSUM_KEY: columns_hash(t).encode()},
+                 "rows": lambda t: {ROWS_CHECKSUM_KEY: rows_hash(t.to_pylist()).encode()}}
+    best = dict.fromkeys(checksums, float("inf"))
+    for k in range(ROUNDS):
+        for name in (list(checksums) if k % 2 == 0 else list(checksums)[::-1]):
+            t0 = time.perf_counter()
+            table = to_arrow(rows)
+            pq.write_table(table.replace_schema_metadata(checksums[name](table)), tmp / f"{name}.parquet",
+                           write_page_checksum=True)
+            best[name] = min(best[name], time.perf_counter() - t0)
+    print(f"table rewrite, {TABLE_ROWS} rows: {best['columns']:.2f} s checksummed by columns, {best['rows']:.2f} s by "
+          f"rows as JSON ({best['columns'] / best['rows']:.2f}x)")
+    return {"table_rows": TABLE_ROWS, "table_rewrite_s": best["columns"], "table_rewrite_rows_hash_s": best["rows"],
+            "table_rewrite_vs_rows_hash": best["columns"] / best["rows"]}
+
+
 def main() -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-batch-") as d:
         tmp = Path(d)
@@ -87,6 +121,7 @@ def main() -> dict:
                 load.append(os.getloadavg()[0])
                 print(f"  round {k + 1}: {n} worker{'s' if n > 1 else ' '} {wall:6.1f} s  (load average {load[-1]:.1f})")
         same_local = _same_table(tmp / "w1.parquet", tmp / "w2.parquet")
+        rewrite = _table_rewrite(tmp)
         dask = {}
         try:
             from distributed import LocalCluster
@@ -112,7 +147,7 @@ def main() -> dict:
         "units": 2 * len(sessions), "playback_s_per_unit_1": playback_s[1], "playback_s_per_unit_2": playback_s[2],
         "same_table_1_2": same_local,
         "load_average_min": min(load), "load_average_max": max(load),
-        **dask,
+        **dask, **rewrite,
     }
     print(f"batch: {len(sessions)} sessions x 2 parameter combinations x T1-T7 = {rows} rows (best of {ROUNDS}, "
           "pool start-up included; "

@@ -487,6 +487,32 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
                               "move it away or choose another --out")
 
 
+def test_a_table_checksummed_by_an_older_phonepose_is_still_checked(one_worker, tmp_path):
+    """Tables written before the columns' hash carry a hash of their rows as JSON: still read, still checked."""
+    from phonepose.batch.table import CHECKSUM_KEY, ROWS_CHECKSUM_KEY, columns_hash, read_rows, rows_hash
+    from phonepose.errors import OutputError
+
+    ref, _ = one_worker
+    table = pq.read_table(ref)
+    assert table.schema.metadata[CHECKSUM_KEY].decode() == columns_hash(table)   # as written == as read back
+    old = tmp_path / "old.parquet"
+    pq.write_table(table.replace_schema_metadata({ROWS_CHECKSUM_KEY: rows_hash(table.to_pylist()).encode()}), old)
+    assert read_rows(old) == read_rows(ref)
+    changed = table.set_column(table.column_names.index("n_ticks"), "n_ticks",
+                               pa.array([v + 1 for v in table.column("n_ticks").to_pylist()], pa.int64()))
+    pq.write_table(changed.replace_schema_metadata({ROWS_CHECKSUM_KEY: rows_hash(table.to_pylist()).encode()}), old)
+    with pytest.raises(OutputError, match="does not match its checksum"):
+        read_rows(old)
+    # a value moved from one row to the next keeps every column's multiset: the hash still sees it
+    trackers = table.column("tracker").to_pylist()
+    assert len(set(trackers)) > 1
+    rotated = table.set_column(table.column_names.index("tracker"), "tracker",
+                               pa.array(trackers[1:] + trackers[:1], pa.string()))
+    pq.write_table(rotated.replace_schema_metadata(table.schema.metadata), old)
+    with pytest.raises(OutputError, match="does not match its checksum"):
+        read_rows(old)
+
+
 def test_resuming_a_table_with_wrong_column_types_is_one_line(sessions, tmp_path, cli):
     out = tmp_path / "r.parquet"
     pq.write_table(pa.table({"session": pa.array([1, 2]), "params": ["{}", "{}"], "tracker": ["T1", "T2"],

@@ -7,10 +7,11 @@ workers ran it and in whichever order units finished. Writing goes to a temporar
 the target, then ``os.replace``: a reader (or a killed batch) only ever sees a complete table.
 
 A table carries two checksums, so a bit flipped on the disk is found when a batch resumes it instead
-of becoming rows: Parquet's own page CRCs (checked by pyarrow on reading), and a SHA-256 of the rows
-in the file's metadata (``phonepose.content_sha256``; it also covers what a page CRC does not, such
-as the footer's statistics and a flip that still decodes). Tables written before it have no hash and
-are read as they are.
+of becoming rows: Parquet's own page CRCs (checked by pyarrow on reading), and a SHA-256 of the
+columns in the file's metadata (``phonepose.columns_sha256``; it also covers what a page CRC does not,
+such as the footer's statistics and a flip that still decodes). Tables written before it carry a
+SHA-256 of their rows as JSON (``phonepose.content_sha256``), which is still checked; older ones have
+no hash and are read as they are.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -38,12 +40,32 @@ TAIL = {"n_ticks": pa.int64(), "n_task_ticks": pa.int64(), "frames_decoded": pa.
         "phonepose_version": pa.string()}
 REQUIRED = ("session", "params", "tracker", "status")
 RUNTIME_COLUMNS = ("runtime_s",)
-CHECKSUM_KEY = b"phonepose.content_sha256"
+CHECKSUM_KEY = b"phonepose.columns_sha256"
+ROWS_CHECKSUM_KEY = b"phonepose.content_sha256"     # what tables written before 2026-12-05 carry
 
 
-def content_hash(rows: list[dict]) -> str:
-    """SHA-256 of the rows as JSON (keys sorted; NaN spelled NaN): the same rows, the same hash."""
-    # the only columns that differ between two runs of the same batch
+def columns_hash(table: pa.Table) -> str:
+    """SHA-256 of the table as Arrow holds it: each column's name, type, nulls and values, in order.
+
+    Numbers are hashed as their bytes and strings as their lengths and UTF-8, the same before writing
+    and after reading back. Hashing every row as JSON (``rows_hash``) was three quarters of a rewrite
+    (3.2 of 5.3 s at 100,000 rows), and a stopped batch waits for its last rewrite."""
+    digest = hashlib.sha256()
+    for name, column in zip(table.column_names, table.columns, strict=True):
+        values = column.combine_chunks()
+        digest.update(f"{name}\0{values.type}\0{len(values)}\0".encode())
+        digest.update(np.packbits(values.is_null().to_numpy(zero_copy_only=False)).tobytes())
+        if pa.types.is_string(values.type) or pa.types.is_large_string(values.type):
+            encoded = [str(v).encode() for v in values.fill_null("").to_pylist()]
+            digest.update(np.fromiter(map(len, encoded), "<i8", len(encoded)).tobytes())
+            digest.update(b"".join(encoded))
+        elif not pa.types.is_null(values.type):
+            digest.update(np.ascontiguousarray(values.fill_null(0).to_numpy(zero_copy_only=False)).tobytes())
+    return digest.hexdigest()
+
+
+def rows_hash(rows: list[dict]) -> str:
+    """SHA-256 of the rows as JSON (keys sorted; NaN spelled NaN): the checksum of older tables."""
     return hashlib.sha256(json.dumps(rows, sort_keys=True, allow_nan=True, default=str).encode()).hexdigest()
 
 
@@ -153,8 +175,12 @@ def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:
             got = table.schema.field(name).type
             if got != want and not pa.types.is_null(got):
                 raise _refuse(path, f"is not a phonepose batch table (column {name} is {got}, not {want})")
-    want_hash = (table.schema.metadata or {}).get(CHECKSUM_KEY)
-    if want_hash is not None and want_hash.decode(errors="replace") != content_hash(rows):
+    metadata = table.schema.metadata or {}
+    if CHECKSUM_KEY in metadata:
+        matches = metadata[CHECKSUM_KEY].decode(errors="replace") == columns_hash(table)
+    else:
+        matches = ROWS_CHECKSUM_KEY not in metadata or metadata[ROWS_CHECKSUM_KEY].decode(errors="replace") == rows_hash(rows)
+    if not matches:
         raise _refuse(path, "does not match its checksum: it changed on the disk after phonepose wrote it")
     return {row_key(r["session"], r["params"], r["tracker"]): r for r in rows}
 
@@ -184,7 +210,7 @@ class ResultTable:
             return False
         t0 = time.monotonic()
         table = to_arrow(list(self.rows.values()))
-        table = table.replace_schema_metadata({CHECKSUM_KEY: content_hash(table.to_pylist()).encode()})
+        table = table.replace_schema_metadata({CHECKSUM_KEY: columns_hash(table).encode()})
         assert self.output is not None and self.output.tmp is not None, "write() runs inside the batch's OutputPlan"
         try:
             with open(self.output.tmp, "wb") as f:
