@@ -59,8 +59,11 @@ def columns_hash(table: pa.Table) -> str:
             encoded = [str(v).encode() for v in values.fill_null("").to_pylist()]
             digest.update(np.fromiter(map(len, encoded), "<i8", len(encoded)).tobytes())
             digest.update(b"".join(encoded))
-        elif not pa.types.is_null(values.type):
-            digest.update(np.ascontiguousarray(values.fill_null(0).to_numpy(zero_copy_only=False)).tobytes())
+        elif pa.types.is_boolean(values.type) or pa.types.is_integer(values.type) or pa.types.is_floating(values.type):
+            zero = False if pa.types.is_boolean(values.type) else 0
+            digest.update(np.ascontiguousarray(values.fill_null(zero).to_numpy(zero_copy_only=False)).tobytes())
+        elif not pa.types.is_null(values.type):     # no such column is written; hashed, not skipped
+            digest.update(repr(values.to_pylist()).encode())
     return digest.hexdigest()
 
 
