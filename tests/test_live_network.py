@@ -345,6 +345,39 @@ def test_a_page_repeating_marker_and_xrsession_messages_gets_a_few_lines_and_cou
     assert len(logs) < 40
 
 
+def test_a_page_reconnecting_in_a_loop_gets_lines_for_its_first_connections_and_a_count(long_media, tmp_path):
+    """docs/phone-page.md: the first LOGGED_CONNECTIONS WebSockets get their connected/closed lines, the next one
+    says that later ones are only counted, and the closing summary counts the rest."""
+    from phonepose.record.live.server import LOGGED_CONNECTIONS
+
+    n = LOGGED_CONNECTIONS + 5
+    s, out, th, lines = _start(long_media, tmp_path)
+    _wait_video_start(s)
+    server = s.source.server
+
+    async def script():
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            for _ in range(n):
+                ws = await http.ws_connect(f"https://127.0.0.1:{s.port}/ws?token={s.token}")
+                await ws.close()
+                # closed on the recorder's side too before the next one: no "replaced by" line
+                await wait_until_async(lambda: "phone" not in server.current, what="the recorder to close it")
+
+    asyncio.run(script())
+    s.stop("test done")
+    _finish(th)
+    logs = [m.msg.message for m in _messages(tmp_path / "s.mcap") if m.topic == Topic.LOG]
+    connected = [t for t in logs if ": connected" in t]
+    closed = [t for t in logs if " after 0 messages" in t]
+    assert [t.split(" (")[0] for t in connected] == [f"phone #{i}" for i in range(1, LOGGED_CONNECTIONS + 2)]
+    assert connected[-1].endswith("connected; the lines of this and later connections are only counted (closing summary)")
+    assert len(closed) == LOGGED_CONNECTIONS
+    kind = f"lines of connections after the first {LOGGED_CONNECTIONS}"
+    assert s.source.recording.unlogged == {kind: 2 * (n - LOGGED_CONNECTIONS) - 1}
+    assert any(f"{kind}: {2 * (n - LOGGED_CONNECTIONS) - 1}" in t for t in logs if t.startswith("lines not repeated"))
+    assert sum(": connected" in line for line in lines) == LOGGED_CONNECTIONS + 1    # the terminal's lines too
+
+
 def test_oversized_invalid_utf8_and_repeated_messages_are_ignored_and_logged_once(long_media, tmp_path):
     """docs/phone-page.md: such a message is ignored and logged once per kind, the connection stays."""
     s, out, th, lines = _start(long_media, tmp_path)

@@ -61,6 +61,7 @@ OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate m
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
 MAX_CONNECTIONS = 64                  # open TCP connections at a time (a phone page uses a few); see gate.py
+LOGGED_CONNECTIONS = 20               # WebSockets whose own lines are logged; later ones' are counted (Connection.log)
 HANDSHAKE_TIMEOUT_S = 10.0            # TLS handshake deadline
 FIRST_REQUEST_S = 15.0                # a connection silent this long after it opened is closed
 KEEPALIVE_S = 15.0                    # an idle HTTP keep-alive connection is closed after this
@@ -256,6 +257,7 @@ class Connection:
         self.ws = sock.ws
         self.peer = peer
         self.role = role
+        self.number = number
         self.name = f"{role} #{number} ({peer})"
         self.clock = OffsetEstimator()
         self.fallback_offset_ns: int | None = None
@@ -269,6 +271,17 @@ class Connection:
         self.hellos = 0
         self.last_receipt_ns = self.opened_ns
         self.tasks: set[asyncio.Task] = set()
+
+    def log(self, text: str, level: str = "info", echo: bool = True) -> None:
+        """A line about this connection (the terminal and /log). A page that reconnects in a loop must not flood
+        either: from connection LOGGED_CONNECTIONS + 1 on, the lines are counted (closing summary)."""
+        if self.number <= LOGGED_CONNECTIONS:
+            self.rec.log(f"{self.name}: {text}", level=level, echo=echo)
+        elif self.number == LOGGED_CONNECTIONS + 1 and text == "connected":
+            self.rec.log(f"{self.name}: connected; the lines of this and later connections are only counted "
+                         f"(closing summary)", level=level, echo=echo)
+        else:
+            self.rec.unlogged[f"lines of connections after the first {LOGGED_CONNECTIONS}"] += 1
 
     # ------------------------------------------------------------------ sending
     async def send(self, obj: dict) -> None:
@@ -311,9 +324,8 @@ class Connection:
                 return
             # every waiting t is within MAX_STAMP_MS (parse_message), so this is plain int64-range arithmetic
             self.fallback_offset_ns = int(statistics.median(int(round(m["t"] * 1e6)) - r for m, r in self.pending))
-            self.rec.log(f"{self.name}: no answer to the clock pings; {len(self.pending)} samples stamped assuming zero "
-                         f"network delay (page clock offset {self.fallback_offset_ns / 1e6:+.1f} ms) until one arrives",
-                         level="warning")
+            self.log(f"no answer to the clock pings; {len(self.pending)} samples stamped assuming zero network delay "
+                     f"(page clock offset {self.fallback_offset_ns / 1e6:+.1f} ms) until one arrives", level="warning")
         else:
             self._log_offset(force=True)
         self.settled = True
@@ -322,8 +334,8 @@ class Connection:
     def _waiting_note(self) -> None:
         """At :data:`PENDING_TIMEOUT_S` with no pong: say once that samples wait (none is dropped)."""
         if not self.settled and self.clock.best() is None:
-            self.rec.log(f"{self.name}: no answer to the clock pings within {PENDING_TIMEOUT_S:g} s (Wi-Fi power "
-                         f"saving?); samples wait for one, none is dropped", level="warning")
+            self.log(f"no answer to the clock pings within {PENDING_TIMEOUT_S:g} s (Wi-Fi power saving?); samples "
+                     f"wait for one, none is dropped", level="warning")
 
     def flush_pending(self) -> None:
         """Stamp every waiting sample; one that fails (a bug, not the page's fault) costs only itself."""
@@ -340,8 +352,8 @@ class Connection:
             return
         if force or self.logged_offset_ns is None or abs(best.offset_ns - self.logged_offset_ns) >= OFFSET_LOG_CHANGE_NS:
             self.logged_offset_ns = best.offset_ns
-            self.rec.log(f"{self.name}: page clock offset {best.offset_ns / 1e6:+.1f} ms (best round trip "
-                         f"{best.rtt_ns / 1e6:.1f} ms of {len(self.clock.exchanges)})", echo=force)
+            self.log(f"page clock offset {best.offset_ns / 1e6:+.1f} ms (best round trip {best.rtt_ns / 1e6:.1f} ms "
+                     f"of {len(self.clock.exchanges)})", echo=force)
 
     # ------------------------------------------------------------------ receiving
     def handle_frame(self, data: bytes | str, receipt_ns: int) -> None:
@@ -394,16 +406,16 @@ class Connection:
 
     def malformed(self, exc: Malformed) -> None:
         if self._count_malformed(exc.kind):
-            self.rec.log(f"{self.name}: ignored a malformed message ({printable(str(exc), TEXT_LIMIT)}); further ones "
-                         f"of this kind are only counted", level="warning")
+            self.log(f"ignored a malformed message ({printable(str(exc), TEXT_LIMIT)}); further ones of this kind "
+                     f"are only counted", level="warning")
             self.send_soon({"type": "error", "message": f"ignored malformed message: {exc}"})
 
     def unexpected(self, exc: Exception) -> None:
         """A message that passed the checks and still raised (a recorder bug): counted as malformed, logged
         once per exception type and connection, ignored; the connection and the messages after it go on."""
         if self._count_malformed(f"could not be handled ({type(exc).__name__})"):
-            self.rec.log(f"{self.name}: a message could not be handled ({type(exc).__name__}: "
-                         f"{printable(str(exc), 80)}); ignored, further ones are only counted", level="error")
+            self.log(f"a message could not be handled ({type(exc).__name__}: {printable(str(exc), 80)}); ignored, "
+                     f"further ones are only counted", level="error")
 
     def _count_malformed(self, kind: str) -> bool:
         """Count one ignored message of ``kind``; True the first time on this connection (log it then)."""
@@ -561,10 +573,10 @@ class LiveServer:
         conn = Connection(self, PageSocket(ws), request.remote or "?", self.connections, role)
         previous, self.current[role] = self.current.get(role), conn
         if previous is not None and not previous.sock.closed:
-            self.recording.log(f"{previous.name}: replaced by {conn.name}", level="warning")
+            previous.log(f"replaced by {conn.name}", level="warning")
             await previous.send({"type": "error", "message": "another page connected; this one is no longer recorded"})
             previous.sock.ask_close()   # its own handler closes it; this page is served meanwhile
-        self.recording.log(f"{conn.name}: connected")
+        conn.log("connected")
         pinger = asyncio.ensure_future(conn.pinger())
         try:
             await conn.sock.serve(lambda msg: self._on_message(conn, msg))
@@ -573,7 +585,7 @@ class LiveServer:
             await asyncio.gather(pinger, return_exceptions=True)
             await conn.finish()
             why = f"closed (code {ws.close_code})" if ws.close_code is not None else "disconnected"
-            self.recording.log(f"{conn.name}: {why} after {conn.received} messages")
+            conn.log(f"{why} after {conn.received} messages")
             if self.current.get(role) is conn:
                 del self.current[role]
         return ws
