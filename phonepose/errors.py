@@ -64,14 +64,17 @@ def quiet_library_warnings() -> None:
     its own lines (``phonepose: error:`` / ``phonepose: warning:``). numpy's floating-point warnings
     (an overflow on an absurd input: results are checked for NaN/inf where they are used), the
     RuntimeWarnings numpy and scipy raise themselves, and OpenCV's WARN log lines (a camera or video
-    that cannot be opened), and rerun's WARN lines ("Dropping data in MemorySink" at exit).
-    ``OPENCV_LOG_LEVEL`` or ``RUST_LOG`` set by the user wins. Called by the CLI and by every worker
+    that cannot be opened), FFmpeg's lines from inside OpenCV's video reader ("moov atom not found" for
+    a file that is no video: phonepose says "not a video OpenCV can read"), and rerun's WARN lines
+    ("Dropping data in MemorySink" at exit). ``OPENCV_LOG_LEVEL``, ``OPENCV_FFMPEG_LOGLEVEL`` or
+    ``RUST_LOG`` set by the user wins. Called by the CLI and by every worker
     process it starts."""
     import os
     import sys
     import warnings
 
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")     # read when cv2 loads (workers inherit it)
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when a video is first opened
     os.environ.setdefault("RUST_LOG", "error")             # rerun's Rust log, read when it loads
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":

@@ -440,6 +440,21 @@ def test_errors_are_one_line(case, tmp_path, cli):
     assert not (tmp_path / "cam.yaml").exists()
 
 
+@pytest.mark.parametrize("suffix", [".mp4", ".mkv", ".mp3"])
+def test_ffmpegs_own_lines_stay_off_the_terminal(suffix, tmp_path):
+    """OpenCV's video reader is FFmpeg, which writes to file descriptor 2 itself ("moov atom not found"
+    for a text file named .mp4): the user sees phonepose's one line only (errors.quiet_library_warnings)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    video = _text(tmp_path / f"v{suffix}")
+    r = subprocess.run([sys.executable, "-m", "phonepose", "calibrate-camera", "-q", "--video", str(video),
+                        "--out", str(tmp_path / "cam.yaml")], capture_output=True, text=True, env=env, timeout=300)
+    assert (r.returncode, r.stderr) == (2, f"phonepose: error: {video}: not a video OpenCV can read\n")
+
+
 def test_too_few_views_is_one_line(synthetic, tmp_path, cli):
     images, _, _ = synthetic
     folder = _mk(tmp_path / "three")
