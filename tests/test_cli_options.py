@@ -74,6 +74,28 @@ def test_flags_read_as_flags_in_help(command, cli):
     assert re.search(r"--help\s+Show this message and exit\.", r.stdout), r.stdout
 
 
+def test_help_paragraphs_wrap_to_the_terminal_not_to_the_source(cli):
+    """Each paragraph of a command's help flows as one text: at 80 columns, the batch help's second
+    paragraph fills its lines (it broke after "they are", where the docstring's line ended)."""
+    from phonepose.cli import command
+
+    def commands(c, path=()):
+        yield path, c
+        for name, sub in getattr(c, "commands", {}).items():
+            yield from commands(sub, (*path, name))
+
+    helps = {" ".join(path): c.help for path, c in commands(command()) if c.help}
+    assert len(helps) >= 15
+    assert [k for k, h in helps.items() if any("\n" in para for para in h.split("\n\n"))] == []
+    r = cli("batch", "--help", env={"COLUMNS": "80"})
+    lines = [line.strip() for line in r.stdout.splitlines()]
+    assert ("Exit 0 when every row is ok, 1 when some playbacks failed (their rows say why; they are retried by the "
+            "next run with the same --out). Ctrl-C or SIGTERM stop the workers and keep every finished row in --out."
+            ) in " ".join(lines)
+    start = next(i for i, line in enumerate(lines) if line.startswith("Exit 0 when"))
+    assert all(len(line) >= 60 for line in lines[start:start + 2]), lines[start:start + 3]
+
+
 def test_help_shows_defaults_choices_and_paper(cli):
     r = cli("playback", "--help", env={"COLUMNS": "160"})
     assert "[default: (./playback-<session>)]" in r.stdout          # rich markup no longer eats it

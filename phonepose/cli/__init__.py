@@ -8,6 +8,7 @@ SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the w
 from __future__ import annotations
 
 import functools
+import inspect
 import logging
 import os
 import signal
@@ -132,11 +133,19 @@ def _reporting_interrupts(callback):
     return run
 
 
+def _reflowed(text: str) -> str:
+    """A command's docstring with each paragraph on one line: typer's rich mode keeps the source's line
+    breaks, which a terminal narrower than the source (80 columns) wrapped again into ragged lines."""
+    return "\n\n".join(" ".join(para.split("\n")) for para in inspect.cleandoc(text).split("\n\n"))
+
+
 def _prepare(command) -> None:
-    """Every command of the tree: interrupts reported (one line, 130 or 143), and ``--quiet`` in --help
-    without a ``<bool>`` value placeholder (typer shows one for flags)."""
+    """Every command of the tree: interrupts reported (one line, 130 or 143), its help's paragraphs
+    reflowed, and ``--quiet`` in --help without a ``<bool>`` value placeholder (typer shows one for flags)."""
     if getattr(command, "callback", None) is not None and not getattr(command.callback, "_reports_interrupts", False):
         command.callback = _reporting_interrupts(command.callback)
+    if getattr(command, "help", None):
+        command.help = _reflowed(command.help)
     for param in getattr(command, "params", []):
         if getattr(param, "is_flag", False) and not getattr(param, "count", False):
             param.metavar = ""
