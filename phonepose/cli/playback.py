@@ -7,12 +7,12 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import ProgressBar, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
 from phonepose.schemas.topics import Topic
@@ -98,8 +98,8 @@ def playback(
     folder = plan.dir(out if out is not None else default_out_dir(session), "--out", command="playback")
     rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
     console = Console(stderr=True)
-    with plan, Progress(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
-                        TimeRemainingColumn(), console=console, disable=quiet, transient=True) as bar:
+    with plan, ProgressBar(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
+                           TimeRemainingColumn(), console=console, quiet=quiet) as bar:
         task = bar.add_task("ticks", total=None)
 
         def progress(done: int, total: int) -> None:
