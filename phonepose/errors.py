@@ -46,7 +46,14 @@ class OutputError(PhoneposeError):
 class TrackerError(ConfigError):
     """A user's tracker (``-t package.module:Class`` or an entry point) failed in its own code: its
     ``reset`` or ``step`` raised, called ``sys.exit()``, or returned what is not a pose. Exit 5, like
-    every other problem with a ``-t`` (docs/writing-a-tracker.md)."""
+    every other problem with a ``-t`` (docs/writing-a-tracker.md). ``tracker``: its name."""
+
+    def __init__(self, message: str, tracker: str):
+        super().__init__(message)
+        self.tracker = tracker
+
+    def __reduce__(self):   # sent back from a worker process (experiment --jobs, batch) whole
+        return type(self), (str(self), self.tracker)
 
 
 class StopRequest(BaseException):

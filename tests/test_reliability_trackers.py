@@ -318,19 +318,35 @@ def test_ctrl_c_inside_a_tracker_is_still_an_interrupt(session, here, cli):
     assert snapshot(here) == before
 
 
-def test_a_batch_whose_tracker_exits_writes_error_rows(session, here, cli):
-    """A worker's sys.exit came back through the pool as a SystemExit of the batch: no table, exit 0."""
+def test_a_batch_whose_tracker_exits_writes_its_error_row_and_the_others_rows(session, here, cli):
+    """A worker's sys.exit came back through the pool as a SystemExit of the batch: no table, exit 0. Then the
+    failing tracker's error became every tracker's row of the unit; now the unit runs again without it."""
     code, _, err = cli(*commands(session, ref("ExitInStep"))["batch"])
     assert code == 1
-    assert err.splitlines()[-1] == ("phonepose: error: 2 of 2 rows failed (status error in r.parquet; the next run "
+    assert err.splitlines()[-1] == ("phonepose: error: 1 of 2 rows failed (status error in r.parquet; the next run "
                                     "with the same --out retries them)")
-    rows = read_rows(here / "work" / "sub" / "r.parquet")
-    assert sorted(k[2] for k in rows) == ["E", "T1"]
-    assert {r["status"] for r in rows.values()} == {"error"}
-    assert {r["error"] for r in rows.values()} == {
+    rows = {k[2]: r for k, r in read_rows(here / "work" / "sub" / "r.parquet").items()}
+    assert (rows["E"]["status"], rows["E"]["error"]) == ("error", (
         "tracker 'hostile_trackers:ExitInStep' (E) failed in step(): it called sys.exit(0): a tracker must not end "
-        "the process; raise an exception instead"}
-    assert sorted(p.name for p in (here / "work" / "sub").iterdir()) == ["evil.tum", "r.parquet"]
+        "the process; raise an exception instead"))
+    assert cli("batch", "-q", session, "--out", "alone.parquet", "--workers", "1", "-t", "T1").returncode == 0
+    alone = next(iter(read_rows(here / "work" / "sub" / "alone.parquet").values()))
+    assert rows["T1"]["status"] == "ok"
+    assert {k: v for k, v in rows["T1"].items() if k != "runtime_s"} == \
+        {k: v for k, v in alone.items() if k != "runtime_s"}      # the same row as a batch without the failing one
+    assert sorted(p.name for p in (here / "work" / "sub").iterdir()) == ["alone.parquet", "evil.tum", "r.parquet"]
+
+
+def test_a_unit_whose_trackers_all_fail_gives_each_its_own_error(session):
+    from phonepose.batch.plan import Unit
+    from phonepose.batch.run import run_unit
+
+    unit = Unit("s.mcap", str(session), (), ("R", "S"), refs=(("R", ref("RaisesInStep")), ("S", ref("ReturnsText"))))
+    rows = run_unit(unit)
+    assert [(r["tracker"], r["status"], r["error"]) for r in rows] == [
+        ("R", "error", f"tracker '{ref('RaisesInStep')}' (R) failed in step(): ValueError: boom"),
+        ("S", "error", f"tracker '{ref('ReturnsText')}' (S) failed in step(): it returned a str; step returns one "
+                       "phonepose.geometry.Pose, or None")]
 
 
 def test_an_experiment_whose_tracker_exits_is_one_line_and_no_folder(session, here, cli):

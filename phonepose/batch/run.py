@@ -7,6 +7,7 @@ with ``status = "error"`` and a one-line ``error``, so one session cannot stop a
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import signal
 import threading
 import time
@@ -14,7 +15,7 @@ from collections.abc import Callable, Iterator
 
 from phonepose import __version__
 from phonepose.batch.plan import Unit, params_json, session_signature
-from phonepose.errors import PhoneposeError, StopRequest
+from phonepose.errors import PhoneposeError, StopRequest, TrackerError
 
 FIXED_COLUMNS = ("session", "params", "tracker", "status", "error", "session_bytes", "session_mtime_ns",
                  "n_ticks", "n_task_ticks", "frames_decoded", "runtime_s", "phonepose_version")
@@ -122,7 +123,8 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
 
     ``runtime_s`` is the playback's wall time in the worker (run_playback's ``wall_s``: open, ticks,
     metrics), the same in every row of the unit: the trackers share the playback. A playback longer
-    than ``budget_s`` seconds is stopped and becomes error rows.
+    than ``budget_s`` seconds is stopped and becomes error rows. A user's tracker that fails in its own
+    code (TrackerError) gets an error row, and the playback runs again without it for the others.
     """
     init_worker()
     from phonepose.pipeline.trackers import make_trackers
@@ -132,28 +134,50 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
     cm1_reading = params.get("cm1_reading", "consistent")
     t0 = time.perf_counter()
     sig = session_signature(unit.path)
+    failed: dict[str, str] = {}    # a user's tracker that failed in its own code -> its error
+    result = None
     try:
         with time_budget(budget_s) as check_budget:
             calibration = None
             if params.get("gt_calibration") == "calibrate-gt":
                 from phonepose.calibration.calibrate_gt import calibrate_gt_session
                 calibration = calibrate_gt_session(unit.path)
-            result = run_playback(
-                unit.path, trackers=unit.tracker_refs, rate_hz=params.get("rate_hz", 20.0),
-                correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
-                end_s=params.get("end_s"), write_outputs=False, progress=check_budget, gt_calibration=calibration,
-                tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
+            # the trackers share one playback: one whose own code fails is taken out and the playback run
+            # again, so the others' rows are still made (its own row says why it failed)
+            while refs := [ref for name, ref in zip(unit.trackers, unit.tracker_refs, strict=True) if name not in failed]:
+                try:
+                    result = run_playback(
+                        unit.path, trackers=refs, rate_hz=params.get("rate_hz", 20.0),
+                        correction_math=params.get("correction_math", "paper"), start_s=params.get("start_s"),
+                        end_s=params.get("end_s"), write_outputs=False, progress=check_budget,
+                        gt_calibration=calibration,
+                        tracker_factory=lambda names, math: make_trackers(names, math, cm1_reading))
+                    break
+                except TrackerError as exc:
+                    if exc.tracker not in unit.trackers or exc.tracker in failed:
+                        raise
+                    failed[exc.tracker] = one_line(exc)
     except KeyboardInterrupt:
         raise
     except BaseException as exc:   # noqa: BLE001 - every failure of one session is that session's rows: an
         # Exception, the time budget, and a SystemExit that got this far (which would otherwise end a local
         # worker's task as a SystemExit raised in the batch itself: a silent exit with no table)
         return error_rows(unit, exc, time.perf_counter() - t0)
+    rows = {} if result is None else \
+        {r["tracker"]: r for r in _result_rows(dataclasses.replace(unit, trackers=tuple(
+            t for t in unit.trackers if t not in failed)), result, sig)}
+    for name, message in failed.items():
+        rows[name] = error_rows(dataclasses.replace(unit, trackers=(name,)), message, time.perf_counter() - t0)[0]
+    return [rows[t] for t in unit.trackers]
+
+
+def _result_rows(unit: Unit, result, sig) -> list[dict]:
+    """One ok row per tracker of ``unit`` from its playback's ``result``."""
     renamed = [t for t in unit.trackers if t not in result.metrics["trackers"]]
     if renamed:   # a user's tracker whose name depends on the process (it is read in the batch, then here)
         return error_rows(unit, f"tracker {renamed[0]!r} has another name in this worker ("
                                 f"{', '.join(result.metrics['trackers'])}): a tracker's name must be fixed",
-                          time.perf_counter() - t0)
+                          result.wall_s)
     rows = []
     for tracker in unit.trackers:
         row = base_row(unit, tracker)

@@ -364,7 +364,7 @@ class UserTracker:
         self.uses_vio_samples = uses_vio_samples
 
     def _failed(self, method: str, what: str) -> TrackerError:
-        return TrackerError(f"tracker {self.ref!r} ({self.name}) failed in {method}(): {what}")
+        return TrackerError(f"tracker {self.ref!r} ({self.name}) failed in {method}(): {what}", self.name)
 
     def reset(self) -> None:
         try:
