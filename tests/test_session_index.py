@@ -219,6 +219,38 @@ def test_valid_files_without_parts_of_the_summary_read_like_the_full_one(small, 
     assert caplog.records == []
 
 
+@pytest.mark.parametrize("options", [{"use_chunking": False}, {"chunk_size": 4096}], ids=["unchunked", "small-chunks"])
+def test_messages_out_of_log_time_order_with_every_sequence_0_are_read_in_order(small, tmp_path, options):
+    """Another writer's valid file: messages written newest first, each twice (two records of one channel with one
+    log time, arriving 1 ns apart), every sequence 0 (MCAP leaves the sequence to the writer; many write 0).
+    Overlapping chunks are merged on a heap, which compared two Message records on a tie of (log time, channel,
+    sequence): a TypeError reported as "damaged MCAP file ... run phonepose recover"."""
+    with open(small, "rb") as f:
+        records = list(make_reader(f).iter_messages(log_time_order=True))
+    p = tmp_path / "reversed.mcap"
+    with open(p, "wb") as g:
+        w = Writer(g, **options)
+        w.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, _m in records:
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, schemas[schema.id])
+        for _schema, channel, m in reversed(records):
+            for arrival in (m.publish_time, m.publish_time + 1):
+                w.add_message(channels[channel.id], m.log_time, m.data, arrival, 0)
+        w.finish()
+    with SessionReader(small) as a, SessionReader(p) as b:
+        expected = [(m.log_time_ns, m.topic, m.msg.SerializeToString()) for m in a.messages()]
+        got = [(m.log_time_ns, m.topic, m.msg.SerializeToString()) for m in b.messages()]
+        assert len(got) == 2 * len(expected) > 100
+        assert [t for t, _, _ in got] == sorted(2 * [t for t, _, _ in expected])
+        assert sorted(got) == sorted(2 * expected)
+        assert b.verify(deep=True) == len(b.index.chunks)
+
+
 def _times_by_mcap(path: Path) -> dict[str, list[int]]:
     """Every message's log time per topic, in file order, as mcap's own reader reads them."""
     out: dict[str, list[int]] = {}
