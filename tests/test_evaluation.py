@@ -27,7 +27,7 @@ from phonepose.evaluation import (
     paper_metrics,
     write_tum,
 )
-from phonepose.evaluation.evo_metrics import Unit, _first_crossings, id_pairs_from_delta
+from phonepose.evaluation.evo_metrics import Unit, _first_crossings, evo_align, id_pairs_from_delta
 from phonepose.evaluation.relative import find_pairs, relative_errors
 from phonepose.geometry import Pose
 
@@ -85,6 +85,38 @@ def test_alignment_options_are_checked():
         align(gt, gt, "se3", 11)
     with pytest.raises(ConfigError):
         align(gt, gt, "yaw", -1)
+
+
+def test_an_alignment_the_positions_do_not_determine_is_refused(cli, tmp_path):
+    """A trajectory that never moves, or two poses (on one line): the rotation of a se3/sim3 Umeyama (and posyaw's
+    yaw, for one point) is then arbitrary. rpg's code has no check: ours returned an SVD's arbitrary rotation and
+    ATE rotation / RE from it; evo refuses ("degenerate covariance rank"), and so do we, on both paths."""
+    gt = random_traj(50, 4)
+    still = Pose(gt.rotation, np.tile(gt.translation[0], (50, 1)))
+    line = Pose(gt.rotation, np.outer(np.arange(50) * 0.01, [1.0, 2.0, 0.5]))
+    for est, methods in ((still, ("posyaw", "se3", "sim3")), (line, ("se3", "sim3")), (gt[:2], ("se3", "sim3"))):
+        ref = gt[:len(est)]
+        for method in methods:
+            with pytest.raises(ConfigError, match="at one point or on one line"):
+                align(ref, est, method)
+            if method != "posyaw":
+                with pytest.raises(ConfigError, match="at one point or on one line"):
+                    evo_align(ref, est, method)
+        assert align(ref, est, "se3", 1).method == "se3"          # the first-pose closed form needs no spread
+    # a line determines the yaw (its direction in x-y): posyaw keeps working
+    yaw = Rotation.from_euler("z", 0.3)
+    a = align(Pose(yaw * line.rotation, yaw.apply(line.translation)), line, "posyaw")
+    np.testing.assert_allclose(a.rotation, yaw.as_matrix(), atol=1e-12)
+    stamps = np.arange(50) * 0.05
+    write_tum(tmp_path / "gt.tum", stamps, gt)
+    write_tum(tmp_path / "still.tum", stamps, still)
+    write_tum(tmp_path / "one.tum", stamps[:1], gt[:1])
+    for args, text in ((["--est", "still.tum"], "lie at one point or on one line"),
+                       (["--est", "one.tum", "--metric", "ape", "--align", "se3"],
+                        "--align se3 needs at least 2 matched poses, there is 1: use --align none")):
+        code, _, err = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), *[str(tmp_path / a) if a.endswith(".tum")
+                                                                           else a for a in args])
+        assert code == 5 and text in err and len(err.strip().splitlines()) == 1, err
 
 
 # ----------------------------------------------------------------------------- zero errors
