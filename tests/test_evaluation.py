@@ -4,6 +4,7 @@ association and pair searches against plain-loop references, loaders/writer, pap
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -117,6 +118,28 @@ def test_an_alignment_the_positions_do_not_determine_is_refused(cli, tmp_path):
         code, _, err = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), *[str(tmp_path / a) if a.endswith(".tum")
                                                                            else a for a in args])
         assert code == 5 and text in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_an_estimate_in_millimetres_is_flagged(cli, tmp_path, caplog):
+    """Neither file says its unit: an estimate in mm against a GT in m gave an ATE of hundreds of metres and no word.
+    One warning line with both spreads (RMS distance from their centroid over the matched poses); none with sim3."""
+    gt = random_traj(200, 5)
+    stamps = np.arange(200) * 0.05
+    write_tum(tmp_path / "gt.tum", stamps, gt)
+    write_tum(tmp_path / "mm.tum", stamps, Pose(gt.rotation, gt.translation * 1000))
+    p = gt.translation
+    spread = float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, axis=1))))
+    with caplog.at_level(logging.WARNING, logger="phonepose"):
+        code, out, _ = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "mm.tum"), "--json")
+    assert code == 0 and json.loads(out)["n_matched"] == 200
+    assert caplog.messages == [
+        f"phonepose: warning: {tmp_path / 'mm.tum'}'s positions spread {1000 * spread:.3g} m, {tmp_path / 'gt.tum'}'s "
+        f"{spread:.3g} m (1e+03x): are both in metres? (--align sim3 estimates a scale)"]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="phonepose"):
+        code, out, _ = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "mm.tum"), "--json",
+                           "--align", "sim3")
+    assert code == 0 and caplog.messages == [] and json.loads(out)["align"]["scale"] == pytest.approx(1e-3, rel=1e-9)
 
 
 # ----------------------------------------------------------------------------- zero errors
@@ -241,6 +264,10 @@ def test_loaders_read_the_fixture_formats():
     ("0 1 2 3 0 0 0 0\n", "zero quaternion"),
     ("0 1 2 nan 0 0 0 1\n", ":1: non-finite"),
     ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 0 1 9\n", ":2: 9 values, the lines before have 8"),
+    # commas: refused, not guessed (an 8-column EuRoC row, t[ns] and w first, would read as TUM without an error)
+    ("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n", ":2: values separated by commas in '0,1,2,3,0,0,0,1': TUM 't tx ty tz "
+                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is --format euroc)"),
+    ("timestamp tx ty tz qx qy qz qw\n0 1 2 3 0 0 0 1\ntimestamp tx ty tz qx qy qz qw\n", ":3: not a number"),
 ])
 def test_malformed_tum_is_one_clear_line(tmp_path, text, where):
     p = tmp_path / "bad.txt"

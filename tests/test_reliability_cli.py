@@ -870,7 +870,8 @@ def test_evaluate_warns_when_the_files_come_from_different_sessions(clean_run, t
 
 
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):
-    """Trajectory files: a non-unit quaternion row is skipped and reported; duplicate stamps are reported."""
+    """Trajectory files: a non-unit quaternion is normalised (as evo and rpg do) and reported; duplicate stamps are
+    reported."""
     import json
 
     gt = clean_run / "groundtruth.tum"
@@ -887,8 +888,11 @@ def test_evaluate_reports_bad_rows(clean_run, tmp_path):
     (tmp_path / "q.tum").write_text("\n".join(bad) + "\n")
     r = _subprocess("evaluate", "--gt", str(gt), "--est", str(tmp_path / "q.tum"), "--json")
     assert r.returncode == 0
-    assert r.stderr.strip() == f"phonepose: warning: {tmp_path / 'q.tum'}: 1 pose(s) skipped: non-unit quaternion"
-    assert json.loads(r.stdout)["n_matched"] == n - 1
+    assert r.stderr.strip() == (f"phonepose: warning: {tmp_path / 'q.tum'}: 1 pose(s) whose quaternion is not unit "
+                                f"length (|q| {float(np.linalg.norm([float(x) for x in parts[4:]])):.6g} to "
+                                f"{float(np.linalg.norm([float(x) for x in parts[4:]])):.6g}): normalised, as evo and "
+                                "rpg do")
+    assert json.loads(r.stdout)["n_matched"] == n
     dup = list(lines)
     dup.insert(rows[3], lines[rows[3]])
     (tmp_path / "d.tum").write_text("\n".join(dup) + "\n")
