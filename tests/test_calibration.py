@@ -23,7 +23,7 @@ from phonepose.calibration import load_calibration, save_calibration
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_png, board_spec, parse_board_spec, render_board
 from phonepose.calibration.calibrate import BoardFinder, calibrate_camera, calibrate_views
 from phonepose.calibration.marker_image import marker_image, marker_png
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, InputFileError
 
 DATA = pathlib.Path(__file__).parent / "data" / "opencv_contrib"
 
@@ -290,6 +290,84 @@ def test_save_load_round_trip(tmp_path):
     assert np.array_equal(back.K, K_TRUE) and np.array_equal(back.D, D_TRUE)
     assert (back.width, back.height, back.reprojection_error_px) == (640, 480, 0.123)
     assert parse_board_spec(back.board) == DEFAULT_BOARD
+
+
+ROS_CAMERA_INFO = """image_width: 640
+image_height: 480
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [612.0, 0.0, 329.0, 0.0, 607, 236.5, 0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [612.0, 0.0, 329.0, 0.0, 0.0, 607.0, 236.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+"""
+
+
+def _opencv_file(path: pathlib.Path, D: np.ndarray, header: str | None = None, **more: str) -> pathlib.Path:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("camera_matrix", K_TRUE)
+    fs.write("distortion_coefficients", D)
+    for key, value in more.items():
+        fs.write(key, value)
+    fs.release()
+    if header is not None:      # OpenCV 3 wrote "%YAML:1.0" (no "---"); OpenCV 4+ writes "%YAML 1.2" and "---"
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join([header] + lines[2:]) + "\n")
+    return path
+
+
+def test_calibration_files_of_other_tools_read_exactly_or_refused(tmp_path):
+    """OpenCV's FileStorage (YAML as OpenCV 3 and 4+ write it, XML, D as a column) and ROS's camera_info YAML (no
+    !!opencv-matrix tag: "camera_matrix is not a matrix of numbers" before) give K and D exactly. A lens that is not
+    plumb_bob was read as plumb_bob's first 5 numbers, silently: OpenCV's rational model (k4-k6 dropped), a fisheye."""
+    d5 = D_TRUE.reshape(1, 5)
+    for path in (_opencv_file(tmp_path / "c4.yaml", d5), _opencv_file(tmp_path / "c3.yaml", d5, "%YAML:1.0"),
+                 _opencv_file(tmp_path / "c.xml", d5), _opencv_file(tmp_path / "col.yaml", D_TRUE.reshape(5, 1)),
+                 _opencv_file(tmp_path / "r0.yaml", np.hstack([d5, np.zeros((1, 3))])),
+                 _write(tmp_path / "ros.yaml", ROS_CAMERA_INFO),
+                 _write(tmp_path / "ros8.yaml", ROS_CAMERA_INFO.replace("plumb_bob", "rational_polynomial").replace(
+                     "cols: 5\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]",
+                     "cols: 8\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02, 0, 0, 0]"))):
+        c = load_calibration(path)
+        assert (c.width, c.height) == (640, 480), path.name
+        assert np.array_equal(c.K, K_TRUE) and np.array_equal(c.D, D_TRUE), path.name
+    refused = {
+        _opencv_file(tmp_path / "r8.yaml", np.hstack([d5, [[0.3, 0.1, 0.02]]])):
+            "r8.yaml: 8 distortion coefficients, of which the 6th is not zero (OpenCV's rational or thin-prism model): "
+            "phonepose models plumb_bob (k1 k2 p1 p2 k3) only; calibrate without CALIB_RATIONAL_MODEL, or with "
+            "phonepose calibrate-camera",
+        _opencv_file(tmp_path / "t14.xml", np.hstack([d5, np.zeros((1, 8)), [[0.01]]])):
+            "t14.xml: 14 distortion coefficients, of which the 14th is not zero",
+        _write(tmp_path / "fisheye.yaml", ROS_CAMERA_INFO.replace("plumb_bob", "equidistant").replace(
+            "cols: 5\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]", "cols: 4\n  data: [0.1, 0.01, 0.001, 0.0]")):
+            "fisheye.yaml: distortion model 'equidistant': phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+            "calibrate the camera with phonepose calibrate-camera",
+        _write(tmp_path / "text.yaml", ROS_CAMERA_INFO.replace("data: [612.0,", "data: [fx,")):
+            "text.yaml: camera_matrix is not a matrix of numbers",
+    }
+    for path, text in refused.items():
+        with pytest.raises(InputFileError) as e:
+            load_calibration(path)
+        assert str(e.value).startswith(f"{path}") and text in str(e.value), str(e.value)
+
+
+def _write(path: pathlib.Path, text: str) -> pathlib.Path:
+    path.write_text(text)
+    return path
 
 
 def test_a_file_that_is_not_yaml_is_one_input_error(tmp_path):

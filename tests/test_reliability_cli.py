@@ -140,6 +140,15 @@ def _size0(m):
     m.size_m = 0.0
 
 
+def _fisheye(m):
+    m.distortion_model = "kannala_brandt"
+
+
+def _rational(m):
+    m.distortion_model = "rational_polynomial"
+    m.D.extend([0.3, 0.1, 0.02])
+
+
 def _size_huge(m):
     m.size_m = 1e200
 
@@ -372,6 +381,17 @@ CASES = [
          lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_zero))),
                        "-q", "--out", str(d / "o")],
          4, r"k\.mcap: camera calibration focal lengths fx=0, fy=0: expected > 0$"),
+    Case("static-fisheye", "camera calibration of a fisheye lens (Foxglove's kannala_brandt; read as plumb_bob before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "fe.mcap", _static(Topic.CAMERA_CALIBRATION, _fisheye))),
+                       "-q", "--out", str(d / "o")],
+         4, r"fe\.mcap: /display/camera/calibration: distortion model 'kannala_brandt': phonepose models plumb_bob "
+            r"\(k1 k2 p1 p2 k3\) only; calibrate the camera with phonepose calibrate-camera$"),
+    Case("static-rational", "camera calibration with 8 coefficients, k4 = 0.3 (the first 5 were used before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "r8.mcap", _static(Topic.CAMERA_CALIBRATION, _rational))),
+                       "-q", "--out", str(d / "o")],
+         4, r"r8\.mcap: /display/camera/calibration: 8 distortion coefficients, of which the 6th is not zero "
+            r"\(OpenCV's rational or thin-prism model\): phonepose models plumb_bob \(k1 k2 p1 p2 k3\) only; "
+            r"calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera$"),
     Case("static-marker-size", "marker size 0",
          lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size0))),
                        "-q", "--out", str(d / "o")],

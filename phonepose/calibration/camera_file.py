@@ -1,5 +1,8 @@
 """The camera calibration file: OpenCV FileStorage YAML, as OpenCV's own calibration samples write it.
 
+ROS's ``camera_info`` YAML (the same keys, matrices as ``rows``/``cols``/``data`` maps without OpenCV's tag, and a
+``distortion_model``) is read too; a lens model other than plumb_bob is refused (:func:`check_plumb_bob`).
+
 Keys: ``image_width``, ``image_height``, ``camera_matrix`` (3x3), ``distortion_coefficients``
 (plumb_bob k1 k2 p1 p2 k3), ``reprojection_error`` (RMS px) and, optionally, ``board`` (a text
 description of the board used). Any tool that reads OpenCV's sample format reads ours, and a file
@@ -16,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from phonepose.errors import InputFileError, OutputError
+from phonepose.errors import InputFileError, OutputError, PhoneposeError
 from phonepose.numbers import show_number
 
 
@@ -142,6 +145,13 @@ def yaml_matrix(path: Path, fs: cv2.FileStorage, key: str) -> np.ndarray | None:
             0 < rows.real() * cols.real() <= MAX_MATRIX_ELEMENTS) or data.size() != rows.real() * cols.real():
         raise InputFileError(f"{path}: {key} is not a matrix of at most {MAX_MATRIX_ELEMENTS} numbers "
                              "(its rows, cols and data disagree)")
+    if node.getNode("dt").empty():
+        # ROS's camera_info YAML (camera_calibration_parsers): the same map without the !!opencv-matrix tag and dt,
+        # which node.mat() refuses; its data is a list of numbers, read one by one
+        items = [data.at(i) for i in range(data.size())]
+        if not all(x.isReal() or x.isInt() for x in items):
+            raise InputFileError(f"{path}: {key} is not a matrix of numbers")
+        return np.array([x.real() for x in items], dtype=float).reshape(int(rows.real()), int(cols.real()))
     try:
         return np.asarray(node.mat(), dtype=float)
     except (cv2.error, SystemError, TypeError, ValueError):
@@ -163,6 +173,7 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
         width, height = yaml_number(path, fs, "image_width", 0), yaml_number(path, fs, "image_height", 0)
         rms = yaml_number(path, fs, "reprojection_error", float("nan"))
         board = yaml_text(path, fs, "board")
+        model = yaml_text(path, fs, "distortion_model")     # ROS's camera_info; OpenCV's samples write none
     finally:
         fs.release()
     assert width is not None and height is not None and rms is not None      # given defaults
@@ -173,6 +184,31 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     if not (width <= MAX_IMAGE_SIDE_PX and height <= MAX_IMAGE_SIDE_PX and width.is_integer() and height.is_integer()):
         raise InputFileError(f"{path}: image_width {show_number(width)}, image_height {show_number(height)}: expected "
                              f"whole pixels in [1, {MAX_IMAGE_SIDE_PX}]")
+    check_plumb_bob(str(path), model, D.ravel(), InputFileError)
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
     return CameraCalibrationFile(K.astype(float), D5, int(width), int(height), float(rms), board)
+
+
+# Lens models whose first 5 coefficients are plumb_bob's k1 k2 p1 p2 k3 (ROS / Foxglove names, Kalibr's radtan):
+# phonepose's camera model is plumb_bob, so a calibration of one of these is read when its further coefficients
+# (OpenCV's rational k4 k5 k6, thin prism s1-s4, tilt tx ty) are all zero.
+PLUMB_BOB_MODELS = ("", "plumb_bob", "rational_polynomial", "radtan", "radial-tangential")
+
+
+def check_plumb_bob(where: str, model: str, D: np.ndarray, error: type[PhoneposeError]) -> None:
+    """``error`` unless distortion model ``model`` with coefficients ``D`` is plumb_bob's (k1 k2 p1 p2 k3): another
+    model (fisheye ``equidistant``, ``kannala_brandt``) or non-zero coefficients beyond the fifth were read as
+    plumb_bob's first five, silently: every marker pose then came from a wrong lens."""
+    if model.strip().lower() not in PLUMB_BOB_MODELS:
+        raise error(f"{where}: distortion model {model!r}: phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+                    "calibrate the camera with phonepose calibrate-camera")
+    extra = np.flatnonzero(np.asarray(D, dtype=float)[5:])
+    if extra.size:
+        raise error(f"{where}: {len(D)} distortion coefficients, of which the {_ordinal(6 + int(extra[0]))} is not "
+                    "zero (OpenCV's rational or thin-prism model): phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+                    "calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera")
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"

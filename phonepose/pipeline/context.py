@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from phonepose.calibration.camera_file import check_plumb_bob
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
@@ -108,6 +109,8 @@ def read_context(reader: SessionReader) -> SessionContext:
         if len(calib.K) != 9:
             raise SessionContentError(f"{path}: camera calibration has {len(calib.K)} K values, expected 9")
         _check_camera(path, calib)
+        check_plumb_bob(f"{path}: {Topic.CAMERA_CALIBRATION}", calib.distortion_model, np.asarray(calib.D, dtype=float),
+                        SessionContentError)
         D = np.zeros(5)
         d = np.asarray(calib.D, dtype=float)[:5]
         D[: len(d)] = d
