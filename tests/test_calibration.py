@@ -210,6 +210,53 @@ def test_cli_images_recovers_the_known_camera_and_writes_the_file(synthetic, tmp
     assert "warning" not in err
 
 
+def test_photos_in_other_formats_and_exif_orientations_give_the_same_camera(synthetic, tmp_path, cli):
+    """Photos as cameras and tools save them: 16-bit PNG, RGBA, palette, TIFF, BMP, WebP, and JPEG whose EXIF
+    orientation says "turn 90°" (a phone held upright). OpenCV applied the tag: half the folder tagged was refused as
+    two sizes, all of it calibrated a 480x640 camera (fx and fy, cx and cy swapped) that no video frame has. The
+    calibration is of the stored pixels, as a video's; every lossless format gives the PNG run's numbers exactly."""
+    from PIL import Image
+
+    images, _, folder = synthetic
+    code, _, err = cli("calibrate-camera", "--images", str(folder), "--out", str(tmp_path / "png.yaml"), "-q")
+    assert code == 0, err
+    reference = load_calibration(tmp_path / "png.yaml")
+    writers = {
+        "png16": lambda p, g: cv2.imwrite(str(p.with_suffix(".png")), g.astype(np.uint16) * 257),
+        "rgba": lambda p, g: cv2.imwrite(str(p.with_suffix(".png")), cv2.cvtColor(g, cv2.COLOR_GRAY2BGRA)),
+        "palette": lambda p, g: Image.fromarray(g).convert("P").save(p.with_suffix(".png")),
+        "tiff": lambda p, g: cv2.imwrite(str(p.with_suffix(".tif")), g),
+        "bmp": lambda p, g: cv2.imwrite(str(p.with_suffix(".bmp")), g),
+        "webp": lambda p, g: cv2.imwrite(str(p.with_suffix(".webp")), g, [cv2.IMWRITE_WEBP_QUALITY, 101]),
+    }
+    for name, write in writers.items():
+        sub = tmp_path / name
+        sub.mkdir()
+        for i, g in enumerate(images):
+            write(sub / f"v{i:02d}", g)
+        code, _, err = cli("calibrate-camera", "--images", str(sub), "--out", str(tmp_path / f"{name}.yaml"), "-q")
+        assert code == 0, (name, err)
+        got = load_calibration(tmp_path / f"{name}.yaml")
+        assert np.array_equal(got.K, reference.K) and np.array_equal(got.D, reference.D), name
+    results = []
+    for tagged in ("half", "all"):
+        sub = tmp_path / f"exif-{tagged}"
+        sub.mkdir()
+        for i, g in enumerate(images):
+            image = Image.fromarray(g)
+            exif = image.getexif()
+            if tagged == "all" or i % 2:
+                exif[0x0112] = 6
+            image.save(sub / f"v{i:02d}.jpg", quality=95, exif=exif)
+        code, _, err = cli("calibrate-camera", "--images", str(sub), "--out", str(tmp_path / f"{tagged}.yaml"), "-q")
+        assert code == 0, (tagged, err)
+        got = load_calibration(tmp_path / f"{tagged}.yaml")
+        assert (got.width, got.height) == SIZE
+        assert_recovered(got.K, got.D, got.reprojection_error_px, jpeg=True)
+        results.append(got)
+    assert np.array_equal(results[0].K, results[1].K)      # the tags change nothing
+
+
 def test_cli_video_recovers_the_known_camera(synthetic_video, tmp_path, cli):
     out = tmp_path / "cam.yaml"
     code, stdout, err = cli("calibrate-camera", "--video", str(synthetic_video), "--out", str(out), "-q")

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from mcap.writer import Writer
@@ -189,6 +190,11 @@ def _extreme_imu():
 
 def _garbage_image(m):
     m.data = b"this is not a jpeg"
+
+
+def _half_size_image(m):
+    gray = cv2.imdecode(np.frombuffer(m.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    m.data = cv2.imencode(".jpg", cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2)))[1].tobytes()
 
 
 def _truncate(src: Path, dst: Path) -> Path:
@@ -765,6 +771,10 @@ WARNING_CASES = [
                      r"\(\|gyro\| > 1000 rad/s or \|accel\| > 10000 m/s\^2\)"),
     ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
      r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
+    ("images-other-size", "camera frames of half the calibration's size (used with the wrong K before)",
+     _static(Topic.CAMERA_IMAGE, _half_size_image),
+     r"/display/camera/image: 41 camera frame\(s\) are 160x120 px, not the calibration's 320x240; they count as "
+     r"showing no marker"),
 ]
 
 

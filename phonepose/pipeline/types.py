@@ -158,6 +158,8 @@ class Stages(Protocol):
     map_vio_samples: bool      # map Tick.controller_vio_samples (set by the engine from the trackers' capabilities)
     frames_decoded: int        # camera frames decoded so far
     frames_undecodable: int    # of which could not be decoded (reported once by the engine)
+    frames_wrong_size: int     # of which are not of the calibration's size (reported once by the engine)
+    wrong_size: str            # what the first of those is ("1280x960 px, not the calibration's 640x480")
 
     def process(self, tick: Tick) -> Observation: ...
 

@@ -360,6 +360,9 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
     if stages.frames_undecodable:
         log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
+    if stages.frames_wrong_size:
+        log.warning("phonepose: warning: %s: %d camera frame(s) are %s; they count as showing no marker",
+                    Topic.CAMERA_IMAGE, stages.frames_wrong_size, stages.wrong_size)
     trajs = engine.trajectories()
     gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
     per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))
