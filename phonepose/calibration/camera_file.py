@@ -19,8 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from phonepose.errors import InputFileError, OutputError, PhoneposeError
+from phonepose.errors import InputFileError, OutputError
 from phonepose.numbers import show_number
+from phonepose.pipeline.types import check_plumb_bob
 
 
 @dataclass(frozen=True)
@@ -188,27 +189,3 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
     return CameraCalibrationFile(K.astype(float), D5, int(width), int(height), float(rms), board)
-
-
-# Lens models whose first 5 coefficients are plumb_bob's k1 k2 p1 p2 k3 (ROS / Foxglove names, Kalibr's radtan):
-# phonepose's camera model is plumb_bob, so a calibration of one of these is read when its further coefficients
-# (OpenCV's rational k4 k5 k6, thin prism s1-s4, tilt tx ty) are all zero.
-PLUMB_BOB_MODELS = ("", "plumb_bob", "rational_polynomial", "radtan", "radial-tangential")
-
-
-def check_plumb_bob(where: str, model: str, D: np.ndarray, error: type[PhoneposeError]) -> None:
-    """``error`` unless distortion model ``model`` with coefficients ``D`` is plumb_bob's (k1 k2 p1 p2 k3): another
-    model (fisheye ``equidistant``, ``kannala_brandt``) or non-zero coefficients beyond the fifth were read as
-    plumb_bob's first five, silently: every marker pose then came from a wrong lens."""
-    if model.strip().lower() not in PLUMB_BOB_MODELS:
-        raise error(f"{where}: distortion model {model!r}: phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
-                    "calibrate the camera with phonepose calibrate-camera")
-    extra = np.flatnonzero(np.asarray(D, dtype=float)[5:])
-    if extra.size:
-        raise error(f"{where}: {len(D)} distortion coefficients, of which the {_ordinal(6 + int(extra[0]))} is not "
-                    "zero (OpenCV's rational or thin-prism model): phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
-                    "calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera")
-
-
-def _ordinal(n: int) -> str:
-    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"

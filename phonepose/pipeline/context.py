@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from phonepose.calibration.camera_file import check_plumb_bob
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
-from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext
+from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext, check_plumb_bob
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
 
