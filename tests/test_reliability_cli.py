@@ -796,6 +796,22 @@ def test_bad_samples_are_reported_and_skipped(good, clean_run, tmp_path, cid, wh
     assert np.abs(est[:, 1:4] - ref[:, 1:4]).max() < 0.02
 
 
+def test_a_session_without_its_info_message_says_so(good, clean_run, tmp_path):
+    """/session/info removed (a tool that keeps some topics; an edited file): its task window is gone, so playback
+    scores every tick of the session. It did so without a word, and the numbers differed from the recording's
+    (TRI2: T4's inside frames 84 -> 248). One warning line now; the scores are of the whole session as before."""
+    import json
+
+    bare = rewrite(good, tmp_path / "noinfo.mcap", lambda t, msg, lt: [] if t == Topic.SESSION_INFO else [(t, msg, lt)])
+    r = _subprocess("playback", str(bare), "-q", "-t", "T1", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.strip() == (f"phonepose: warning: {bare}: no /session/info, so no task window: the metrics cover "
+                                "the whole session")
+    frames = json.loads((tmp_path / "o" / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
+    clean = json.loads((clean_run / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
+    assert frames > clean
+
+
 # ----------------------------------------------------------------------------- docs table
 def _cell(text: str) -> str:
     return text.replace("|", "\\|")
