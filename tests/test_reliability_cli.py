@@ -810,6 +810,12 @@ def test_a_session_without_its_info_message_says_so(good, clean_run, tmp_path):
     frames = json.loads((tmp_path / "o" / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
     clean = json.loads((clean_run / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
     assert frames > clean
+    # a ROS 2 bag's shape (no /session/info, the VIO in CDR): the error alone, no warning before it
+    ros = with_channel(bare, tmp_path / "ros.mcap", Topic.CONTROLLER_VIO_POSE, "geometry_msgs/msg/PoseStamped",
+                       "ros2msg", b"", "cdr", lambda b: b)
+    r = _subprocess("playback", str(ros), "-q", "-t", "T1", "--out", str(tmp_path / "o2"))
+    assert r.returncode == 4 and r.stderr.strip() == (f"phonepose: error: {ros}: topic /controller/vio/pose has "
+                                                      "encoding 'cdr', phonepose reads protobuf only")
 
 
 # ----------------------------------------------------------------------------- docs table

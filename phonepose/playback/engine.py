@@ -337,9 +337,6 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
     with contextlib.ExitStack() as stack:
         reader = stack.enter_context(SessionReader(session))
         context = read_context(reader)
-        if context.session_info is None:    # e.g. a session cut by a tool that keeps only some topics
-            log.warning("phonepose: warning: %s: no %s, so no task window: the metrics cover the whole session",
-                        session, Topic.SESSION_INFO)
         _check_camera_trackers(session, context, tracker_objs)
         scheduler = TickScheduler(reader, context, rate_hz=options.rate_hz, start_s=options.start_s,
                                   end_s=options.end_s, gt_calibration=gt_setup.calibration,
@@ -360,6 +357,9 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             engine.writer = SessionWriter(out / "trackers.mcap")
             stack.callback(engine.writer.finish)
         _play(scheduler, engine, options)
+    if context.session_info is None:    # e.g. a session cut by a tool that keeps only some topics
+        log.warning("phonepose: warning: %s: no %s, so no task window: the metrics cover the whole session",
+                    session, Topic.SESSION_INFO)
     if stages.frames_undecodable:
         log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
