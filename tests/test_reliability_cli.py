@@ -41,9 +41,10 @@ def rewrite(src: Path, dst: Path, fn) -> Path:
     return dst
 
 
-def with_channel(src: Path, dst: Path, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+def with_channel(src: Path, dst: Path, topic: str, schema_name: str | None, schema_encoding: str, schema_data: bytes,
                  message_encoding: str, data=lambda b: b) -> Path:
-    """Copy a session with ``topic`` re-registered under another schema/encoding (raw mcap)."""
+    """Copy a session with ``topic`` re-registered under another schema/encoding (raw mcap); ``schema_name`` None:
+    no schema (id 0)."""
     with SessionReader(src) as r, open(dst, "wb") as f:
         w = Writer(f)
         w.start()
@@ -51,7 +52,7 @@ def with_channel(src: Path, dst: Path, topic: str, schema_name: str, schema_enco
         for schema, ch, m in r.raw_messages():
             if ch.topic not in cids:
                 if ch.topic == topic:
-                    sid = w.register_schema(schema_name, schema_encoding, schema_data)
+                    sid = 0 if schema_name is None else w.register_schema(schema_name, schema_encoding, schema_data)
                     cids[ch.topic] = w.register_channel(topic, message_encoding, sid)
                 else:
                     sid = w.register_schema(schema.name, schema.encoding, schema.data)
@@ -374,6 +375,16 @@ CASES = [
                                                     "jsonschema", b"{}", "json", lambda b: b'{"x": 1}')),
                        "-q", "--out", str(d / "o")], 4,
          r"js\.mcap: topic /controller/vio/pose has encoding 'json', phonepose reads protobuf only$"),
+    Case("no-schema", "a protobuf topic without a schema (id 0, which MCAP allows)",
+         lambda g, d: ["playback", str(with_channel(g, d / "ns.mcap", Topic.CONTROLLER_VIO_POSE, None, "", b"",
+                                                    "protobuf")), "-q", "--out", str(d / "o")], 4,
+         r"ns\.mcap: topic /controller/vio/pose has no schema: phonepose reads protobuf messages by their schema "
+         r"\(a FileDescriptorSet\)$"),
+    Case("log-time-0", "every message at log time 0 (a writer that does not set it: one tick, no metrics, exit 0 before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "t0.mcap", lambda t, msg, lt: [(t, msg, 0)])), "-q", "--out",
+                       str(d / "o")], 4,
+         r"t0\.mcap: all \d+ messages have the same log time \(0 ns\): phonepose plays a session in log-time order "
+         r"\(the capture time, docs/format\.md\), which this file's writer did not set$"),
     Case("static-nan", "NaN in the marker's pose on the phone body (static content)",
          lambda g, d: ["playback", str(rewrite(g, d / "mk.mcap", _static(Topic.CONTROLLER_MARKER,
                                                                           _marker_nan))), "-q", "--out", str(d / "o")],

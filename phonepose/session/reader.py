@@ -175,10 +175,13 @@ class SessionReader:
     def _decode(self, schema, channel, data: bytes):
         decoder = self._decoders.get(channel.id)
         if decoder is None:
-            if channel.message_encoding != "protobuf" or schema is None:
+            if channel.message_encoding != "protobuf":
                 raise SessionContentError(
                     f"{self.path}: topic {channel.topic} has encoding {channel.message_encoding!r}, "
                     "phonepose reads protobuf only")
+            if schema is None:      # schema id 0: allowed by MCAP, but protobuf bytes cannot be read without one
+                raise SessionContentError(f"{self.path}: topic {channel.topic} has no schema: phonepose reads protobuf "
+                                          "messages by their schema (a FileDescriptorSet)")
             try:
                 expected = message_type_for(channel.topic).DESCRIPTOR.full_name
             except KeyError:
