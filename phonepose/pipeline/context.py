@@ -94,13 +94,14 @@ def read_context(reader: SessionReader) -> SessionContext:
     path = reader.path
     if summary.message_count == 0:
         raise SessionContentError(f"{path}: empty session (no messages)")
-    if summary.message_count > 1 and summary.start_ns == summary.end_ns:
+    if not summary.has(Topic.CONTROLLER_VIO_POSE):
+        raise SessionContentError(f"{path}: no controller VIO ({Topic.CONTROLLER_VIO_POSE}); nothing to play back")
+    n_vio = sum(c.count for c in summary.channels if c.topic == Topic.CONTROLLER_VIO_POSE)
+    if n_vio > 1 and summary.start_ns == summary.end_ns:
         # a writer that leaves log_time 0 (or one value): playback saw one tick, scored nothing and said nothing
         raise SessionContentError(f"{path}: all {summary.message_count} messages have the same log time "
                                   f"({summary.start_ns} ns): phonepose plays a session in log-time order (the capture "
                                   "time, docs/format.md), which this file's writer did not set")
-    if not summary.has(Topic.CONTROLLER_VIO_POSE):
-        raise SessionContentError(f"{path}: no controller VIO ({Topic.CONTROLLER_VIO_POSE}); nothing to play back")
     has_images = summary.has(Topic.CAMERA_IMAGE)
     first = _first_messages(reader, summary).get
 
