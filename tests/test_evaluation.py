@@ -140,6 +140,13 @@ def test_an_estimate_in_millimetres_is_flagged(cli, tmp_path, caplog):
         code, out, _ = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "mm.tum"), "--json",
                            "--align", "sim3")
     assert code == 0 and caplog.messages == [] and json.loads(out)["align"]["scale"] == pytest.approx(1e-3, rel=1e-9)
+    # an estimate 10x too large (a diverging tracker) or in cm: only the unit is flagged
+    for factor, flagged in ((10.0, False), (100.0, True), (0.01, True), (3.0, False)):
+        write_tum(tmp_path / "x.tum", stamps, Pose(gt.rotation, gt.translation * factor))
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="phonepose"):
+            cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "x.tum"), "--json")
+        assert bool(caplog.messages) == flagged, factor
 
 
 # ----------------------------------------------------------------------------- zero errors

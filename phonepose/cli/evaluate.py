@@ -136,14 +136,16 @@ def _warn_on_small_overlap(gt: Path, est: Path, gt_traj, est_traj, max_diff: flo
         "from the same session?", 100 * est_frac, est, 100 * gt_frac, gt)
 
 
-# Beyond this ratio of spreads, the two trajectories are not in one unit (mm or cm against m: 1000x, 100x); a
-# tracker's scale error is a few percent, a monocular SLAM's arbitrary scale is what --align sim3 is for.
-MAX_SPREAD_RATIO = 20.0
+# A ratio of spreads within 25 % of 100x or 1000x (either way) is two units (cm or mm against m): a tracker's scale
+# error is a few percent; one that diverges or sticks rarely lands on a power of ten; a monocular SLAM's arbitrary
+# scale is what --align sim3 is for.
+UNIT_RATIOS = (100.0, 1000.0)
+UNIT_RATIO_TOL = 0.25
 
 
 def _warn_on_other_unit(gt: Path, est: Path, gt_traj, est_traj, max_diff: float, align: str | None) -> None:
-    """One warning line when the matched positions of the two files spread over lengths 20x apart or more: a file
-    in millimetres evaluated against one in metres gives errors in the hundreds of metres, which nothing else
+    """One warning line when the matched positions of the two files spread over lengths about 100x or 1000x apart: a
+    file in millimetres evaluated against one in metres gives errors in the hundreds of metres, which nothing else
     flags (neither file says its unit). Not with --align sim3, whose scale takes it out."""
     from phonepose.evaluation.evo_metrics import associate
 
@@ -158,7 +160,7 @@ def _warn_on_other_unit(gt: Path, est: Path, gt_traj, est_traj, max_diff: float,
     if min(spread) <= 1e-3:
         return      # a trajectory that hardly moves has no scale to compare
     ratio = spread[1] / spread[0]
-    if 1 / MAX_SPREAD_RATIO < ratio < MAX_SPREAD_RATIO:
+    if not any(abs(r / unit - 1) <= UNIT_RATIO_TOL for unit in UNIT_RATIOS for r in (ratio, 1 / ratio)):
         return
     logging.getLogger("phonepose").warning(
         "phonepose: warning: %s's positions spread %.3g m, %s's %.3g m (%.3gx): are both in metres? (--align sim3 "
