@@ -362,6 +362,17 @@ projection_matrix:
 """
 
 
+KALIBR_CAMCHAIN = """cam0:
+  cam_overlaps: []
+  camera_model: pinhole
+  distortion_coeffs: [-0.26, 0.1, 0.0012, -0.0015]
+  distortion_model: radtan
+  intrinsics: [612.0, 607.0, 329.0, 236.5]
+  resolution: [640, 480]
+  rostopic: /cam0/image_raw
+"""
+
+
 def _opencv_file(path: pathlib.Path, D: np.ndarray, header: str | None = None, **more: str) -> pathlib.Path:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     fs.write("image_width", 640)
@@ -378,8 +389,9 @@ def _opencv_file(path: pathlib.Path, D: np.ndarray, header: str | None = None, *
 
 
 def test_calibration_files_of_other_tools_read_exactly_or_refused(tmp_path):
-    """OpenCV's FileStorage (YAML as OpenCV 3 and 4+ write it, XML, D as a column) and ROS's camera_info YAML (no
-    !!opencv-matrix tag: "camera_matrix is not a matrix of numbers" before) give K and D exactly. A lens that is not
+    """OpenCV's FileStorage (YAML as OpenCV 3 and 4+ write it, XML, D as a column), ROS's camera_info YAML (no
+    !!opencv-matrix tag: "camera_matrix is not a matrix of numbers" before) and a Kalibr camchain of one pinhole camera
+    (refused before) give K and D exactly. A lens that is not
     plumb_bob was read as plumb_bob's first 5 numbers, silently: OpenCV's rational model (k4-k6 dropped), a fisheye."""
     d5 = D_TRUE.reshape(1, 5)
     for path in (_opencv_file(tmp_path / "c4.yaml", d5), _opencv_file(tmp_path / "c3.yaml", d5, "%YAML:1.0"),
@@ -392,7 +404,21 @@ def test_calibration_files_of_other_tools_read_exactly_or_refused(tmp_path):
         c = load_calibration(path)
         assert (c.width, c.height) == (640, 480), path.name
         assert np.array_equal(c.K, K_TRUE) and np.array_equal(c.D, D_TRUE), path.name
+    kalibr = _write(tmp_path / "camchain.yaml", KALIBR_CAMCHAIN)
+    c = load_calibration(kalibr)
+    assert (c.width, c.height) == (640, 480) and np.array_equal(c.K, K_TRUE)
+    assert np.array_equal(c.D, [*D_TRUE[:4], 0.0])          # radtan: k1 k2 p1 p2, no k3
     refused = {
+        _write(tmp_path / "two.yaml", KALIBR_CAMCHAIN + KALIBR_CAMCHAIN.replace("cam0", "cam1")):
+            "two.yaml: a Kalibr camchain of several cameras (cam0, cam1, ...): give a file with the display camera "
+            "alone, as cam0",
+        _write(tmp_path / "kfish.yaml", KALIBR_CAMCHAIN.replace("radtan", "equidistant")):
+            "kfish.yaml: distortion model 'equidistant': phonepose models plumb_bob",
+        _write(tmp_path / "omni.yaml", KALIBR_CAMCHAIN.replace("pinhole", "omni")):
+            "omni.yaml: Kalibr camera_model 'omni': phonepose models a pinhole camera only",
+        _write(tmp_path / "k3.yaml", KALIBR_CAMCHAIN.replace("intrinsics: [612.0, 607.0, 329.0, 236.5]",
+                                                            "intrinsics: [612.0, 607.0, 329.0]")):
+            "k3.yaml: cam0.intrinsics is not a list of 4 numbers",
         _opencv_file(tmp_path / "r8.yaml", np.hstack([d5, [[0.3, 0.1, 0.02]]])):
             "r8.yaml: 8 distortion coefficients, of which the 6th is not zero (OpenCV's rational or thin-prism model): "
             "phonepose models plumb_bob (k1 k2 p1 p2 k3) only; calibrate without CALIB_RATIONAL_MODEL, or with "
