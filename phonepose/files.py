@@ -91,13 +91,15 @@ def check_input(path: str | os.PathLike, what: str = "file") -> Path:
 # reader out of memory). Smaller kinds pass their own limit (a TOML config, a calibration file).
 MAX_TEXT_INPUT_BYTES = 1 << 30
 _TEXT_CHUNK_BYTES = 1 << 20
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
 
 
 def read_text_input(path: str | os.PathLike, what: str = "text file", *, limit: int = MAX_TEXT_INPUT_BYTES,
                     note: str = "") -> str:
     """The text of a text input, checked as :func:`check_input` and read in chunks: more than ``limit`` bytes
     (``note`` says why that is enough) or a NUL byte (binary data) is refused as soon as it is seen, never read
-    whole first; a UTF-8 byte-order mark is dropped. Otherwise InputFileError, one line naming the file."""
+    whole first; a UTF-8 byte-order mark is dropped, and a file that starts with a UTF-16 one is UTF-16 text.
+    Otherwise InputFileError, one line naming the file."""
     p = check_input(path, what)
     unit, scale = next((u, s) for u, s in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10), ("bytes", 1))
                        if limit >= s or s == 1)
@@ -109,8 +111,10 @@ def read_text_input(path: str | os.PathLike, what: str = "text file", *, limit: 
         with open(p, "rb") as f:
             if os.fstat(f.fileno()).st_size > limit:
                 raise too_large
+            utf16 = f.read(2) in _UTF16_BOMS   # Excel's "Unicode text", Windows PowerShell's `>`: UTF-16 with a BOM
+            f.seek(0)
             while chunk := f.read(min(_TEXT_CHUNK_BYTES, limit + 1 - len(data))):
-                nul = chunk.find(b"\0")
+                nul = -1 if utf16 else chunk.find(b"\0")     # (UTF-16 text is half NUL bytes: checked decoded)
                 if nul >= 0:
                     raise InputFileError(f"{p}: not {_a(what)} (binary data: a NUL byte at byte {len(data) + nul})")
                 data += chunk
@@ -118,6 +122,15 @@ def read_text_input(path: str | os.PathLike, what: str = "text file", *, limit: 
                     raise too_large
     except OSError as exc:
         raise InputFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    if utf16:
+        try:
+            text = data.decode("utf-16")
+        except UnicodeDecodeError as exc:
+            raise InputFileError(f"{p}: not {_a(what)} (not UTF-16 text after its byte-order mark: byte "
+                                 f"{exc.start})") from None
+        if "\0" in text:
+            raise InputFileError(f"{p}: not {_a(what)} (binary data: a NUL character at character {text.index(chr(0))})")
+        return text
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -23,7 +23,7 @@ from phonepose.calibration import load_calibration, save_calibration
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_png, board_spec, parse_board_spec, render_board
 from phonepose.calibration.calibrate import BoardFinder, calibrate_camera, calibrate_views
 from phonepose.calibration.marker_image import marker_image, marker_png
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, InputFileError
 
 DATA = pathlib.Path(__file__).parent / "data" / "opencv_contrib"
 
@@ -210,6 +210,53 @@ def test_cli_images_recovers_the_known_camera_and_writes_the_file(synthetic, tmp
     assert "warning" not in err
 
 
+def test_photos_in_other_formats_and_exif_orientations_give_the_same_camera(synthetic, tmp_path, cli):
+    """Photos as cameras and tools save them: 16-bit PNG, RGBA, palette, TIFF, BMP, WebP, and JPEG whose EXIF
+    orientation says "turn 90°" (a phone held upright). OpenCV applied the tag: half the folder tagged was refused as
+    two sizes, all of it calibrated a 480x640 camera (fx and fy, cx and cy swapped) that no video frame has. The
+    calibration is of the stored pixels, as a video's; every lossless format gives the PNG run's numbers exactly."""
+    from PIL import Image
+
+    images, _, folder = synthetic
+    code, _, err = cli("calibrate-camera", "--images", str(folder), "--out", str(tmp_path / "png.yaml"), "-q")
+    assert code == 0, err
+    reference = load_calibration(tmp_path / "png.yaml")
+    writers = {
+        "png16": lambda p, g: cv2.imwrite(str(p.with_suffix(".png")), g.astype(np.uint16) * 257),
+        "rgba": lambda p, g: cv2.imwrite(str(p.with_suffix(".png")), cv2.cvtColor(g, cv2.COLOR_GRAY2BGRA)),
+        "palette": lambda p, g: Image.fromarray(g).convert("P").save(p.with_suffix(".png")),
+        "tiff": lambda p, g: cv2.imwrite(str(p.with_suffix(".tif")), g),
+        "bmp": lambda p, g: cv2.imwrite(str(p.with_suffix(".bmp")), g),
+        "webp": lambda p, g: cv2.imwrite(str(p.with_suffix(".webp")), g, [cv2.IMWRITE_WEBP_QUALITY, 101]),
+    }
+    for name, write in writers.items():
+        sub = tmp_path / name
+        sub.mkdir()
+        for i, g in enumerate(images):
+            write(sub / f"v{i:02d}", g)
+        code, _, err = cli("calibrate-camera", "--images", str(sub), "--out", str(tmp_path / f"{name}.yaml"), "-q")
+        assert code == 0, (name, err)
+        got = load_calibration(tmp_path / f"{name}.yaml")
+        assert np.array_equal(got.K, reference.K) and np.array_equal(got.D, reference.D), name
+    results = []
+    for tagged in ("half", "all"):
+        sub = tmp_path / f"exif-{tagged}"
+        sub.mkdir()
+        for i, g in enumerate(images):
+            image = Image.fromarray(g)
+            exif = image.getexif()
+            if tagged == "all" or i % 2:
+                exif[0x0112] = 6
+            image.save(sub / f"v{i:02d}.jpg", quality=95, exif=exif)
+        code, _, err = cli("calibrate-camera", "--images", str(sub), "--out", str(tmp_path / f"{tagged}.yaml"), "-q")
+        assert code == 0, (tagged, err)
+        got = load_calibration(tmp_path / f"{tagged}.yaml")
+        assert (got.width, got.height) == SIZE
+        assert_recovered(got.K, got.D, got.reprojection_error_px, jpeg=True)
+        results.append(got)
+    assert np.array_equal(results[0].K, results[1].K)      # the tags change nothing
+
+
 def test_cli_video_recovers_the_known_camera(synthetic_video, tmp_path, cli):
     out = tmp_path / "cam.yaml"
     code, stdout, err = cli("calibrate-camera", "--video", str(synthetic_video), "--out", str(out), "-q")
@@ -290,6 +337,110 @@ def test_save_load_round_trip(tmp_path):
     assert np.array_equal(back.K, K_TRUE) and np.array_equal(back.D, D_TRUE)
     assert (back.width, back.height, back.reprojection_error_px) == (640, 480, 0.123)
     assert parse_board_spec(back.board) == DEFAULT_BOARD
+
+
+ROS_CAMERA_INFO = """image_width: 640
+image_height: 480
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [612.0, 0.0, 329.0, 0.0, 607, 236.5, 0.0, 0.0, 1.0]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [612.0, 0.0, 329.0, 0.0, 0.0, 607.0, 236.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+"""
+
+
+KALIBR_CAMCHAIN = """cam0:
+  cam_overlaps: []
+  camera_model: pinhole
+  distortion_coeffs: [-0.26, 0.1, 0.0012, -0.0015]
+  distortion_model: radtan
+  intrinsics: [612.0, 607.0, 329.0, 236.5]
+  resolution: [640, 480]
+  rostopic: /cam0/image_raw
+"""
+
+
+def _opencv_file(path: pathlib.Path, D: np.ndarray, header: str | None = None, **more: str) -> pathlib.Path:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("camera_matrix", K_TRUE)
+    fs.write("distortion_coefficients", D)
+    for key, value in more.items():
+        fs.write(key, value)
+    fs.release()
+    if header is not None:      # OpenCV 3 wrote "%YAML:1.0" (no "---"); OpenCV 4+ writes "%YAML 1.2" and "---"
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join([header] + lines[2:]) + "\n")
+    return path
+
+
+def test_calibration_files_of_other_tools_read_exactly_or_refused(tmp_path):
+    """OpenCV's FileStorage (YAML as OpenCV 3 and 4+ write it, XML, D as a column), ROS's camera_info YAML (no
+    !!opencv-matrix tag: "camera_matrix is not a matrix of numbers" before) and a Kalibr camchain of one pinhole camera
+    (refused before) give K and D exactly. A lens that is not
+    plumb_bob was read as plumb_bob's first 5 numbers, silently: OpenCV's rational model (k4-k6 dropped), a fisheye."""
+    d5 = D_TRUE.reshape(1, 5)
+    for path in (_opencv_file(tmp_path / "c4.yaml", d5), _opencv_file(tmp_path / "c3.yaml", d5, "%YAML:1.0"),
+                 _opencv_file(tmp_path / "c.xml", d5), _opencv_file(tmp_path / "col.yaml", D_TRUE.reshape(5, 1)),
+                 _opencv_file(tmp_path / "r0.yaml", np.hstack([d5, np.zeros((1, 3))])),
+                 _write(tmp_path / "ros.yaml", ROS_CAMERA_INFO),
+                 _write(tmp_path / "ros8.yaml", ROS_CAMERA_INFO.replace("plumb_bob", "rational_polynomial").replace(
+                     "cols: 5\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]",
+                     "cols: 8\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02, 0, 0, 0]"))):
+        c = load_calibration(path)
+        assert (c.width, c.height) == (640, 480), path.name
+        assert np.array_equal(c.K, K_TRUE) and np.array_equal(c.D, D_TRUE), path.name
+    kalibr = _write(tmp_path / "camchain.yaml", KALIBR_CAMCHAIN)
+    c = load_calibration(kalibr)
+    assert (c.width, c.height) == (640, 480) and np.array_equal(c.K, K_TRUE)
+    assert np.array_equal(c.D, [*D_TRUE[:4], 0.0])          # radtan: k1 k2 p1 p2, no k3
+    refused = {
+        _write(tmp_path / "two.yaml", KALIBR_CAMCHAIN + KALIBR_CAMCHAIN.replace("cam0", "cam1")):
+            "two.yaml: a Kalibr camchain of several cameras (cam0, cam1, ...): give a file with the display camera "
+            "alone, as cam0",
+        _write(tmp_path / "kfish.yaml", KALIBR_CAMCHAIN.replace("radtan", "equidistant")):
+            "kfish.yaml: distortion model 'equidistant': phonepose models plumb_bob",
+        _write(tmp_path / "omni.yaml", KALIBR_CAMCHAIN.replace("pinhole", "omni")):
+            "omni.yaml: Kalibr camera_model 'omni': phonepose models a pinhole camera only",
+        _write(tmp_path / "k3.yaml", KALIBR_CAMCHAIN.replace("intrinsics: [612.0, 607.0, 329.0, 236.5]",
+                                                            "intrinsics: [612.0, 607.0, 329.0]")):
+            "k3.yaml: cam0.intrinsics is not a list of 4 numbers",
+        _opencv_file(tmp_path / "r8.yaml", np.hstack([d5, [[0.3, 0.1, 0.02]]])):
+            "r8.yaml: 8 distortion coefficients, of which the 6th is not zero (OpenCV's rational or thin-prism model): "
+            "phonepose models plumb_bob (k1 k2 p1 p2 k3) only; calibrate without CALIB_RATIONAL_MODEL, or with "
+            "phonepose calibrate-camera",
+        _opencv_file(tmp_path / "t14.xml", np.hstack([d5, np.zeros((1, 8)), [[0.01]]])):
+            "t14.xml: 14 distortion coefficients, of which the 14th is not zero",
+        _write(tmp_path / "fisheye.yaml", ROS_CAMERA_INFO.replace("plumb_bob", "equidistant").replace(
+            "cols: 5\n  data: [-0.26, 0.1, 0.0012, -0.0015, -0.02]", "cols: 4\n  data: [0.1, 0.01, 0.001, 0.0]")):
+            "fisheye.yaml: distortion model 'equidistant': phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+            "calibrate the camera with phonepose calibrate-camera",
+        _write(tmp_path / "text.yaml", ROS_CAMERA_INFO.replace("data: [612.0,", "data: [fx,")):
+            "text.yaml: camera_matrix is not a matrix of numbers",
+    }
+    for path, text in refused.items():
+        with pytest.raises(InputFileError) as e:
+            load_calibration(path)
+        assert str(e.value).startswith(f"{path}") and text in str(e.value), str(e.value)
+
+
+def _write(path: pathlib.Path, text: str) -> pathlib.Path:
+    path.write_text(text)
+    return path
 
 
 def test_a_file_that_is_not_yaml_is_one_input_error(tmp_path):

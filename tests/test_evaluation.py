@@ -4,6 +4,7 @@ association and pair searches against plain-loop references, loaders/writer, pap
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -27,7 +28,7 @@ from phonepose.evaluation import (
     paper_metrics,
     write_tum,
 )
-from phonepose.evaluation.evo_metrics import Unit, _first_crossings, id_pairs_from_delta
+from phonepose.evaluation.evo_metrics import Unit, _first_crossings, evo_align, id_pairs_from_delta
 from phonepose.evaluation.relative import find_pairs, relative_errors
 from phonepose.geometry import Pose
 
@@ -85,6 +86,67 @@ def test_alignment_options_are_checked():
         align(gt, gt, "se3", 11)
     with pytest.raises(ConfigError):
         align(gt, gt, "yaw", -1)
+
+
+def test_an_alignment_the_positions_do_not_determine_is_refused(cli, tmp_path):
+    """A trajectory that never moves, or two poses (on one line): the rotation of a se3/sim3 Umeyama (and posyaw's
+    yaw, for one point) is then arbitrary. rpg's code has no check: ours returned an SVD's arbitrary rotation and
+    ATE rotation / RE from it; evo refuses ("degenerate covariance rank"), and so do we, on both paths."""
+    gt = random_traj(50, 4)
+    still = Pose(gt.rotation, np.tile(gt.translation[0], (50, 1)))
+    line = Pose(gt.rotation, np.outer(np.arange(50) * 0.01, [1.0, 2.0, 0.5]))
+    for est, methods in ((still, ("posyaw", "se3", "sim3")), (line, ("se3", "sim3")), (gt[:2], ("se3", "sim3"))):
+        ref = gt[:len(est)]
+        for method in methods:
+            with pytest.raises(ConfigError, match="at one point or on one line"):
+                align(ref, est, method)
+            if method != "posyaw":
+                with pytest.raises(ConfigError, match="at one point or on one line"):
+                    evo_align(ref, est, method)
+        assert align(ref, est, "se3", 1).method == "se3"          # the first-pose closed form needs no spread
+    # a line determines the yaw (its direction in x-y): posyaw keeps working
+    yaw = Rotation.from_euler("z", 0.3)
+    a = align(Pose(yaw * line.rotation, yaw.apply(line.translation)), line, "posyaw")
+    np.testing.assert_allclose(a.rotation, yaw.as_matrix(), atol=1e-12)
+    stamps = np.arange(50) * 0.05
+    write_tum(tmp_path / "gt.tum", stamps, gt)
+    write_tum(tmp_path / "still.tum", stamps, still)
+    write_tum(tmp_path / "one.tum", stamps[:1], gt[:1])
+    for args, text in ((["--est", "still.tum"], "lie at one point or on one line"),
+                       (["--est", "one.tum", "--metric", "ape", "--align", "se3"],
+                        "--align se3 needs at least 2 matched poses, there is 1: use --align none")):
+        code, _, err = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), *[str(tmp_path / a) if a.endswith(".tum")
+                                                                           else a for a in args])
+        assert code == 5 and text in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_an_estimate_in_millimetres_is_flagged(cli, tmp_path, caplog):
+    """Neither file says its unit: an estimate in mm against a GT in m gave an ATE of hundreds of metres and no word.
+    One warning line with both spreads (RMS distance from their centroid over the matched poses); none with sim3."""
+    gt = random_traj(200, 5)
+    stamps = np.arange(200) * 0.05
+    write_tum(tmp_path / "gt.tum", stamps, gt)
+    write_tum(tmp_path / "mm.tum", stamps, Pose(gt.rotation, gt.translation * 1000))
+    p = gt.translation
+    spread = float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, axis=1))))
+    with caplog.at_level(logging.WARNING, logger="phonepose"):
+        code, out, _ = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "mm.tum"), "--json")
+    assert code == 0 and json.loads(out)["n_matched"] == 200
+    assert caplog.messages == [
+        f"phonepose: warning: {tmp_path / 'mm.tum'}'s positions spread {1000 * spread:.3g} m, {tmp_path / 'gt.tum'}'s "
+        f"{spread:.3g} m (1e+03x): are both in metres? (--align sim3 estimates a scale)"]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="phonepose"):
+        code, out, _ = cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "mm.tum"), "--json",
+                           "--align", "sim3")
+    assert code == 0 and caplog.messages == [] and json.loads(out)["align"]["scale"] == pytest.approx(1e-3, rel=1e-9)
+    # an estimate 10x too large (a diverging tracker) or in cm: only the unit is flagged
+    for factor, flagged in ((10.0, False), (100.0, True), (0.01, True), (3.0, False)):
+        write_tum(tmp_path / "x.tum", stamps, Pose(gt.rotation, gt.translation * factor))
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="phonepose"):
+            cli("evaluate", "--gt", str(tmp_path / "gt.tum"), "--est", str(tmp_path / "x.tum"), "--json")
+        assert bool(caplog.messages) == flagged, factor
 
 
 # ----------------------------------------------------------------------------- zero errors
@@ -209,6 +271,10 @@ def test_loaders_read_the_fixture_formats():
     ("0 1 2 3 0 0 0 0\n", "zero quaternion"),
     ("0 1 2 nan 0 0 0 1\n", ":1: non-finite"),
     ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 0 1 9\n", ":2: 9 values, the lines before have 8"),
+    # commas: refused, not guessed (an 8-column EuRoC row, t[ns] and w first, would read as TUM without an error)
+    ("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n", ":2: values separated by commas in '0,1,2,3,0,0,0,1': TUM 't tx ty tz "
+                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is --format euroc)"),
+    ("timestamp tx ty tz qx qy qz qw\n0 1 2 3 0 0 0 1\ntimestamp tx ty tz qx qy qz qw\n", ":3: not a number"),
 ])
 def test_malformed_tum_is_one_clear_line(tmp_path, text, where):
     p = tmp_path / "bad.txt"

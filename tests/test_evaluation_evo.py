@@ -144,3 +144,64 @@ def test_live_evo_association_and_sim3_ape_rpe():
     assert ours["num_samples"] == len(rpe.error)
     for k, v in rpe.get_all_statistics().items():
         assert ours[k] == pytest.approx(v, rel=RTOL)
+
+
+def _rows(name: str) -> list[list[str]]:
+    return [x.split(",") if name.endswith(".csv") else x.split() for x in (DATA / "evo" / name).read_text().splitlines()
+            if x and not x.startswith("#")]
+
+
+def _scaled_quaternion(row: list[str], k: float, first: int) -> list[str]:
+    return row[:first] + [repr(float(v) * k) for v in row[first:first + 4]] + row[first + 4:]
+
+
+# How other tools and people write the same TUM file: each variant must give evo's numbers for the original.
+TUM_VARIANTS = {
+    "tabs": lambda rows: "\n".join("\t".join(r) for r in rows) + "\n",
+    "crlf": lambda rows: "\r\n".join(" ".join(r) for r in rows) + "\r\n",
+    "lone-cr (old Mac)": lambda rows: "\r".join(" ".join(r) for r in rows) + "\r",
+    "comments mid-file and at line ends": lambda rows: "\n".join(
+        " ".join(r) + ("  # a note" if i % 3 else "") + ("\n# a comment line" if i == 10 else "")
+        for i, r in enumerate(rows)) + "\n",
+    "header without #": lambda rows: "timestamp tx ty tz qx qy qz qw\n" + "\n".join(" ".join(r) for r in rows) + "\n",
+    "scientific notation and +": lambda rows: "\n".join(" ".join(f"{float(v):+.17e}" for v in r) for r in rows) + "\n",
+    "whitespace and blank lines": lambda rows: "\n\n".join("  " + "   ".join(r) + " \t" for r in rows) + "\n\n",
+    "quaternions of norm 2 (evo normalises)": lambda rows: "\n".join(
+        " ".join(_scaled_quaternion(r, 2.0, 4)) for r in rows) + "\n",
+    "quaternions of norm 0.999 (3-decimal tools)": lambda rows: "\n".join(
+        " ".join(_scaled_quaternion(r, 0.999, 4)) for r in rows) + "\n",
+}
+
+
+@pytest.mark.parametrize("variant", list(TUM_VARIANTS))
+def test_tum_files_as_other_tools_write_them_give_evos_numbers(variant, tmp_path):
+    """evo 1.38.1's `evo_ape tum freiburg1_xyz-groundtruth.txt freiburg1_xyz-rgbdslam.txt -a` (and -r angle_deg) on
+    the original file; evo normalises every quaternion (its reader), so a non-unit one must not drop the pose (we
+    skipped those more than 1e-3 off, 375 of 788 poses at norm 0.999, all at norm 2)."""
+    est = tmp_path / "est.txt"
+    est.write_bytes(TUM_VARIANTS[variant](_rows("freiburg1_xyz-rgbdslam.txt")).encode())
+    gt = load_trajectory(DATA / "evo/freiburg1_xyz-groundtruth.txt", "tum")
+    for command in ("evo_ape tum freiburg1_xyz-groundtruth.txt freiburg1_xyz-rgbdslam.txt -a",
+                    "evo_ape tum freiburg1_xyz-groundtruth.txt freiburg1_xyz-rgbdslam.txt -a -r angle_deg"):
+        r = next(x for x in EXPECTED if x["command"] == command)
+        res = evaluate_ape(gt, load_trajectory(est, "tum"), parse(command)["r"], "se3")
+        assert res["n_matched"] == r["n_errors"] == 785
+        assert res["ape"]["rmse"] == pytest.approx(r["stats"]["rmse"], rel=RTOL)
+
+
+@pytest.mark.parametrize("variant", ["header without #", "crlf", "8 columns", "spaces after commas"])
+def test_euroc_files_as_other_tools_write_them_give_evos_numbers(variant, tmp_path):
+    """`evo_ape euroc V102_groundtruth.csv V102.txt -a` on the original 17-column file with its `#` header."""
+    rows = _rows("V102_groundtruth.csv")
+    header = (DATA / "evo/V102_groundtruth.csv").read_text().splitlines()[0]
+    text = {"header without #": header.lstrip("#") + "\n" + "\n".join(",".join(r) for r in rows) + "\n",
+            "crlf": header + "\r\n" + "\r\n".join(",".join(r) for r in rows) + "\r\n",
+            "8 columns": "\n".join(",".join(r[:8]) for r in rows) + "\n",
+            "spaces after commas": "\n".join(", ".join(r) for r in rows) + "\n"}[variant]
+    gt = tmp_path / "gt.csv"
+    gt.write_bytes(text.encode())
+    command = "evo_ape euroc V102_groundtruth.csv V102.txt -a"
+    r = next(x for x in EXPECTED if x["command"] == command)
+    res = evaluate_ape(load_trajectory(gt, "euroc"), load(DATA / "evo/V102.txt", "tum"), "trans_part", "se3")
+    assert res["n_matched"] == r["n_errors"] == 798
+    assert res["ape"]["rmse"] == pytest.approx(r["stats"]["rmse"], rel=RTOL)

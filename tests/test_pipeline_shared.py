@@ -60,6 +60,42 @@ def test_process_detects_reuses_and_maps():
     assert not obs4.in_view
 
 
+def _reencoded(frame: CompressedImage, orientation: int | None = None, size: tuple[int, int] | None = None):
+    """The frame's pixels saved again by Pillow, with an EXIF orientation tag and/or resized (another tool's JPEG)."""
+    import io
+
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(frame.data))
+    if size is not None:
+        image = image.resize(size)
+    exif = image.getexif()
+    if orientation is not None:
+        exif[0x0112] = orientation
+    out = io.BytesIO()
+    image.save(out, "JPEG", quality=95, exif=exif)
+    return CompressedImage(data=out.getvalue(), format="jpeg", frame_id=Frame.DISPLAY_CAMERA)
+
+
+def test_frames_are_read_as_stored_and_other_sizes_are_not_used():
+    """A JPEG with an EXIF orientation (another tool's camera frames): OpenCV's decoder turned the pixels (180° made
+    T4's p_ATE 0.9 -> 17.9 cm on a simulated session, silently). The calibration describes the stored pixels, so the
+    tag is ignored and the pose is exactly the untagged frame's. A frame of another size than the calibration's
+    (1280x960 for 640x480) was used with the wrong K: it now counts as showing no marker, and is counted."""
+    frame = jpeg(T_CAMERA_MARKER)
+    plain = SharedStages(SessionContext(camera=CAMERA, marker=MARKER)).process(tick(0, _reencoded(frame), 1, new=True))
+    assert plain.in_view
+    for orientation in (3, 6, 8):
+        stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+        obs = stages.process(tick(0, _reencoded(frame, orientation), 1, new=True))
+        assert obs.in_view and obs.marker.T_dvio_controller.allclose(plain.marker.T_dvio_controller, atol=0), orientation
+    stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
+    obs = stages.process(tick(0, _reencoded(frame, size=(1280, 960)), 1, new=True))
+    assert not obs.in_view
+    assert (stages.frames_decoded, stages.frames_undecodable, stages.frames_wrong_size) == (1, 0, 1)
+    assert stages.wrong_size == "1280x960 px, not the calibration's 640x480"
+
+
 def test_detections_message():
     stages = SharedStages(SessionContext(camera=CAMERA, marker=MARKER))
     obs = stages.process(tick(0, jpeg(T_CAMERA_MARKER), 123_456_789, new=True))

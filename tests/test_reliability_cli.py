@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from mcap.writer import Writer
@@ -40,9 +41,10 @@ def rewrite(src: Path, dst: Path, fn) -> Path:
     return dst
 
 
-def with_channel(src: Path, dst: Path, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+def with_channel(src: Path, dst: Path, topic: str, schema_name: str | None, schema_encoding: str, schema_data: bytes,
                  message_encoding: str, data=lambda b: b) -> Path:
-    """Copy a session with ``topic`` re-registered under another schema/encoding (raw mcap)."""
+    """Copy a session with ``topic`` re-registered under another schema/encoding (raw mcap); ``schema_name`` None:
+    no schema (id 0)."""
     with SessionReader(src) as r, open(dst, "wb") as f:
         w = Writer(f)
         w.start()
@@ -50,7 +52,7 @@ def with_channel(src: Path, dst: Path, topic: str, schema_name: str, schema_enco
         for schema, ch, m in r.raw_messages():
             if ch.topic not in cids:
                 if ch.topic == topic:
-                    sid = w.register_schema(schema_name, schema_encoding, schema_data)
+                    sid = 0 if schema_name is None else w.register_schema(schema_name, schema_encoding, schema_data)
                     cids[ch.topic] = w.register_channel(topic, message_encoding, sid)
                 else:
                     sid = w.register_schema(schema.name, schema.encoding, schema.data)
@@ -140,6 +142,15 @@ def _size0(m):
     m.size_m = 0.0
 
 
+def _fisheye(m):
+    m.distortion_model = "kannala_brandt"
+
+
+def _rational(m):
+    m.distortion_model = "rational_polynomial"
+    m.D.extend([0.3, 0.1, 0.02])
+
+
 def _size_huge(m):
     m.size_m = 1e200
 
@@ -180,6 +191,11 @@ def _extreme_imu():
 
 def _garbage_image(m):
     m.data = b"this is not a jpeg"
+
+
+def _half_size_image(m):
+    gray = cv2.imdecode(np.frombuffer(m.data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    m.data = cv2.imencode(".jpg", cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2)))[1].tobytes()
 
 
 def _truncate(src: Path, dst: Path) -> Path:
@@ -359,6 +375,16 @@ CASES = [
                                                     "jsonschema", b"{}", "json", lambda b: b'{"x": 1}')),
                        "-q", "--out", str(d / "o")], 4,
          r"js\.mcap: topic /controller/vio/pose has encoding 'json', phonepose reads protobuf only$"),
+    Case("no-schema", "a protobuf topic without a schema (id 0, which MCAP allows)",
+         lambda g, d: ["playback", str(with_channel(g, d / "ns.mcap", Topic.CONTROLLER_VIO_POSE, None, "", b"",
+                                                    "protobuf")), "-q", "--out", str(d / "o")], 4,
+         r"ns\.mcap: topic /controller/vio/pose has no schema: phonepose reads protobuf messages by their schema "
+         r"\(a FileDescriptorSet\)$"),
+    Case("log-time-0", "every message at log time 0 (a writer that does not set it: one tick, no metrics, exit 0 before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "t0.mcap", lambda t, msg, lt: [(t, msg, 0)])), "-q", "--out",
+                       str(d / "o")], 4,
+         r"t0\.mcap: all \d+ messages have the same log time \(0 ns\): phonepose plays a session in log-time order "
+         r"\(the capture time, docs/format\.md\), which this file's writer did not set$"),
     Case("static-nan", "NaN in the marker's pose on the phone body (static content)",
          lambda g, d: ["playback", str(rewrite(g, d / "mk.mcap", _static(Topic.CONTROLLER_MARKER,
                                                                           _marker_nan))), "-q", "--out", str(d / "o")],
@@ -372,6 +398,17 @@ CASES = [
          lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_zero))),
                        "-q", "--out", str(d / "o")],
          4, r"k\.mcap: camera calibration focal lengths fx=0, fy=0: expected > 0$"),
+    Case("static-fisheye", "camera calibration of a fisheye lens (Foxglove's kannala_brandt; read as plumb_bob before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "fe.mcap", _static(Topic.CAMERA_CALIBRATION, _fisheye))),
+                       "-q", "--out", str(d / "o")],
+         4, r"fe\.mcap: /display/camera/calibration: distortion model 'kannala_brandt': phonepose models plumb_bob "
+            r"\(k1 k2 p1 p2 k3\) only; calibrate the camera with phonepose calibrate-camera$"),
+    Case("static-rational", "camera calibration with 8 coefficients, k4 = 0.3 (the first 5 were used before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "r8.mcap", _static(Topic.CAMERA_CALIBRATION, _rational))),
+                       "-q", "--out", str(d / "o")],
+         4, r"r8\.mcap: /display/camera/calibration: 8 distortion coefficients, of which the 6th is not zero "
+            r"\(OpenCV's rational or thin-prism model\): phonepose models plumb_bob \(k1 k2 p1 p2 k3\) only; "
+            r"calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera$"),
     Case("static-marker-size", "marker size 0",
          lambda g, d: ["playback", str(rewrite(g, d / "ms.mcap", _static(Topic.CONTROLLER_MARKER, _size0))),
                        "-q", "--out", str(d / "o")],
@@ -745,6 +782,10 @@ WARNING_CASES = [
                      r"\(\|gyro\| > 1000 rad/s or \|accel\| > 10000 m/s\^2\)"),
     ("undecodable-images", "camera frames that are not JPEG", _static(Topic.CAMERA_IMAGE, _garbage_image),
      r"/display/camera/image: 41 camera frame\(s\) could not be decoded; they count as showing no marker"),
+    ("images-other-size", "camera frames of half the calibration's size (used with the wrong K before)",
+     _static(Topic.CAMERA_IMAGE, _half_size_image),
+     r"/display/camera/image: 41 camera frame\(s\) are 160x120 px, not the calibration's 320x240; they count as "
+     r"showing no marker"),
 ]
 
 
@@ -764,6 +805,28 @@ def test_bad_samples_are_reported_and_skipped(good, clean_run, tmp_path, cid, wh
     assert np.allclose(q_norm, 1.0, atol=1e-9)
     # the remaining samples of the same straight path interpolate to within a few mm of the clean run
     assert np.abs(est[:, 1:4] - ref[:, 1:4]).max() < 0.02
+
+
+def test_a_session_without_its_info_message_says_so(good, clean_run, tmp_path):
+    """/session/info removed (a tool that keeps some topics; an edited file): its task window is gone, so playback
+    scores every tick of the session. It did so without a word, and the numbers differed from the recording's
+    (TRI2: T4's inside frames 84 -> 248). One warning line now; the scores are of the whole session as before."""
+    import json
+
+    bare = rewrite(good, tmp_path / "noinfo.mcap", lambda t, msg, lt: [] if t == Topic.SESSION_INFO else [(t, msg, lt)])
+    r = _subprocess("playback", str(bare), "-q", "-t", "T1", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.strip() == (f"phonepose: warning: {bare}: no /session/info, so no task window: the metrics cover "
+                                "the whole session")
+    frames = json.loads((tmp_path / "o" / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
+    clean = json.loads((clean_run / "metrics.json").read_text())["trackers"]["T1"]["total"]["frames"]
+    assert frames > clean
+    # a ROS 2 bag's shape (no /session/info, the VIO in CDR): the error alone, no warning before it
+    ros = with_channel(bare, tmp_path / "ros.mcap", Topic.CONTROLLER_VIO_POSE, "geometry_msgs/msg/PoseStamped",
+                       "ros2msg", b"", "cdr", lambda b: b)
+    r = _subprocess("playback", str(ros), "-q", "-t", "T1", "--out", str(tmp_path / "o2"))
+    assert r.returncode == 4 and r.stderr.strip() == (f"phonepose: error: {ros}: topic /controller/vio/pose has "
+                                                      "encoding 'cdr', phonepose reads protobuf only")
 
 
 # ----------------------------------------------------------------------------- docs table
@@ -870,7 +933,8 @@ def test_evaluate_warns_when_the_files_come_from_different_sessions(clean_run, t
 
 
 def test_evaluate_reports_bad_rows(clean_run, tmp_path):
-    """Trajectory files: a non-unit quaternion row is skipped and reported; duplicate stamps are reported."""
+    """Trajectory files: a non-unit quaternion is normalised (as evo and rpg do) and reported; duplicate stamps are
+    reported."""
     import json
 
     gt = clean_run / "groundtruth.tum"
@@ -887,8 +951,11 @@ def test_evaluate_reports_bad_rows(clean_run, tmp_path):
     (tmp_path / "q.tum").write_text("\n".join(bad) + "\n")
     r = _subprocess("evaluate", "--gt", str(gt), "--est", str(tmp_path / "q.tum"), "--json")
     assert r.returncode == 0
-    assert r.stderr.strip() == f"phonepose: warning: {tmp_path / 'q.tum'}: 1 pose(s) skipped: non-unit quaternion"
-    assert json.loads(r.stdout)["n_matched"] == n - 1
+    assert r.stderr.strip() == (f"phonepose: warning: {tmp_path / 'q.tum'}: 1 pose(s) whose quaternion is not unit "
+                                f"length (|q| {float(np.linalg.norm([float(x) for x in parts[4:]])):.6g} to "
+                                f"{float(np.linalg.norm([float(x) for x in parts[4:]])):.6g}): normalised, as evo and "
+                                "rpg do")
+    assert json.loads(r.stdout)["n_matched"] == n
     dup = list(lines)
     dup.insert(rows[3], lines[rows[3]])
     (tmp_path / "d.tum").write_text("\n".join(dup) + "\n")

@@ -55,6 +55,35 @@ def test_a_byte_order_mark_is_accepted_in_tum_euroc_and_toml(tmp_path, cli):
     assert load_config(tmp_path / "c.toml").camera.rate_hz == 24
 
 
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])
+def test_utf16_text_with_its_byte_order_mark_is_read(tmp_path, cli, encoding):
+    """Excel's "Unicode text" export (tab-separated) and Windows PowerShell's `>` write UTF-16 with a byte-order mark:
+    it was refused as "binary data: a NUL byte at byte 3". Read as the same text; a NUL character in it is still
+    binary data, and UTF-16 without its mark stays refused (nothing says it is text)."""
+    import numpy as np
+
+    from phonepose.calibration import load_calibration
+    from phonepose.calibration.camera_file import CameraCalibrationFile, calibration_text
+
+    text = TUM.decode().replace(" ", "\t").replace("\n", "\r\n")
+    bom = {"utf-16": b"", "utf-16-le": b"\xff\xfe", "utf-16-be": b"\xfe\xff"}[encoding]
+    (tmp_path / "gt.txt").write_bytes(bom + text.encode(encoding))
+    assert read_text_input(tmp_path / "gt.txt") == text
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.txt", "--est", tmp_path / "gt.txt", "--metric", "ape",
+                         "--json")
+    assert code == 0 and json.loads(out)["n_matched"] == 40, err
+    calib = CameraCalibrationFile(np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), np.zeros(5), 640, 480)
+    (tmp_path / "c.yaml").write_bytes(bom + calibration_text(calib).encode(encoding))
+    assert load_calibration(tmp_path / "c.yaml").width == 640
+    (tmp_path / "nul.txt").write_bytes(bom + "1 2\0".encode(encoding))
+    with pytest.raises(InputFileError, match=r"nul\.txt: not a text file \(binary data: a NUL character at "
+                                             r"character 3\)$"):
+        read_text_input(tmp_path / "nul.txt")
+    (tmp_path / "nobom.txt").write_bytes(text.encode("utf-16-le"))
+    with pytest.raises(InputFileError, match=r"binary data: a NUL byte at byte 1\)$"):
+        read_text_input(tmp_path / "nobom.txt")
+
+
 def test_a_non_finite_metric_is_never_printed_nor_written(tmp_path, cli, monkeypatch):
     """Whatever still overflows is one line, never a NaN in the table or a failing --json."""
     from phonepose.evaluation import evo_metrics

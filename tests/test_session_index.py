@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import IndexType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from phonepose.errors import DamagedFileError
 from phonepose.session import SessionReader
@@ -204,7 +204,11 @@ def _rewrite(src: Path, dst: Path, **writer_options) -> Path:
     {"use_chunking": False},
     {"enable_crcs": False},
     {"chunk_size": 4096},
-], ids=["no-statistics", "no-repeated-channels", "no-summary-records", "unchunked", "no-crcs", "small-chunks"])
+    {"chunk_size": 1},
+    {"compression": CompressionType.LZ4},
+    {"compression": CompressionType.NONE},
+], ids=["no-statistics", "no-repeated-channels", "no-summary-records", "unchunked", "no-crcs", "small-chunks",
+        "one-chunk-per-message", "lz4", "uncompressed"])
 def test_valid_files_without_parts_of_the_summary_read_like_the_full_one(small, tmp_path, options, caplog):
     """Once "empty session" and "damaged (KeyError)": these are valid MCAP, read without a warning."""
     other = _rewrite(small, tmp_path / "o.mcap", **options)
@@ -217,6 +221,68 @@ def test_valid_files_without_parts_of_the_summary_read_like_the_full_one(small, 
             assert b.verify(deep=True) == len(b.index.chunks)
             _assert_times(b.log_times(), _times_by_mcap(small))
     assert caplog.records == []
+
+
+@pytest.mark.parametrize("options", [{"use_chunking": False}, {"chunk_size": 4096}], ids=["unchunked", "small-chunks"])
+def test_messages_out_of_log_time_order_with_every_sequence_0_are_read_in_order(small, tmp_path, options):
+    """Another writer's valid file: messages written newest first, each twice (two records of one channel with one
+    log time, arriving 1 ns apart), every sequence 0 (MCAP leaves the sequence to the writer; many write 0).
+    Overlapping chunks are merged on a heap, which compared two Message records on a tie of (log time, channel,
+    sequence): a TypeError reported as "damaged MCAP file ... run phonepose recover"."""
+    with open(small, "rb") as f:
+        records = list(make_reader(f).iter_messages(log_time_order=True))
+    p = tmp_path / "reversed.mcap"
+    with open(p, "wb") as g:
+        w = Writer(g, **options)
+        w.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, _m in records:
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, schemas[schema.id])
+        for _schema, channel, m in reversed(records):
+            for arrival in (m.publish_time, m.publish_time + 1):
+                w.add_message(channels[channel.id], m.log_time, m.data, arrival, 0)
+        w.finish()
+    with SessionReader(small) as a, SessionReader(p) as b:
+        expected = [(m.log_time_ns, m.topic, m.msg.SerializeToString()) for m in a.messages()]
+        got = [(m.log_time_ns, m.topic, m.msg.SerializeToString()) for m in b.messages()]
+        assert len(got) == 2 * len(expected) > 100
+        assert [t for t, _, _ in got] == sorted(2 * [t for t, _, _ in expected])
+        assert sorted(got) == sorted(2 * expected)
+        assert b.verify(deep=True) == len(b.index.chunks)
+
+
+def test_two_channels_on_a_topic_attachments_and_metadata_read_like_one_channel(small, tmp_path):
+    """Other writers' valid files: each topic's messages split over two channels (a writer that registers a topic
+    again, e.g. after a reconnect), and Attachment and Metadata records among them (Foxglove, rosbag2). The session
+    reads exactly as the original: the same messages per topic, in the same order."""
+    with open(small, "rb") as f:
+        records = list(make_reader(f).iter_messages(log_time_order=True))
+    p = tmp_path / "split.mcap"
+    with open(p, "wb") as g:
+        w = Writer(g, chunk_size=2048)
+        w.start(profile="", library="another tool")
+        w.add_metadata("rig", {"operator": "someone", "notes": "edited in Foxglove"})
+        w.add_attachment(1, 1, "calibration.yaml", "text/yaml", b"k: 1\n")
+        schemas: dict[int, int] = {}
+        channels: dict[tuple[int, int], int] = {}
+        for k, (schema, channel, m) in enumerate(records):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            key = (channel.id, k % 2)
+            if key not in channels:
+                channels[key] = w.register_channel(channel.topic, channel.message_encoding, schemas[schema.id])
+            w.add_message(channels[key], m.log_time, m.data, m.publish_time, m.sequence)
+        w.add_metadata("after", {"x": "y"})
+        w.finish()
+    with SessionReader(small) as a, SessionReader(p) as b:
+        for topic in a.topics():
+            expected = [(m.log_time_ns, m.msg) for m in a.messages([topic])]
+            assert [(m.log_time_ns, m.msg) for m in b.messages([topic])] == expected, topic
+        assert sum(c.count for c in b.summary().channels) == len(records)
 
 
 def _times_by_mcap(path: Path) -> dict[str, list[int]]:

@@ -169,7 +169,7 @@ def _decode_image(path: Path) -> np.ndarray | None:
     if data.size == 0:
         return None
     try:
-        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)   # the pixels as stored
     except cv2.error:           # e.g. 60000x60000 px: "CV_IO_MAX_IMAGE_PIXELS" asserted
         return None
 

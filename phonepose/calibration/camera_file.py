@@ -1,5 +1,9 @@
 """The camera calibration file: OpenCV FileStorage YAML, as OpenCV's own calibration samples write it.
 
+ROS's ``camera_info`` YAML (the same keys, matrices as ``rows``/``cols``/``data`` maps without OpenCV's tag, and a
+``distortion_model``) and a Kalibr camchain of one pinhole camera are read too; a lens model other than plumb_bob is
+refused (:func:`check_plumb_bob`).
+
 Keys: ``image_width``, ``image_height``, ``camera_matrix`` (3x3), ``distortion_coefficients``
 (plumb_bob k1 k2 p1 p2 k3), ``reprojection_error`` (RMS px) and, optionally, ``board`` (a text
 description of the board used). Any tool that reads OpenCV's sample format reads ours, and a file
@@ -18,6 +22,7 @@ import numpy as np
 
 from phonepose.errors import InputFileError, OutputError
 from phonepose.numbers import show_number
+from phonepose.pipeline.types import check_plumb_bob
 
 
 @dataclass(frozen=True)
@@ -118,7 +123,7 @@ def yaml_number(path: Path, fs: cv2.FileStorage, key: str, default: float | None
     return float(node.real())
 
 
-def yaml_text(path: Path, fs: cv2.FileStorage, key: str) -> str:
+def yaml_text(path: Path, fs: cv2.FileStorage | cv2.FileNode, key: str) -> str:
     """``key``'s text ("" when it is absent); a node of another type is one line naming it."""
     node = fs.getNode(key)
     if node.empty():
@@ -142,6 +147,13 @@ def yaml_matrix(path: Path, fs: cv2.FileStorage, key: str) -> np.ndarray | None:
             0 < rows.real() * cols.real() <= MAX_MATRIX_ELEMENTS) or data.size() != rows.real() * cols.real():
         raise InputFileError(f"{path}: {key} is not a matrix of at most {MAX_MATRIX_ELEMENTS} numbers "
                              "(its rows, cols and data disagree)")
+    if node.getNode("dt").empty():
+        # ROS's camera_info YAML (camera_calibration_parsers): the same map without the !!opencv-matrix tag and dt,
+        # which node.mat() refuses; its data is a list of numbers, read one by one
+        items = [data.at(i) for i in range(data.size())]
+        if not all(x.isReal() or x.isInt() for x in items):
+            raise InputFileError(f"{path}: {key} is not a matrix of numbers")
+        return np.array([x.real() for x in items], dtype=float).reshape(int(rows.real()), int(cols.real()))
     try:
         return np.asarray(node.mat(), dtype=float)
     except (cv2.error, SystemError, TypeError, ValueError):
@@ -153,16 +165,57 @@ def _node_kind(node: cv2.FileNode) -> str:
             else "a number" if node.isReal() or node.isInt() else "no value")
 
 
+def _numbers(path: Path, node: cv2.FileNode, key: str, sizes: tuple[int, ...]) -> np.ndarray:
+    """``node[key]`` as a list of numbers of one of ``sizes``, or one line naming it."""
+    seq = node.getNode(key)
+    items = [seq.at(i) for i in range(seq.size())] if seq.isSeq() else []
+    if not seq.isSeq() or len(items) not in sizes or not all(x.isReal() or x.isInt() for x in items):
+        raise InputFileError(f"{path}: cam0.{key} is not a list of {' or '.join(map(str, sizes))} numbers")
+    return np.array([x.real() for x in items], dtype=float)
+
+
+# Kalibr's names: its radtan is plumb_bob without k3; "none" is no distortion (an empty list)
+KALIBR_MODELS = {"radtan": "plumb_bob", "none": "plumb_bob"}
+
+
+def _kalibr_camera(path: Path, fs: cv2.FileStorage) -> tuple[np.ndarray, np.ndarray, float, float, str]:
+    """K, D, width, height and the lens model of a Kalibr camchain with one camera (``cam0``: ``camera_model``
+    pinhole, ``intrinsics`` fu fv pu pv, ``distortion_model``, ``distortion_coeffs``, ``resolution`` w h)."""
+    if not fs.getNode("cam1").empty():
+        raise InputFileError(f"{path}: a Kalibr camchain of several cameras (cam0, cam1, ...): give a file with the "
+                             "display camera alone, as cam0")
+    cam = fs.getNode("cam0")
+    if not cam.isMap():
+        raise InputFileError(f"{path}: cam0 is not a Kalibr camera (expected camera_model, intrinsics, ...)")
+    camera_model = yaml_text(path, cam, "camera_model") or "pinhole"
+    if camera_model != "pinhole":
+        raise InputFileError(f"{path}: Kalibr camera_model {camera_model!r}: phonepose models a pinhole camera only")
+    fu, fv, pu, pv = _numbers(path, cam, "intrinsics", (4,))
+    width, height = _numbers(path, cam, "resolution", (2,))
+    model = yaml_text(path, cam, "distortion_model") or "none"
+    coeffs = _numbers(path, cam, "distortion_coeffs", (0, 1, 4, 5)) if not cam.getNode("distortion_coeffs").empty() \
+        else np.zeros(0)
+    D = np.zeros(5)
+    D[:min(5, coeffs.size)] = coeffs[:5]
+    K = np.array([[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]])
+    return K, D, float(width), float(height), KALIBR_MODELS.get(model, model)
+
+
 def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     """Read a calibration file; a missing or malformed one is an InputFileError (one line, exit 2)."""
     path = Path(path)
     fs = open_yaml(path, "calibration")
     try:
-        K = yaml_matrix(path, fs, "camera_matrix")
-        D = yaml_matrix(path, fs, "distortion_coefficients")
-        width, height = yaml_number(path, fs, "image_width", 0), yaml_number(path, fs, "image_height", 0)
-        rms = yaml_number(path, fs, "reprojection_error", float("nan"))
-        board = yaml_text(path, fs, "board")
+        if fs.getNode("camera_matrix").empty() and not fs.getNode("cam0").empty():
+            K, D, width, height, model = _kalibr_camera(path, fs)
+            rms, board = float("nan"), ""
+        else:
+            K = yaml_matrix(path, fs, "camera_matrix")
+            D = yaml_matrix(path, fs, "distortion_coefficients")
+            width, height = yaml_number(path, fs, "image_width", 0), yaml_number(path, fs, "image_height", 0)
+            rms = yaml_number(path, fs, "reprojection_error", float("nan"))
+            board = yaml_text(path, fs, "board")
+            model = yaml_text(path, fs, "distortion_model")     # ROS's camera_info; OpenCV's samples write none
     finally:
         fs.release()
     assert width is not None and height is not None and rms is not None      # given defaults
@@ -173,6 +226,7 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     if not (width <= MAX_IMAGE_SIDE_PX and height <= MAX_IMAGE_SIDE_PX and width.is_integer() and height.is_integer()):
         raise InputFileError(f"{path}: image_width {show_number(width)}, image_height {show_number(height)}: expected "
                              f"whole pixels in [1, {MAX_IMAGE_SIDE_PX}]")
+    check_plumb_bob(str(path), model, D.ravel(), InputFileError)
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
     return CameraCalibrationFile(K.astype(float), D5, int(width), int(height), float(rms), board)

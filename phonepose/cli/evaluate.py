@@ -13,7 +13,7 @@ import typer
 from phonepose.cli import app
 from phonepose.cli.options import Align, DeltaUnit, Metric, PoseRelation, TrajectoryFormat, number
 from phonepose.cli.output import stdout_console
-from phonepose.errors import ConfigError, SessionContentError
+from phonepose.errors import ConfigError, PhoneposeError, SessionContentError
 from phonepose.numbers import SECONDS_MAX
 
 
@@ -136,6 +136,37 @@ def _warn_on_small_overlap(gt: Path, est: Path, gt_traj, est_traj, max_diff: flo
         "from the same session?", 100 * est_frac, est, 100 * gt_frac, gt)
 
 
+# A ratio of spreads within 25 % of 100x or 1000x (either way) is two units (cm or mm against m): a tracker's scale
+# error is a few percent; one that diverges or sticks rarely lands on a power of ten; a monocular SLAM's arbitrary
+# scale is what --align sim3 is for.
+UNIT_RATIOS = (100.0, 1000.0)
+UNIT_RATIO_TOL = 0.25
+
+
+def _warn_on_other_unit(gt: Path, est: Path, gt_traj, est_traj, max_diff: float, align: str | None) -> None:
+    """One warning line when the matched positions of the two files spread over lengths about 100x or 1000x apart: a
+    file in millimetres evaluated against one in metres gives errors in the hundreds of metres, which nothing else
+    flags (neither file says its unit). Not with --align sim3, whose scale takes it out."""
+    from phonepose.evaluation.evo_metrics import associate
+
+    if align == "sim3":
+        return
+    try:
+        i_est, i_gt = associate(gt_traj, est_traj, max_diff)
+    except PhoneposeError:
+        return      # no match: an error of its own, later
+    spread = [float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, axis=1)))) if len(p) else 0.0
+              for p in (gt_traj.positions[i_gt], est_traj.positions[i_est])]
+    if min(spread) <= 1e-3:
+        return      # a trajectory that hardly moves has no scale to compare
+    ratio = spread[1] / spread[0]
+    if not any(abs(r / unit - 1) <= UNIT_RATIO_TOL for unit in UNIT_RATIOS for r in (ratio, 1 / ratio)):
+        return
+    logging.getLogger("phonepose").warning(
+        "phonepose: warning: %s's positions spread %.3g m, %s's %.3g m (%.3gx): are both in metres? (--align sim3 "
+        "estimates a scale)", est, spread[1], gt, spread[0], ratio)
+
+
 def _warn_on_other_session(gt: Path, est: Path, in_view: Path | None) -> None:
     """One warning line when playback's session tags say the files come from different sessions."""
     from phonepose.evaluation.trajectory import read_session_tag
@@ -207,6 +238,7 @@ def evaluate(
     est_traj = load_trajectory(est, est_fmt)
     _warn_on_other_session(gt, est, in_view if metric == "paper" else None)
     _warn_on_small_overlap(gt, est, gt_traj, est_traj, 0.02 if max_diff is None else max_diff)
+    _warn_on_other_unit(gt, est, gt_traj, est_traj, 0.02 if max_diff is None else max_diff, align)
     if metric == "paper":
         result = _paper(gt_traj, est_traj, in_view, 0.02 if max_diff is None else max_diff)
         if as_json:

@@ -61,6 +61,27 @@ def best_yaw(c: np.ndarray) -> float:
     return float(np.pi / 2 - np.arctan2(b, a))
 
 
+DEGENERATE = ("the matched positions lie at one point or on one line, so they do not determine the alignment's "
+              "rotation (any value fits): use --align none, or --align-frames 1 (first-pose alignment)")
+
+
+def check_determined(gt_positions: np.ndarray, est_positions: np.ndarray, yaw_only: bool = False) -> None:
+    """ConfigError unless the positions fix the rotation of an alignment: evo's rule (fewer than 2 singular values
+    of the centred cross-covariance above machine epsilon is "degenerate covariance rank"), and for posyaw the
+    same on the yaw's two terms. rpg's Umeyama has no check, and there the SVD returned an arbitrary rotation, so
+    ATE rotation and RE silently depended on rounding noise (a trajectory that never moves, or 2 poses)."""
+    g = np.asarray(gt_positions, dtype=float)
+    d = np.asarray(est_positions, dtype=float)
+    c = (g - g.mean(0)).T @ (d - d.mean(0)) / len(g)
+    eps = np.finfo(float).eps
+    if yaw_only:
+        determined = np.hypot(c[0, 1] - c[1, 0], c[0, 0] + c[1, 1]) > eps
+    else:
+        determined = np.count_nonzero(np.linalg.svd(c, compute_uv=False) > eps) >= 2
+    if not determined:
+        raise ConfigError(DEGENERATE)
+
+
 def umeyama(model: np.ndarray, data: np.ndarray, with_scale: bool = False, yaw_only: bool = False):
     """``(s, R, t)`` with ``model ≈ s R data + t`` (model = GT, data = estimate), rpg's align_umeyama."""
     model = np.asarray(model, dtype=float)
@@ -117,6 +138,7 @@ def align(gt: Pose, est: Pose, method: str = "posyaw", num_frames: int = -1) -> 
         return Alignment(method, num_frames, 1.0, r, p_gt[0] - r @ p_es[0])
     if method == "sim3" and n < 2:
         raise ConfigError("--align sim3 needs --align-frames -1 or >= 2")
+    check_determined(p_gt, p_es, yaw_only=(method == "posyaw"))
     s, r, t = umeyama(p_gt, p_es, with_scale=(method == "sim3"), yaw_only=(method == "posyaw"))
     return Alignment(method, num_frames, s, r, t)
 

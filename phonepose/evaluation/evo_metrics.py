@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.errors import ConfigError, SessionContentError
-from phonepose.evaluation.alignment import Alignment, align, umeyama
+from phonepose.evaluation.alignment import Alignment, align, check_determined, umeyama
 from phonepose.evaluation.association import associate_evo, associate_index
 from phonepose.evaluation.stats import statistics
 from phonepose.evaluation.trajectory import Trajectory
@@ -252,14 +252,14 @@ class RPE(_PE):
 def evo_align(ref: Pose, est: Pose, method: str = "none", n_to_align: int = -1) -> Alignment:
     """evo's ``-a`` (se3) / ``-as`` (sim3) Umeyama on the first n poses; also posyaw/none (ours)."""
     if method in ("se3", "sim3"):
+        if len(ref) < 2:
+            raise ConfigError(f"--align {method} needs at least 2 matched poses, there is {len(ref)}: use --align none")
         n = len(ref) if n_to_align in (-1, None) else int(n_to_align)
         if n < 2 or n > len(ref):
             raise ConfigError(f"--align-frames {n_to_align}: evo's Umeyama needs -1 or 2..{len(ref)} poses")
         p_ref = np.atleast_2d(ref.translation)[:n]
         p_est = np.atleast_2d(est.translation)[:n]
-        sv = np.linalg.svd((p_ref - p_ref.mean(0)).T @ (p_est - p_est.mean(0)) / n, compute_uv=False)
-        if np.count_nonzero(sv > np.finfo(float).eps) < 2:
-            raise ConfigError("degenerate covariance rank, Umeyama alignment is not possible")
+        check_determined(p_ref, p_est)     # evo's "degenerate covariance rank"
         s, r, t = umeyama(p_ref, p_est, with_scale=(method == "sim3"))
         return Alignment(method, -1 if n_to_align in (-1, None) else n, s, r, t)
     return align(ref, est, method, n_to_align)

@@ -38,11 +38,6 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
     if i_est.size == 0:
         raise SessionContentError(f"no matching stamps between {gt.source or 'GT'} and {est.source or 'estimate'} "
                           f"(|dt| < {max_diff} s)")
-    g, e = gt.poses[i_gt], est.poses[i_est]
-    al = align(g, e, align_method, align_frames)
-    e_al = al.apply(e)
-    e_trans, e_rot = absolute_errors(g, e_al)
-    e_scale = scale_errors_perc(g.translation, e_al.translation, rpg_quirk=scale_quirk)
     if lengths is None:
         lengths = default_lengths(gt.positions)
         if not all(x > 0 for x in lengths):     # what is wrong is the trajectory, not a --lengths the user gave
@@ -52,6 +47,11 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
     lengths = [float(x) for x in lengths]
     if any(not (x > 0) for x in lengths):
         raise ConfigError(f"--lengths {lengths}: sub-trajectory lengths must be > 0 m")
+    g, e = gt.poses[i_gt], est.poses[i_est]
+    al = align(g, e, align_method, align_frames)
+    e_al = al.apply(e)
+    e_trans, e_rot = absolute_errors(g, e_al)
+    e_scale = scale_errors_perc(g.translation, e_al.translation, rpg_quirk=scale_quirk)
     rel = relative_errors(g, e, lengths, al.scale, index_shift_quirk)
     out = {
         "n_matched": int(i_est.size),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,6 +96,8 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) 
         if s:
             rows.append(s)
             lines.append(lineno)
+    if len(rows) > 1 and _is_header(rows[0]):     # a file of one such line is no trajectory: an error below
+        del rows[0], lines[0]
     if not rows:
         raise InputFileError(f"{path}: no poses (expected {what})")
     try:
@@ -111,6 +114,9 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) 
         try:
             vals = [float(x) for x in parts]
         except ValueError:
+            if delimiter is None and "," in s:
+                raise InputFileError(f"{path}:{lineno}: values separated by commas in {s[:60]!r}: {what} is "
+                                     "separated by spaces (an EuRoC csv is --format euroc)") from None
             raise InputFileError(f"{path}:{lineno}: not a number in {s[:60]!r} (expected {what})") from None
         if len(vals) < ncols:
             raise InputFileError(f"{path}:{lineno}: {len(vals)} values, expected {ncols} ({what})")
@@ -123,6 +129,20 @@ def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) 
     raise InputFileError(f"{path}: rows of unequal length (expected {what})")
 
 
+def _is_header(row: str) -> bool:
+    """Whether the first row is a column header written without ``#`` (``timestamp tx ty tz qx qy qz qw``,
+    ``timestamp,p_x,...``): none of its fields (split at commas and spaces, whatever the format's separator) is a
+    number. evo refuses such a file; it is read as if the header were a comment (docs/evaluation.md). A row with
+    any number in it is data, and a bad one is an error."""
+    for x in re.split(r"[,\s]+", row):
+        try:
+            float(x)
+            return False
+        except ValueError:
+            pass
+    return True
+
+
 def _poses_from_xyzw(path, lines_offset, xyz, quat_xyzw) -> Pose:
     norms = np.linalg.norm(quat_xyzw, axis=1)
     bad = np.flatnonzero(~(norms > 1e-12))
@@ -131,25 +151,25 @@ def _poses_from_xyzw(path, lines_offset, xyz, quat_xyzw) -> Pose:
     return Pose.from_xyzw(xyz, quat_xyzw)
 
 
-def _drop_bad_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
-    """Rows to keep: those with a unit quaternion (within QUAT_NORM_TOL); the others are skipped.
+def _report_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> None:
+    """One warning line for quaternions off unit length and one for duplicate or backwards stamps; both kept.
 
-    Duplicate or backwards stamps are reported but kept: evo and rpg use them as they are (real
-    datasets have some, e.g. EuRoC V102), and our numbers must equal theirs (docs/evaluation.md).
-    Each is one warning line (docs/reliability.md).
+    Every non-zero quaternion is normalised, as evo and rpg do (their readers divide by the norm), so a file
+    written with few decimals, or by a tool that leaves its quaternions unnormalised, gives their numbers; a
+    quaternion more than QUAT_NORM_TOL off unit length is counted in the warning. Duplicate or backwards stamps
+    are used as they are: evo and rpg do (real datasets have some, e.g. EuRoC V102), and our numbers must equal
+    theirs (docs/evaluation.md).
     """
     norms = np.linalg.norm(quat_xyzw, axis=1)
-    keep = np.abs(norms - 1.0) <= QUAT_NORM_TOL
-    n_quat = int(np.count_nonzero(~keep))
-    n_time = int(np.count_nonzero(np.diff(stamps[keep]) <= 0))
+    off = np.abs(norms - 1.0) > QUAT_NORM_TOL
+    n_quat = int(np.count_nonzero(off))
+    n_time = int(np.count_nonzero(np.diff(stamps) <= 0))
     if n_quat:
-        log.warning("phonepose: warning: %s: %d pose(s) skipped: non-unit quaternion", path, n_quat)
+        log.warning("phonepose: warning: %s: %d pose(s) whose quaternion is not unit length (|q| %.6g to %.6g): "
+                    "normalised, as evo and rpg do", path, n_quat, norms[off].min(), norms[off].max())
     if n_time:
         log.warning("phonepose: warning: %s: %d duplicate or non-monotonic timestamp(s), used as evo/rpg do",
                     path, n_time)
-    if not keep.any():
-        raise InputFileError(f"{path}: no usable poses (every quaternion is off unit length)")
-    return keep
 
 
 def load_tum(path) -> Trajectory:
@@ -157,9 +177,9 @@ def load_tum(path) -> Trajectory:
     m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'", TUM_BOUNDS)
     if m.shape[1] != 8:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 8 (TUM 't tx ty tz qx qy qz qw')")
-    _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the pose
-    m = m[_drop_bad_rows(path, m[:, 0], m[:, 4:8])]
-    return Trajectory(m[:, 0].copy(), _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8]), str(path))
+    poses = _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the pose
+    _report_rows(path, m[:, 0], m[:, 4:8])
+    return Trajectory(m[:, 0].copy(), poses, str(path))
 
 
 def load_euroc(path) -> Trajectory:
@@ -168,10 +188,9 @@ def load_euroc(path) -> Trajectory:
                      (([0], MAX_STAMP_S * 1e9, "stamp {v:g} ns is not a time (beyond ±9e18 ns, the year 2262)"),
                       *TUM_BOUNDS[1:]))
     quat_xyzw = m[:, [5, 6, 7, 4]]
-    _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the pose
-    keep = _drop_bad_rows(path, m[:, 0], quat_xyzw)
-    m, quat_xyzw = m[keep], quat_xyzw[keep]
-    return Trajectory(np.divide(m[:, 0], 1e9), _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw), str(path))
+    poses = _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the pose
+    _report_rows(path, m[:, 0], quat_xyzw)
+    return Trajectory(np.divide(m[:, 0], 1e9), poses, str(path))
 
 
 def load_kitti(path) -> Trajectory:

@@ -16,7 +16,7 @@ import numpy as np
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
-from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext
+from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext, check_plumb_bob
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
 
@@ -96,6 +96,12 @@ def read_context(reader: SessionReader) -> SessionContext:
         raise SessionContentError(f"{path}: empty session (no messages)")
     if not summary.has(Topic.CONTROLLER_VIO_POSE):
         raise SessionContentError(f"{path}: no controller VIO ({Topic.CONTROLLER_VIO_POSE}); nothing to play back")
+    n_vio = sum(c.count for c in summary.channels if c.topic == Topic.CONTROLLER_VIO_POSE)
+    if n_vio > 1 and summary.start_ns == summary.end_ns:
+        # a writer that leaves log_time 0 (or one value): playback saw one tick, scored nothing and said nothing
+        raise SessionContentError(f"{path}: all {summary.message_count} messages have the same log time "
+                                  f"({summary.start_ns} ns): phonepose plays a session in log-time order (the capture "
+                                  "time, docs/format.md), which this file's writer did not set")
     has_images = summary.has(Topic.CAMERA_IMAGE)
     first = _first_messages(reader, summary).get
 
@@ -108,6 +114,8 @@ def read_context(reader: SessionReader) -> SessionContext:
         if len(calib.K) != 9:
             raise SessionContentError(f"{path}: camera calibration has {len(calib.K)} K values, expected 9")
         _check_camera(path, calib)
+        check_plumb_bob(f"{path}: {Topic.CAMERA_CALIBRATION}", calib.distortion_model, np.asarray(calib.D, dtype=float),
+                        SessionContentError)
         D = np.zeros(5)
         d = np.asarray(calib.D, dtype=float)[:5]
         D[: len(d)] = d

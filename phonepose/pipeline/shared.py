@@ -37,11 +37,23 @@ from phonepose.session.codec import encode_pose
 
 
 def decode_gray(image: Frame) -> np.ndarray | None:
-    """Grayscale pixels of a frame (JPEG/PNG; anything with ``.data``), decoded once; None if undecodable."""
+    """Grayscale pixels of a frame (JPEG/PNG; anything with ``.data``), decoded once; None if undecodable.
+
+    The pixels as stored: an EXIF orientation (another tool's JPEG) is not applied. The calibration describes the
+    stored pixels, and OpenCV's default rotation of them (a 180° tag made T4's p_ATE 20x worse) or a turn to
+    portrait put every marker where the camera never saw it."""
     data = np.frombuffer(image.data, dtype=np.uint8)
     if data.size == 0:
         return None
-    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def frame_size_problem(gray: np.ndarray, camera) -> str | None:
+    """Why a decoded frame cannot be used with ``camera``'s calibration (another size), or None."""
+    h, w = gray.shape[:2]
+    if (w, h) == (camera.width, camera.height):
+        return None
+    return f"{w}x{h} px, not the calibration's {camera.width}x{camera.height}"
 
 
 class SharedStages:
@@ -68,6 +80,8 @@ class SharedStages:
         self._last_marker: MarkerObservation | None = None
         self.frames_decoded = 0
         self.frames_undecodable = 0   # reported once by the caller (docs/reliability.md)
+        self.frames_wrong_size = 0    # decoded, but not of the calibration's size (reported once by the caller)
+        self.wrong_size = ""          # the first such frame's size, for that report
 
     def _recognize(self, tick: Tick, decoded: Future | None = None) -> MarkerObservation | None:
         """The tick's marker; ``decoded``: its new frame's pixels being decoded by ``prefetch``."""
@@ -79,8 +93,12 @@ class SharedStages:
         gray = decoded.result() if decoded is not None else decode_gray(frame)
         self.frames_decoded += 1
         marker = None
+        problem = None if gray is None else frame_size_problem(gray, self.context.camera)
         if gray is None:
             self.frames_undecodable += 1
+        elif problem is not None:
+            self.frames_wrong_size += 1
+            self.wrong_size = self.wrong_size or problem
         else:
             marker = self.recognizer.recognize(gray, frame.T_dvio_display, frame.t_ns)
         self._last_marker = marker

@@ -27,6 +27,30 @@ class CameraModel:
     T_display_camera: Pose        # display_camera in the display body frame
 
 
+# Lens models whose first 5 coefficients are plumb_bob's k1 k2 p1 p2 k3 (ROS / Foxglove names, Kalibr's radtan):
+# phonepose's camera model is plumb_bob, so a calibration of one of these is read when its further coefficients
+# (OpenCV's rational k4 k5 k6, thin prism s1-s4, tilt tx ty) are all zero.
+PLUMB_BOB_MODELS = ("", "plumb_bob", "rational_polynomial", "radtan", "radial-tangential")
+
+
+def check_plumb_bob(where: str, model: str, D: np.ndarray, error: type[Exception]) -> None:
+    """``error`` unless distortion model ``model`` with coefficients ``D`` is plumb_bob's (k1 k2 p1 p2 k3): another
+    model (fisheye ``equidistant``, ``kannala_brandt``) or non-zero coefficients beyond the fifth were read as
+    plumb_bob's first five, silently: every marker pose then came from a wrong lens."""
+    if model.strip().lower() not in PLUMB_BOB_MODELS:
+        raise error(f"{where}: distortion model {model!r}: phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+                    "calibrate the camera with phonepose calibrate-camera")
+    extra = np.flatnonzero(np.asarray(D, dtype=float)[5:])
+    if extra.size:
+        raise error(f"{where}: {len(D)} distortion coefficients, of which the {_ordinal(6 + int(extra[0]))} is not "
+                    "zero (OpenCV's rational or thin-prism model): phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
+                    "calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera")
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
+
+
 @dataclass(frozen=True)
 class MarkerModel:
     dictionary: str               # e.g. "DICT_4X4_50"
@@ -158,6 +182,8 @@ class Stages(Protocol):
     map_vio_samples: bool      # map Tick.controller_vio_samples (set by the engine from the trackers' capabilities)
     frames_decoded: int        # camera frames decoded so far
     frames_undecodable: int    # of which could not be decoded (reported once by the engine)
+    frames_wrong_size: int     # of which are not of the calibration's size (reported once by the engine)
+    wrong_size: str            # what the first of those is ("1280x960 px, not the calibration's 640x480")
 
     def process(self, tick: Tick) -> Observation: ...
 

@@ -357,9 +357,15 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             engine.writer = SessionWriter(out / "trackers.mcap")
             stack.callback(engine.writer.finish)
         _play(scheduler, engine, options)
+    if context.session_info is None:    # e.g. a session cut by a tool that keeps only some topics
+        log.warning("phonepose: warning: %s: no %s, so no task window: the metrics cover the whole session",
+                    session, Topic.SESSION_INFO)
     if stages.frames_undecodable:
         log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
+    if stages.frames_wrong_size:
+        log.warning("phonepose: warning: %s: %d camera frame(s) are %s; they count as showing no marker",
+                    Topic.CAMERA_IMAGE, stages.frames_wrong_size, stages.wrong_size)
     trajs = engine.trajectories()
     gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
     per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))

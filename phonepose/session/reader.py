@@ -7,6 +7,7 @@ loads the whole file), optionally filtered by topic and by a log-time range.
 from __future__ import annotations
 
 import heapq
+import itertools
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -174,10 +175,13 @@ class SessionReader:
     def _decode(self, schema, channel, data: bytes):
         decoder = self._decoders.get(channel.id)
         if decoder is None:
-            if channel.message_encoding != "protobuf" or schema is None:
+            if channel.message_encoding != "protobuf":
                 raise SessionContentError(
                     f"{self.path}: topic {channel.topic} has encoding {channel.message_encoding!r}, "
                     "phonepose reads protobuf only")
+            if schema is None:      # schema id 0: allowed by MCAP, but protobuf bytes cannot be read without one
+                raise SessionContentError(f"{self.path}: topic {channel.topic} has no schema: phonepose reads protobuf "
+                                          "messages by their schema (a FileDescriptorSet)")
             try:
                 expected = message_type_for(channel.topic).DESCRIPTOR.full_name
             except KeyError:
@@ -281,14 +285,17 @@ class SessionReader:
             return ((wanted is None or m.channel_id in wanted) and (start_ns is None or m.log_time >= start_ns)
                     and (end_ns is None or m.log_time < end_ns))
 
-        heap: list = [(ci.message_start_time, 0, i, 0, ci) for i, ci in enumerate(chunks)]
-        heap += [(m.log_time, 1, m.channel_id, m.sequence, m) for m in self.index.loose if keep(m)]
+        # Each entry ends in a count unique to it: messages equal in (log time, channel, sequence) (writers that
+        # leave every sequence 0) come in the order they were read, and the heap never compares two records.
+        count = itertools.count()
+        heap: list = [(ci.message_start_time, 0, 0, 0, next(count), ci) for ci in chunks]
+        heap += [(m.log_time, 1, m.channel_id, m.sequence, next(count), m) for m in self.index.loose if keep(m)]
         heapq.heapify(heap)
         while heap:
-            _, kind, _, _, item = heapq.heappop(heap)
+            _, kind, _, _, _, item = heapq.heappop(heap)
             if kind == 0:
                 for m in self._chunk_messages(item, wanted, start_ns, end_ns):
-                    heapq.heappush(heap, (m.log_time, 1, m.channel_id, m.sequence, m))
+                    heapq.heappush(heap, (m.log_time, 1, m.channel_id, m.sequence, next(count), m))
             else:
                 yield item
 
