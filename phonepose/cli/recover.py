@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import shown, stdout_console
+from phonepose.cli.output import print_table, shown, stdout_console
 from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
 from phonepose.text import printable
@@ -89,6 +89,6 @@ def recover(
     table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():
         table.add_row(shown(topic), str(n))     # a damaged file's topic names: anyone's text
-    console.print(table)
+    print_table(console, table)
     for line in report_lines(r):
         typer.echo(printable(line))
