@@ -64,7 +64,8 @@ def quiet_library_warnings() -> None:
     its own lines (``phonepose: error:`` / ``phonepose: warning:``). numpy's floating-point warnings
     (an overflow on an absurd input: results are checked for NaN/inf where they are used), the
     RuntimeWarnings numpy and scipy raise themselves, and OpenCV's WARN log lines (a camera or video
-    that cannot be opened), and rerun's WARN lines ("Dropping data in MemorySink" at exit).
+    that cannot be opened), and rerun's log lines ("Dropping data in MemorySink" at exit; a write that failed is
+    phonepose's own line, see ``viewer.sink.close_recording``).
     ``OPENCV_LOG_LEVEL`` or ``RUST_LOG`` set by the user wins. Called by the CLI and by every worker
     process it starts."""
     import os
@@ -72,7 +73,8 @@ def quiet_library_warnings() -> None:
     import warnings
 
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")     # read when cv2 loads (workers inherit it)
-    os.environ.setdefault("RUST_LOG", "error")             # rerun's Rust log, read when it loads
+    os.environ.setdefault("RUST_LOG", "off")   # rerun's Rust log, read when it loads: its errors are our lines
+                                               # (its "Failed to write" named the temporary, in colour)
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
