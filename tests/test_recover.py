@@ -268,3 +268,25 @@ def test_cli_recover_json_and_errors(session, tmp_path, cli):
     assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
     r = cli("recover", str(path), "--out", str(tmp_path / "nodir" / "o.mcap"))
     assert r.returncode == 6 and "does not exist" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_the_cli_writes_only_the_output_rules_temporary(session, tmp_path, cli, monkeypatch):
+    """recover wrote the plan's temporary's content to a second one, TMP.partial, renamed over it at the end: a
+    recover killed meanwhile (a SIGBUS from a file cut under it, SIGKILL) left a .partial that no later command
+    clears. Now the one temporary, whose name the next command finds."""
+    import phonepose.session.recover as recover
+    from phonepose.files import TMP_SUFFIX
+
+    seen: list[list[str]] = []
+    finish = recover.Writer.finish
+
+    def looking(self):
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+        return finish(self)
+    monkeypatch.setattr(recover.Writer, "finish", looking)
+    path = session[0]
+    r = cli("recover", path, "--out", tmp_path / "fixed.mcap")
+    assert r.returncode == 0, r.stderr
+    assert len(seen) == 1 and len(seen[0]) == 1 and seen[0][0].startswith(".fixed.mcap.") \
+        and seen[0][0].endswith(TMP_SUFFIX), seen
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fixed.mcap"]

@@ -306,3 +306,18 @@ def test_a_rrd_that_cannot_be_written_whole_is_one_line_and_never_put_in_place(t
     assert (r.returncode, r.stderr) == (6, "phonepose: error: cannot write r.rrd: File-writer thread shut down "
                                            "prematurely\n")
     assert not (tmp_path / "r.rrd").exists() and not list(tmp_path.glob(f".*{TMP_SUFFIX}"))
+
+
+def test_a_rrd_removed_while_it_is_written_is_one_line(tmp_path):
+    """Its folder removed under a playback (`rm -rf` of the output's parent): "it ends without its footer" was
+    the line; what happened is that the file is gone."""
+    from phonepose.errors import OutputError
+    from phonepose.viewer.sink import close_recording, open_recording
+
+    path = tmp_path / "p.rrd"
+    rec = open_recording("phonepose-test", "removed", name="removed", rrd_path=path)
+    rec.log("x", rr.Points3D([[0.0, 0.0, 0.0]]))
+    path.unlink()
+    with pytest.raises(OutputError) as e:
+        close_recording(rec, path)
+    assert str(e.value) == f"cannot write {path}: No such file or directory (removed while it was written)"

@@ -71,7 +71,7 @@ def recover(
     fixed = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", session=True, force=force)
     with plan:   # checked before reading; written to a temporary; renamed only when complete
         assert fixed.tmp is not None   # the plan's block made it
-        r = salvage(file, fixed.tmp, replace=True)
+        r = salvage(file, fixed.tmp, replace=True, staged=False)
     r.out = str(out)
     if as_json:
         typer.echo(json.dumps({

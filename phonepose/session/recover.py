@@ -321,8 +321,13 @@ def _topic_of(channels, cid):
     return None if ch is None else ch[1]
 
 
-def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = True) -> RecoveryReport:
+def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = True,
+            staged: bool = True) -> RecoveryReport:
     """Recover every intact chunk of ``path`` into ``out``; returns what was recovered and lost.
+
+    ``staged``: written to ``OUT.partial`` and renamed when complete; False when ``out`` is already a temporary
+    of :mod:`phonepose.files` (the CLI's), whose name the next command finds and clears after a crash (a
+    ``.partial`` beside it stayed for good).
 
     Raises InputFileError (missing, unreadable, or the same file as ``out``), OutputError
     (``out`` not writable, or existing while ``replace`` is false) and DamagedFileError when
@@ -353,13 +358,13 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
         try:
             sal = _Salvager(buf, report)
             sal.run()
-            _write(sal, report, dst)
+            _write(sal, report, dst, staged)
         finally:
             buf.close()
     return report
 
 
-def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
+def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True) -> None:
     counts: dict[str, int] = {}
     t_min = t_max = None
     stats = [per_channel for _, _, per_channel, _, _ in sal.chunks]
@@ -385,7 +390,7 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             "no intact chunk with known channels)")
     report.messages_per_topic = dict(sorted(counts.items()))
 
-    tmp = dst + ".partial"
+    tmp = dst + ".partial" if staged else dst
     try:
         fo = open(tmp, "wb")
     except OSError as exc:
@@ -416,7 +421,8 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             w.finish()
             fo.flush()
             os.fsync(fo.fileno())
-        os.replace(tmp, dst)
+        if staged:
+            os.replace(tmp, dst)
     except OSError as exc:
         try:
             os.unlink(tmp)

@@ -68,6 +68,8 @@ def close_recording(rec: rr.RecordingStream, rrd_path: str | os.PathLike | None)
         if rrd_path is None:
             raise OutputError(f"the Rerun viewer stopped taking the recording ({exc})") from None
         raise OutputError(f"cannot write {rrd_path}: {_sink_failure(rrd_path, exc)}") from None
+    if rrd_path is not None and not os.path.exists(rrd_path):      # its folder removed meanwhile
+        raise OutputError(f"cannot write {rrd_path}: {os.strerror(errno.ENOENT)} (removed while it was written)")
     if rrd_path is not None and not _ends_with_footer(rrd_path):   # the last write failed: rerun only logged it
         raise OutputError(f"cannot write {rrd_path}: {_sink_failure(rrd_path, None)}")
 
