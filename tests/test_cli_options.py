@@ -303,3 +303,25 @@ def test_out_of_memory_is_one_line_naming_the_limit(tmp_path, monkeypatch, capsy
         assert e.value.code == 1
         assert re.fullmatch(rf"phonepose: error: out of memory \({type(exc).__name__}: [^\n]*\): the command needs "
                             r"(free memory or a larger swap|a larger limit than the \S+ GiB of `ulimit -v`)\n", err), err
+
+
+@pytest.mark.parametrize("encoding", ["utf-8", "ascii", "latin-1"])
+def test_a_qr_code_is_drawn_with_what_the_terminal_takes(encoding):
+    """`record live` prints its pages' QR codes in half blocks (▀▄█); an ASCII or latin-1 terminal got them as
+    \\u2580 escapes, no code at all. There, coloured spaces (segno's non-compact output) draw it."""
+    import io
+
+    from phonepose.cli.live import print_qr
+    from phonepose.cli.output import ReportStream
+
+    raw = io.BytesIO()
+    stream = ReportStream(io.TextIOWrapper(raw, encoding=encoding))
+    old, sys.stdout = sys.stdout, stream
+    try:
+        print_qr("https://192.168.1.2:8443/")
+        stream.flush()
+    finally:
+        sys.stdout = old
+    text = raw.getvalue().decode(encoding)
+    assert stream.failure is None and "\\u" not in text
+    assert ("▀" in text or "▄" in text) == (encoding == "utf-8")

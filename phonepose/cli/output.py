@@ -89,6 +89,11 @@ def _plain(exc: UnicodeError) -> tuple[str, int]:
 codecs.register_error("phonepose-plain", _plain)
 
 
+def takes_unicode(stream) -> bool:
+    """Does ``stream`` take every character (UTF-8, -16, -32), or only some (ASCII, latin-1)?"""
+    return codecs.lookup(getattr(stream, "encoding", None) or "utf-8").name.startswith("utf-")
+
+
 class ReportStream(io.TextIOBase):
     """``sys.stdout`` or ``sys.stderr`` while a command runs. A write that fails (the reader of a pipe gone,
     ``/dev/full``, a full disk, a file size limit) never stops the command's work, so its outputs are still
@@ -100,8 +105,7 @@ class ReportStream(io.TextIOBase):
         super().__init__()
         self.stream = stream
         self.failure: OSError | None = None
-        encoding = getattr(stream, "encoding", None) or "utf-8"
-        self._narrow = not codecs.lookup(encoding).name.startswith("utf-")
+        self._narrow = not takes_unicode(stream)
 
     # rich draws ASCII tables for an ASCII stream; click writes through this one (it has no .buffer to go around it)
     @property
