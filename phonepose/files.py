@@ -37,7 +37,8 @@ The rule, the same in every command:
    replaced whole when it is empty or an earlier phonepose output (its ``.phonepose-output``
    manifest lists every file and folder of that run, and nothing else is in it), so no file of an
    earlier run survives beside the new ones and no file of the user's is lost with them; a folder
-   holding anything else is refused, and so is the current directory.
+   holding anything else is refused, and so is the current directory (when something arrives in it while the
+   command works, the finished folder is kept beside it as NAME.new). A replaced output keeps its permissions.
 
 Written by hand: no library does exclusive temporaries with stale-lock recovery and no-clobber
 commits, and ``tempfile``'s names cannot be found again after a crash.
@@ -421,6 +422,18 @@ class OutputDir(_Output):
             raise OutputError(f"{self.option} {self.path}: holds {named}, which phonepose did not write there; "
                               f"move {'it' if len(foreign) == 1 else 'them'} away, or choose a new folder")
 
+    def _set_aside(self, tmp: Path) -> Path:
+        """The finished folder under a new name beside the one it could not replace (a file of the user's arrived
+        in that one while the command ran): an experiment's hour of work was removed with the temporary."""
+        for n in range(1, 1000):
+            name = f"{self.target.name}.new" + (f"{n}" if n > 1 else "")
+            if not os.path.lexists(self.target.parent / name):
+                os.rename(tmp, self.target.parent / name)
+                self.tmp = None
+                self._release()
+                return self.path.parent / name
+        raise OutputError(f"{self.option} {self.path}: no free name beside it to keep this run's output")
+
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._clear_stale(inputs)
         tmp = self._tmp_name()
@@ -443,7 +456,10 @@ class OutputDir(_Output):
             (tmp / MANIFEST).write_text(json.dumps({"written_by": "phonepose", "command": self.command,
                                                     "files": files}) + "\n")
             _fsync_tree(tmp)
-            self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
+            try:
+                self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
+            except OutputError as exc:
+                raise OutputError(f"{exc} (this run's output is kept in {self._set_aside(tmp)})") from None
             _keep_mode(tmp, target)
             if os.path.lexists(target):
                 old = _beside(target, ".phonepose-old")

@@ -215,17 +215,27 @@ def test_a_file_saved_into_an_earlier_output_folder_stops_its_replacement(tmp_pa
     assert str(e.value) == f"--out {out}: holds {extra}, which phonepose did not write there; " \
                            f"move {'them' if ',' in extra else 'it'} away, or choose a new folder"
     assert _tree(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
-    # also when it arrives while the command works: checked again before the folder is replaced
+    # also when it arrives while the command works: checked again before the folder is replaced, and the finished
+    # run is kept beside it (it was removed with its temporary: an experiment's hour of work)
     (out / added).unlink()
     if added == "notes/a.txt":
         (out / "notes").rmdir()
     plan = OutputPlan()
     d = plan.dir(out, "--out", command="playback")
-    with pytest.raises(OutputError, match="which phonepose did not write there"):
+    with pytest.raises(OutputError) as e:
         with plan:
             (d.tmp / "metrics.json").write_text("{new}")
             (out / "late.mcap").write_bytes(b"precious")
+    assert str(e.value) == (f"--out {out}: holds late.mcap, which phonepose did not write there; move it away, or "
+                            f"choose a new folder (this run's output is kept in {out}.new)")
     assert (out / "late.mcap").read_bytes() == b"precious" and (out / "metrics.json").read_text() == "{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.new"]
+    assert (tmp_path / "run.new" / "metrics.json").read_text() == "{new}"
+    plan = OutputPlan()
+    d = plan.dir(tmp_path / "run.new", "--out", command="playback")
+    with plan:                                   # an output like any other: the next run replaces it
+        (d.tmp / "metrics.json").write_text("{newer}")
+    assert (tmp_path / "run.new" / "metrics.json").read_text() == "{newer}"
 
 
 @pytest.mark.parametrize("manifest", ["{}", '{"written_by": "phonepose"}', "not json", '{"files": "x"}'])
