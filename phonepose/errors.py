@@ -72,9 +72,10 @@ def quiet_library_warnings() -> None:
     (an overflow on an absurd input: results are checked for NaN/inf where they are used), the
     RuntimeWarnings numpy and scipy raise themselves, and OpenCV's WARN log lines (a camera or video
     that cannot be opened), FFmpeg's lines from inside OpenCV's video reader ("moov atom not found" for
-    a file that is no video: phonepose says "not a video OpenCV can read"), and rerun's WARN lines
-    ("Dropping data in MemorySink" at exit). ``OPENCV_LOG_LEVEL``, ``OPENCV_FFMPEG_LOGLEVEL`` or
-    ``RUST_LOG`` set by the user wins. Called by the CLI and by every worker
+    a file that is no video: phonepose says "not a video OpenCV can read"), and rerun's log lines
+    ("Dropping data in MemorySink" at exit; a write that failed is phonepose's own line, see
+    ``viewer.sink.close_recording``). ``OPENCV_LOG_LEVEL``, ``OPENCV_FFMPEG_LOGLEVEL`` or ``RUST_LOG`` set
+    by the user wins. Called by the CLI and by every worker
     process it starts."""
     import os
     import sys
@@ -82,7 +83,8 @@ def quiet_library_warnings() -> None:
 
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")     # read when cv2 loads (workers inherit it)
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when a video is first opened
-    os.environ.setdefault("RUST_LOG", "error")             # rerun's Rust log, read when it loads
+    os.environ.setdefault("RUST_LOG", "off")   # rerun's Rust log, read when it loads: its errors are our lines
+                                               # (its "Failed to write" named the temporary, in colour)
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)

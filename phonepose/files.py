@@ -37,7 +37,8 @@ The rule, the same in every command:
    replaced whole when it is empty or an earlier phonepose output (its ``.phonepose-output``
    manifest lists every file and folder of that run, and nothing else is in it), so no file of an
    earlier run survives beside the new ones and no file of the user's is lost with them; a folder
-   holding anything else is refused, and so is the current directory.
+   holding anything else is refused, and so is the current directory (when something arrives in it while the
+   command works, the finished folder is kept beside it as NAME.new). A replaced output keeps its permissions.
 
 Written by hand: no library does exclusive temporaries with stale-lock recovery and no-clobber
 commits, and ``tempfile``'s names cannot be found again after a crash.
@@ -49,8 +50,10 @@ import ctypes
 import ctypes.util
 import errno
 import fcntl
+import hashlib
 import json
 import os
+import re
 import secrets
 import shutil
 import stat
@@ -211,13 +214,21 @@ class _Output:
 
     # -- temporaries
     def _tmp_name(self) -> Path:
-        t = self.target
-        return t.parent / f".{t.name}.{os.getpid()}-{secrets.token_hex(4)}{TMP_SUFFIX}"
+        return _beside(self.target, TMP_SUFFIX)
 
     def _clear_stale(self, inputs: Sequence[Path]) -> None:
         """Remove the temporaries a killed command left for this output; refuse if a live one holds one."""
         t = self.target
-        for cand in sorted(t.parent.glob(f".{_glob_escape(t.name)}.*{TMP_SUFFIX}")):
+        ours = re.compile(rf"\.{re.escape(_tmp_stem(t))}\.(\d+)-[0-9a-f]{{8}}{re.escape(TMP_SUFFIX)}")
+        try:
+            names = sorted(os.listdir(t.parent))
+        except OSError:
+            names = []
+        for name in names:
+            found = ours.fullmatch(name)    # this output's only: not those of "run.v2" beside "run"
+            if found is None:
+                continue
+            cand = t.parent / name
             if any(_same_file(cand, inp) for inp in inputs):
                 continue   # never delete an input, whatever its name
             try:
@@ -228,7 +239,7 @@ class _Output:
                 try:
                     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 except BlockingIOError:
-                    pid = cand.name[len(t.name) + 2:].split("-", 1)[0]
+                    pid = found.group(1)
                     raise OutputError(f"{self.option} {self.path}: another phonepose (pid {pid}) is writing it; "
                                       f"wait for it to finish or choose another {self.option}") from None
                 _remove(cand)
@@ -323,6 +334,7 @@ class OutputFile(_Output):
             os.fsync(fd)
             if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
                 raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+            _keep_mode(tmp, target)
             os.rename(tmp, target)
             _fsync_dir(target.parent)
         except BaseException as exc:
@@ -362,6 +374,7 @@ class OutputFile(_Output):
                 if being_written(target):     # it may have begun since the check: a recording is never replaced
                     raise OutputError(f"{self.option} {self.path}: another phonepose began writing it (a recording "
                                       f"in progress); not replaced")
+                _keep_mode(tmp, target)
                 os.rename(tmp, target)
             _fsync_dir(target.parent)
         except FileExistsError:
@@ -422,6 +435,18 @@ class OutputDir(_Output):
             raise OutputError(f"{self.option} {self.path}: holds {named}, which phonepose did not write there; "
                               f"move {'it' if len(foreign) == 1 else 'them'} away, or choose a new folder")
 
+    def _set_aside(self, tmp: Path) -> Path:
+        """The finished folder under a new name beside the one it could not replace (a file of the user's arrived
+        in that one while the command ran): an experiment's hour of work was removed with the temporary."""
+        for n in range(1, 1000):
+            name = f"{self.target.name}.new" + (f"{n}" if n > 1 else "")
+            if not os.path.lexists(self.target.parent / name):
+                os.rename(tmp, self.target.parent / name)
+                self.tmp = None
+                self._release()
+                return self.path.parent / name
+        raise OutputError(f"{self.option} {self.path}: no free name beside it to keep this run's output")
+
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._clear_stale(inputs)
         tmp = self._tmp_name()
@@ -444,9 +469,13 @@ class OutputDir(_Output):
             (tmp / MANIFEST).write_text(json.dumps({"written_by": "phonepose", "command": self.command,
                                                     "files": files}) + "\n")
             _fsync_tree(tmp)
-            self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
+            try:
+                self._check_replaceable()   # again: nothing of the user's may have arrived meanwhile
+            except OutputError as exc:
+                raise OutputError(f"{exc} (this run's output is kept in {self._set_aside(tmp)})") from None
+            _keep_mode(tmp, target)
             if os.path.lexists(target):
-                old = target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.phonepose-old"
+                old = _beside(target, ".phonepose-old")
                 if _exchange(tmp, target):
                     old = tmp                    # tmp now holds the earlier output
                 else:                            # no renameat2: two renames, the old kept until the new is in
@@ -587,8 +616,29 @@ def _one_of(items: Sequence[str]) -> str:
     return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
 
 
-def _glob_escape(name: str) -> str:
-    return "".join(f"[{c}]" if c in "*?[" else c for c in name)
+# A temporary's name beside its output's: "." NAME "." PID "-" 8 hex digits SUFFIX (a pid has at most 7 digits)
+_TMP_NAME_EXTRA = len(f"..{2**22}-{'0' * 8}{TMP_SUFFIX}")
+
+
+def _tmp_stem(target: Path) -> str:
+    """The output's name as its temporaries carry it: the name, or, when a temporary's name would exceed what
+    the file system allows (NAME_MAX, 255 bytes: a 250-byte name was refused as "File name too long", a name
+    the user may give), its start and a hash of the whole name."""
+    try:
+        name_max = os.pathconf(target.parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        name_max = 255
+    raw = os.fsencode(target.name)
+    if len(raw) + _TMP_NAME_EXTRA <= name_max:
+        return target.name
+    digest = hashlib.sha256(raw).hexdigest()[:16]
+    keep = max(name_max - _TMP_NAME_EXTRA - len(digest) - 1, 0)
+    return f"{raw[:keep].decode('utf-8', 'ignore')}~{digest}"
+
+
+def _beside(target: Path, suffix: str) -> Path:
+    """A new temporary's path beside ``target`` (this process's, with a random part)."""
+    return target.parent / f".{_tmp_stem(target)}.{os.getpid()}-{secrets.token_hex(4)}{suffix}"
 
 
 def _is_recording(p: Path) -> bool:
@@ -621,6 +671,16 @@ def _listed_in_manifest(manifest: Path) -> set[str] | None:
     if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
         return None
     return set(files)
+
+
+def _keep_mode(tmp: Path, target: Path) -> None:
+    """A replaced output keeps the permissions its owner gave it: a calibration made private with chmod 600
+    became 644 again, readable by all, when it was written anew."""
+    try:
+        mode = stat.S_IMODE(os.stat(target).st_mode)
+    except FileNotFoundError:
+        return
+    os.chmod(tmp, mode)
 
 
 def _empty(p: Path) -> bool:

@@ -179,3 +179,171 @@ def test_an_unexpected_exception_is_one_line_and_the_traceback_on_request(tmp_pa
     monkeypatch.setenv("PHONEPOSE_TRACEBACK", "1")
     with pytest.raises(RuntimeError, match="disk gone"):
         main(["info", str(tmp_path / "s.mcap")])
+
+
+# ----------------------------------------------------------------------------- the environment
+# Standard output closed, full or a pipe whose reader left; a narrow encoding; a narrow terminal; few open files.
+# Real processes: what is under test is the process's own descriptors, locale and limits.
+def _phonepose(*args, cwd, env=None, encoding="utf-8", **popen) -> subprocess.CompletedProcess:
+    import os
+
+    return subprocess.run([sys.executable, "-m", "phonepose", *map(str, args)], cwd=cwd, encoding=encoding, timeout=300,
+                          env={**os.environ, **(env or {})}, **{"stdout": subprocess.PIPE, "stderr": subprocess.PIPE,
+                                                               **popen})
+
+
+def test_a_closed_stdout_is_refused_before_any_work(tmp_path):
+    """`>&-`: the report would be lost while exit 0 said all is well, and the first file opened would become
+    descriptor 1 (strace: the new recording's lock was): one line, exit 6, nothing written."""
+    import os
+
+    r = _phonepose("marker", "--out", "m.png", cwd=tmp_path, stdout=None, preexec_fn=lambda: os.close(1))
+    assert (r.returncode, r.stderr) == (6, "phonepose: error: standard output is closed (>&-): the report would be "
+                                           "lost; send it to a file, or to /dev/null to discard it\n")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args", [["marker", "--out", "m.png"], ["board", "--out", "b.png"]], ids=" ".join)
+def test_a_report_that_cannot_be_written_is_exit_6_and_the_outputs_are_kept(tmp_path, args):
+    """stdout on /dev/full (a full disk): the work is done and its output in place, and the exit says the report
+    is not (it was `phonepose: error: No space left on device`, exit 1; `demo` lost its whole folder)."""
+    import os
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    with open("/dev/full", "w") as full:
+        r = _phonepose(*args, cwd=tmp_path, stdout=full)
+    assert (r.returncode, r.stderr) == (6, "phonepose: error: cannot write the report to standard output: No space "
+                                           "left on device (the report is incomplete; the command's own outputs, if "
+                                           "any, are written)\n")
+    assert [p.name for p in tmp_path.iterdir()] == [args[-1]]
+
+
+def test_a_reader_that_leaves_is_exit_141_in_silence_and_the_outputs_are_kept(tmp_path):
+    """`phonepose ... | head -1`: the pipe's reader is gone before the report is written. Silence (the reader
+    chose to stop) and 141, as a shell shows for a command stopped by SIGPIPE, never 0; the output is in place.
+    (It was exit 1 from typer, 0 from main, or a lost `demo` folder, depending on where the write failed.)"""
+    p = subprocess.Popen([sys.executable, "-m", "phonepose", "marker", "--out", "m.png"], cwd=tmp_path,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p.stdout.close()          # before the child has imported anything: its first write finds no reader
+    err = p.stderr.read()
+    assert (p.wait(timeout=300), err) == (141, "")
+    assert [f.name for f in tmp_path.iterdir()] == ["m.png"]
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "latin-1"])
+def test_a_narrow_encoding_gets_plain_text_never_an_encode_error(tmp_path, encoding):
+    """PYTHONIOENCODING=ascii or latin-1 (a C locale, an old log collector): `evaluate --metric rpe` crashed on its
+    Δ (an "unexpected UnicodeEncodeError", exit 1), `info →.mcap` on the name; now plain ASCII or escapes."""
+    from phonepose.testing.playback_session import write_test_session
+
+    write_test_session(tmp_path / "→.mcap", duration_s=1.0)
+    (tmp_path / "t.tum").write_text("".join(f"{i / 10} {i / 100} 0 0 0 0 0 1\n" for i in range(20)))
+    (tmp_path / "far.tum").write_text("0 2e7 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n")
+    env = {"PYTHONIOENCODING": encoding, "LC_ALL": "C.UTF-8"}
+    info = _phonepose("info", "→.mcap", cwd=tmp_path, env=env, encoding=encoding)
+    assert (info.returncode, info.stderr) == (0, "")
+    assert info.stdout.startswith("\\u2192.mcap: "), info.stdout
+    rpe = _phonepose("evaluate", "--gt", "t.tum", "--est", "t.tum", "--metric", "rpe", cwd=tmp_path, env=env,
+                     encoding=encoding)
+    assert (rpe.returncode, rpe.stderr) == (0, "")
+    assert "delta 1 frames" in rpe.stdout and "+--" in rpe.stdout, rpe.stdout   # ASCII table borders (rich)
+    far = _phonepose("evaluate", "--gt", "far.tum", "--est", "t.tum", cwd=tmp_path, env=env, encoding=encoding)
+    plus_minus = "+/-" if encoding == "ascii" else "±"
+    assert (far.returncode, far.stderr) == (2, f"phonepose: error: far.tum:1: position 2e+07 m is not one on Earth "
+                                               f"(beyond {plus_minus}1e7 m): check the file's columns and units\n")
+
+
+def test_a_utf8_name_in_an_ascii_locale_is_one_line_naming_the_locale(tmp_path):
+    """LC_ALL=C PYTHONUTF8=0: Python reads the argument's UTF-8 bytes as ASCII; it was refused as "not UTF-8
+    text: rename the file", which it is. The line names the locale and how to run in a UTF-8 one (the name shown
+    as its escape: the terminal is ASCII)."""
+    r = _phonepose("info", "→.mcap", cwd=tmp_path, env={"LC_ALL": "C", "PYTHONUTF8": "0"})
+    assert (r.returncode, r.stderr) == (5, "phonepose: error: the argument '\\u2192.mcap' cannot be read in this locale "
+                                           "(arguments and file names are read as ascii): run phonepose in a UTF-8 "
+                                           "locale (LC_ALL=C.UTF-8) or with PYTHONUTF8=1\n")
+
+
+@pytest.mark.parametrize("width", [1, 20, 40, 60, 80, 200])
+def test_result_tables_never_cut_a_number_in_a_narrow_terminal(width):
+    """rich fit playback's table into 60 columns as "7.…" and "14…" (COLUMNS=20 dropped a column); every
+    cell is whole now, its lines wrapped by the terminal when even whole words do not fit."""
+    import io
+
+    from rich.console import Console
+
+    from phonepose.cli.output import print_table
+    from phonepose.cli.playback import metrics_table
+
+    scope = {"frames": 12345, "p_ate_m": 1.234567, "r_ate_deg": 123.456, "p_re_m": 0.0123}
+    total = {**scope, "boundary_jumps": 2, "boundary_jump_max_m": 0.0055, "boundary_jump_rms_m": 0.0053,
+             "lag_s": 0.105, "jitter_m": 0.00204, "jitter_deg": 0.57, "availability": 1.0}
+    metrics = {"session": "s.mcap", "rate_hz": 20.0, "trackers": {"T7L": {"inside": scope, "outside": scope,
+                                                                          "total": total}}}
+    out = io.StringIO()
+    print_table(Console(file=out, width=width, force_terminal=True, color_system=None), metrics_table(metrics))
+    text = out.getvalue()
+    for cell in ("12345", "123.46", "123.46", "1.23", "0.55", "0.53", "105", "2.04", "0.57", "100.0", "T7L",
+                 "inside", "outside", "p_ATE", "r_ATE", "p_RE", "avail."):
+        assert cell in text, text
+    assert "…" not in text
+
+
+def test_too_few_open_files_is_one_line_before_any_work(tmp_path):
+    """`ulimit -n 16`: rerun's runtime panicked (a page of Rust backtrace, exit 134) and experiment failed
+    half-way with "Too many open files". A low soft limit is raised to what the hard one allows; below the
+    least phonepose needs, one line before any work."""
+    import resource
+
+    def limit(soft, hard):
+        return lambda: resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+    r = _phonepose("marker", "--out", "m.png", cwd=tmp_path, preexec_fn=limit(16, 16))
+    assert (r.returncode, r.stderr) == (1, "phonepose: error: the limit on open files is 16 (`ulimit -n`); "
+                                           "phonepose needs at least 64: raise it (`ulimit -n 1024`)\n")
+    assert list(tmp_path.iterdir()) == []
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 64:
+        pytest.skip(f"the hard limit here is {hard}")
+    r = _phonepose("marker", "--out", "m.png", cwd=tmp_path, preexec_fn=limit(16, hard))   # `ulimit -Sn 16`
+    assert (r.returncode, r.stderr) == (0, "")
+
+
+def test_out_of_memory_is_one_line_naming_the_limit(tmp_path, monkeypatch, capsys):
+    """`ulimit -v`: a MemoryError, or a library that cannot map its code ("failed to map segment"), was
+    "unexpected ...: a bug in phonepose"; it is the machine's memory or its limit, and the line says so."""
+    import phonepose.cli.info as info
+    from phonepose.cli import main
+
+    for exc in (MemoryError(), ImportError("libopenblas.so: failed to map segment from shared object")):
+        def broken(path, exc=exc):
+            raise exc
+        monkeypatch.setattr(info, "SessionReader", broken)
+        with pytest.raises(SystemExit) as e:
+            main(["info", str(tmp_path / "s.mcap")])
+        err = capsys.readouterr().err
+        assert e.value.code == 1
+        assert re.fullmatch(rf"phonepose: error: out of memory \({type(exc).__name__}: [^\n]*\): the command needs "
+                            r"(free memory or a larger swap|a larger limit than the \S+ GiB of `ulimit -v`)\n", err), err
+
+
+@pytest.mark.parametrize("encoding", ["utf-8", "ascii", "latin-1"])
+def test_a_qr_code_is_drawn_with_what_the_terminal_takes(encoding):
+    """`record live` prints its pages' QR codes in half blocks (▀▄█); an ASCII or latin-1 terminal got them as
+    \\u2580 escapes, no code at all. There, coloured spaces (segno's non-compact output) draw it."""
+    import io
+
+    from phonepose.cli.live import print_qr
+    from phonepose.cli.output import ReportStream
+
+    raw = io.BytesIO()
+    stream = ReportStream(io.TextIOWrapper(raw, encoding=encoding))
+    old, sys.stdout = sys.stdout, stream
+    try:
+        print_qr("https://192.168.1.2:8443/")
+        stream.flush()
+    finally:
+        sys.stdout = old
+    text = raw.getvalue().decode(encoding)
+    assert stream.failure is None and "\\u" not in text
+    assert ("▀" in text or "▄" in text) == (encoding == "utf-8")

@@ -215,17 +215,27 @@ def test_a_file_saved_into_an_earlier_output_folder_stops_its_replacement(tmp_pa
     assert str(e.value) == f"--out {out}: holds {extra}, which phonepose did not write there; " \
                            f"move {'them' if ',' in extra else 'it'} away, or choose a new folder"
     assert _tree(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
-    # also when it arrives while the command works: checked again before the folder is replaced
+    # also when it arrives while the command works: checked again before the folder is replaced, and the finished
+    # run is kept beside it (it was removed with its temporary: an experiment's hour of work)
     (out / added).unlink()
     if added == "notes/a.txt":
         (out / "notes").rmdir()
     plan = OutputPlan()
     d = plan.dir(out, "--out", command="playback")
-    with pytest.raises(OutputError, match="which phonepose did not write there"):
+    with pytest.raises(OutputError) as e:
         with plan:
             (d.tmp / "metrics.json").write_text("{new}")
             (out / "late.mcap").write_bytes(b"precious")
+    assert str(e.value) == (f"--out {out}: holds late.mcap, which phonepose did not write there; move it away, or "
+                            f"choose a new folder (this run's output is kept in {out}.new)")
     assert (out / "late.mcap").read_bytes() == b"precious" and (out / "metrics.json").read_text() == "{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.new"]
+    assert (tmp_path / "run.new" / "metrics.json").read_text() == "{new}"
+    plan = OutputPlan()
+    d = plan.dir(tmp_path / "run.new", "--out", command="playback")
+    with plan:                                   # an output like any other: the next run replaces it
+        (d.tmp / "metrics.json").write_text("{newer}")
+    assert (tmp_path / "run.new" / "metrics.json").read_text() == "{newer}"
 
 
 @pytest.mark.parametrize("manifest", ["{}", '{"written_by": "phonepose"}', "not json", '{"files": "x"}'])
@@ -428,6 +438,76 @@ def test_a_second_writer_stops_and_a_killed_writers_temporary_is_cleared(tmp_pat
         (d.tmp / "metrics.json").write_text("complete")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     assert (out / "metrics.json").read_text() == "complete"
+
+
+def test_a_writer_of_a_longer_name_is_not_mistaken_for_one_of_this_output(tmp_path):
+    """Two runs side by side, --out run and --out run.v2: the temporaries of "run.v2" also matched the pattern
+    of "run" (.run.*.phonepose-tmp), so the second run stopped ("another phonepose is writing it") or, had the
+    first been killed, cleared what was not its own."""
+    proc = _start_holder(tmp_path / "run.v2")
+    try:
+        plan = OutputPlan()
+        d = plan.dir(tmp_path / "run", "--out")
+        with plan:
+            (d.tmp / "metrics.json").write_text("complete")
+        assert (tmp_path / "run" / "metrics.json").read_text() == "complete"
+        assert len([p for p in tmp_path.iterdir() if p.name.startswith(".run.v2.")]) == 1   # untouched
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=DEADLINE_S)
+
+
+@pytest.mark.parametrize("length", [200, 222, 223, 250, 255])
+def test_a_name_the_file_system_takes_is_written_whatever_its_length(tmp_path, length):
+    """NAME_MAX is 255 bytes; the temporary adds 32 to the name (".NAME.PID-RANDOM.phonepose-tmp"), so names
+    of 224 to 255 bytes were refused as "File name too long" (and a recording of such a name could be made
+    but never replaced with --force). Its temporary now carries the name's start and a hash."""
+    name = "é" * ((length - 4) // 2) + "x" * ((length - 4) % 2) + ".png"     # two bytes a letter: cut inside none
+    assert len(os.fsencode(name)) == length
+    out = tmp_path / name
+    for content in (b"first", b"second"):            # a new output, then one that replaces it
+        write_text_output(out, content, "--out")
+        assert [p.name for p in tmp_path.iterdir()] == [name]
+        assert out.read_bytes() == content
+    plan = OutputPlan()
+    d = plan.dir(tmp_path / name[:-4], "--out")      # a folder, twice: the earlier one set aside under a name too
+    for _ in range(2):
+        with plan:
+            (d.tmp / "metrics.json").write_text("complete")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, name[:-4]])
+
+
+def test_a_name_too_long_for_the_file_system_is_one_line(tmp_path):
+    out = tmp_path / ("m" * 252 + ".png")
+    with pytest.raises(OutputError) as e:
+        write_text_output(out, b"png", "--out")
+    assert str(e.value) == f"cannot write {out}: File name too long"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_replaced_output_keeps_its_permissions(tmp_path):
+    """`chmod 600 he.yaml` then the same command again: the new file was 644 (umask), readable by everyone.
+    A replaced file or folder keeps its mode; a new one gets the umask's."""
+    f, folder = tmp_path / "he.yaml", tmp_path / "run"
+    write_text_output(f, "old", "--out")
+    assert f.stat().st_mode & 0o777 == 0o666 & ~_umask()
+    plan = OutputPlan()
+    d = plan.dir(folder, "--out")
+    with plan:
+        (d.tmp / "metrics.json").write_text("old")
+    os.chmod(f, 0o600)
+    os.chmod(folder, 0o750)
+    write_text_output(f, "new", "--out")
+    with plan:
+        (d.tmp / "metrics.json").write_text("new")
+    assert (f.stat().st_mode & 0o777, folder.stat().st_mode & 0o777) == (0o600, 0o750)
+    assert (f.read_text(), (folder / "metrics.json").read_text()) == ("new", "new")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def test_an_input_named_like_a_temporary_is_never_cleared(tmp_path):

@@ -8,6 +8,7 @@ most about one second.
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -268,3 +269,52 @@ def test_cli_recover_json_and_errors(session, tmp_path, cli):
     assert r.returncode == 2 and "no such file" in r.stderr and "Traceback" not in r.stderr
     r = cli("recover", str(path), "--out", str(tmp_path / "nodir" / "o.mcap"))
     assert r.returncode == 6 and "does not exist" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_the_cli_writes_only_the_output_rules_temporary(session, tmp_path, cli, monkeypatch):
+    """recover wrote the plan's temporary's content to a second one, TMP.partial, renamed over it at the end: a
+    recover killed meanwhile (a SIGBUS from a file cut under it, SIGKILL) left a .partial that no later command
+    clears. Now the one temporary, whose name the next command finds."""
+    import phonepose.session.recover as recover
+    from phonepose.files import TMP_SUFFIX
+
+    seen: list[list[str]] = []
+    finish = recover.Writer.finish
+
+    def looking(self):
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+        return finish(self)
+    monkeypatch.setattr(recover.Writer, "finish", looking)
+    path = session[0]
+    r = cli("recover", path, "--out", tmp_path / "fixed.mcap")
+    assert r.returncode == 0, r.stderr
+    assert len(seen) == 1 and len(seen[0]) == 1 and seen[0][0].startswith(".fixed.mcap.") \
+        and seen[0][0].endswith(TMP_SUFFIX), seen
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fixed.mcap"]
+
+
+@pytest.mark.parametrize("when", ["scan", "write"])
+def test_a_file_cut_while_recover_reads_it_is_one_line(session, tmp_path, cli, monkeypatch, when):
+    """Another program cuts the file (a copy still going on, a rewrite) while recover reads it. recover read
+    it through an mmap, and a read past the new end killed it with SIGBUS: exit 135, no line, two temporaries
+    left. Now one line, exit 2, no output and no temporary."""
+    import phonepose.session.recover as recover
+
+    path, data, chunks, _ = session
+    cut = tmp_path / "c.mcap"
+    cut.write_bytes(data)
+    original = recover._Salvager.parse_chunk
+    calls = []
+    at = 2 if when == "scan" else len(chunks) + 1     # the second chunk scanned, or the first one written
+
+    def cutting(self, *args):
+        calls.append(args)
+        if len(calls) == at:       # the file shrinks to half under the reader
+            os.truncate(cut, len(data) // 2)
+        return original(self, *args)
+    monkeypatch.setattr(recover._Salvager, "parse_chunk", cutting)
+    r = cli("recover", cut, "--out", tmp_path / "fixed.mcap")
+    assert (r.returncode, r.stderr) == (2, f"phonepose: error: {cut}: changed while recover read it ({len(data)} "
+                                           f"bytes, now {len(data) // 2}): another program is writing or cutting "
+                                           f"it; run recover again when it is done\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.mcap"]

@@ -176,3 +176,23 @@ def test_info_on_unreadable_file_is_one_line(tmp_path):
         r = run("info", str(p))
         assert r.returncode == 2 and "cannot read" in r.stderr
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_a_session_cut_while_it_is_read_says_so_not_damaged(tmp_path):
+    """A session another program still copies, or cuts, while playback reads it: the chunks past the new end
+    were "damaged MCAP file ...; run `phonepose recover`" (exit 3), which sends the user to repair a file that
+    is only being written. The line says the file changed; with the file unchanged, damage is damage."""
+    path = tmp_path / "s.mcap"
+    write_session(path, 6.0)
+    size = path.stat().st_size
+    with SessionReader(path) as reader:
+        messages = reader.messages()
+        next(messages)
+        os.truncate(path, size // 2)
+        with pytest.raises(InputFileError) as e:
+            for _ in messages:
+                pass
+    assert str(e.value) == (f"{path}: changed while it was read ({size} bytes, now {size // 2}): another program "
+                            f"is writing or cutting it; run phonepose again when it is done")
+    with pytest.raises(DamagedFileError, match="it ends without its footer"):   # cut before it is opened: damaged
+        SessionReader(path)

@@ -277,3 +277,47 @@ def test_the_recorders_rerun_output_uses_the_playback_tree(tmp_path):
     assert not any(p.startswith("/world/display_vio") or p.startswith("/controller_vio") for p in found)
     (rec,) = rc.RrdReader(str(rrd)).recordings()
     assert rec.recording_id.startswith("record-s-") and rec.application_id == "phonepose_record"
+
+
+def test_a_rrd_that_cannot_be_written_whole_is_one_line_and_never_put_in_place(tmp_path, cli, monkeypatch):
+    """rerun's file writer stops on a write error (a full disk, `ulimit -f`), logs it (in colour, naming the
+    temporary) and the process goes on: `record sim --rerun` exited 0 with a cut .rrd in place; playback said
+    "unexpected RuntimeError: File-writer thread shut down prematurely (a bug in phonepose ...)"."""
+    import resource
+
+    from phonepose.files import TMP_SUFFIX
+    from phonepose.testing.playback_session import write_test_session
+
+    write_test_session(tmp_path / "s.mcap", duration_s=2.0)     # its .rrd: ~185 kB, its other outputs < 40 kB
+    limit = 150_000
+    r = subprocess.run([sys.executable, "-m", "phonepose", "playback", "s.mcap", "-q", "-t", "t1", "-o", "pb",
+                        "--rerun", "p.rrd"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                       preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit)))
+    assert (r.returncode, r.stderr) == (6, f"phonepose: error: cannot write p.rrd: File too large (the limit of "
+                                           f"`ulimit -f`, {limit} bytes)\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.mcap"]
+
+    def writer_stopped(self, *args, **kwargs):
+        raise RuntimeError("File-writer thread shut down prematurely")
+    monkeypatch.setattr(rr.RecordingStream, "flush", writer_stopped)
+    monkeypatch.chdir(tmp_path)
+    r = cli("record", "sim", "-q", "--scenario", "exp2", "--path", "tri2", "--seed", "0", "-o", "r.mcap",
+            "--rerun", "r.rrd")
+    assert (r.returncode, r.stderr) == (6, "phonepose: error: cannot write r.rrd: File-writer thread shut down "
+                                           "prematurely\n")
+    assert not (tmp_path / "r.rrd").exists() and not list(tmp_path.glob(f".*{TMP_SUFFIX}"))
+
+
+def test_a_rrd_removed_while_it_is_written_is_one_line(tmp_path):
+    """Its folder removed under a playback (`rm -rf` of the output's parent): "it ends without its footer" was
+    the line; what happened is that the file is gone."""
+    from phonepose.errors import OutputError
+    from phonepose.viewer.sink import close_recording, open_recording
+
+    path = tmp_path / "p.rrd"
+    rec = open_recording("phonepose-test", "removed", name="removed", rrd_path=path)
+    rec.log("x", rr.Points3D([[0.0, 0.0, 0.0]]))
+    path.unlink()
+    with pytest.raises(OutputError) as e:
+        close_recording(rec, path)
+    assert str(e.value) == f"cannot write {path}: No such file or directory (removed while it was written)"

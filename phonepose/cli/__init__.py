@@ -7,6 +7,7 @@ SIGTERM stop a command the way Ctrl-C does (its temporaries are removed on the w
 
 from __future__ import annotations
 
+import errno
 import functools
 import inspect
 import logging
@@ -18,7 +19,8 @@ import threading
 import typer
 
 from phonepose import __version__
-from phonepose.errors import ConfigError, PhoneposeError, quiet_library_warnings
+from phonepose.cli.output import ReportStream
+from phonepose.errors import ConfigError, OutputError, PhoneposeError, quiet_library_warnings
 from phonepose.text import printable
 
 app = typer.Typer(
@@ -129,6 +131,9 @@ def _reporting_interrupts(callback):
             if isinstance(exc, Terminated):
                 raise Interrupted(f"terminated (SIGTERM){detail}", 143) from None
             raise Interrupted(f"interrupted{detail}", 130) from None
+        except BrokenPipeError as exc:   # not standard output's (ReportStream keeps that): typer hides any as exit 1
+            raise PhoneposeError(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc} (the other "
+                                 f"end of a pipe or connection closed it)") from None
     run._reports_interrupts = True
     return run
 
@@ -166,9 +171,22 @@ def _check_text(args: list[str]) -> None:
         try:
             arg.encode("utf-8")
         except UnicodeEncodeError:
-            shown = os.fsencode(arg).decode("utf-8", "backslashreplace")
+            raw = os.fsencode(arg)
+            shown = raw.decode("utf-8", "backslashreplace")
+            if _is_utf8(raw):   # UTF-8 after all, read by a Python whose locale is ASCII (LC_ALL=C PYTHONUTF8=0)
+                raise ConfigError(f"the argument '{shown}' cannot be read in this locale (arguments and file names "
+                                  f"are read as {sys.getfilesystemencoding()}): run phonepose in a UTF-8 locale "
+                                  f"(LC_ALL=C.UTF-8) or with PYTHONUTF8=1") from None
             raise ConfigError(f"the argument '{shown}' is not UTF-8 text (a file name in another encoding?): "
                               f"rename the file with a UTF-8 name") from None
+
+
+def _is_utf8(raw: bytes) -> bool:
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
 
 
 def command():
@@ -178,15 +196,72 @@ def command():
     return cmd
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the console script: every error is one line on stderr and its exit code."""
+# What a command needs of open files at the least (a playback with --rerun: rerun's runtime aborted the process
+# below 20), and what is asked for when the soft limit (`ulimit -Sn`) is lower and the hard limit allows it.
+MIN_OPEN_FILES = 64
+WANTED_OPEN_FILES = 1024
+
+
+def _open_files_limit() -> None:
+    """Enough file descriptors before any work: the soft limit raised to what is wanted when the hard limit allows,
+    and one line below :data:`MIN_OPEN_FILES` (rerun's Rust runtime panicked with a page of backtrace, exit 134;
+    other commands failed half-way with "Too many open files")."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < WANTED_OPEN_FILES:
+        wanted = WANTED_OPEN_FILES if hard == resource.RLIM_INFINITY else min(hard, WANTED_OPEN_FILES)
+        if wanted > soft:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
+            soft = wanted
+    if soft != resource.RLIM_INFINITY and soft < MIN_OPEN_FILES:
+        raise PhoneposeError(f"the limit on open files is {soft} (`ulimit -n`); phonepose needs at least "
+                             f"{MIN_OPEN_FILES}: raise it (`ulimit -n 1024`)")
+
+
+def _standard_streams() -> None:
+    """Standard input, output and error open before any work. A descriptor the caller closed (``>&-``) gets
+    /dev/null, so that no file phonepose opens becomes descriptor 1 or 2 (what a library writes there would land
+    in an output); a closed standard output is refused, since the report would be lost while exit 0 said all
+    is well."""
+    closed = []
+    for fd, name in ((0, "stdin"), (1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is None:
+            closed.append(name)
+            try:
+                os.fstat(fd)
+            except OSError:
+                null = os.open(os.devnull, os.O_RDWR)
+                if null != fd:
+                    os.dup2(null, fd)
+                    os.close(null)
+    if "stdout" in closed:
+        raise OutputError("standard output is closed (>&-): the report would be lost; send it to a file, or to "
+                          "/dev/null to discard it")
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """A MemoryError, or a library that could not be loaded for want of memory (`ulimit -v`)."""
+    return isinstance(exc, MemoryError) or (isinstance(exc, ImportError) and any(
+        words in str(exc) for words in ("failed to map segment", "cannot allocate memory", "Cannot allocate memory")))
+
+
+def _memory_limit() -> str:
+    import resource
+
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY:
+        return "free memory or a larger swap"
+    return f"a larger limit than the {soft / 2**30:.2g} GiB of `ulimit -v`"
+
+
+def _run(argv: list[str] | None) -> int:
+    """The command, its every error one line on stderr: the exit code."""
     ClickException = _click_exceptions().ClickException
 
-    quiet_library_warnings()
-    _one_line_warnings()
-    in_main = threading.current_thread() is threading.main_thread()
-    old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     try:
+        _standard_streams()
+        _open_files_limit()
         _check_text(sys.argv[1:] if argv is None else argv)
         rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
@@ -199,16 +274,67 @@ def main(argv: list[str] | None = None) -> None:
         error("terminated (SIGTERM)", 143)
     except (KeyboardInterrupt, typer.Abort):
         error("interrupted", 130)
-    except BrokenPipeError:
-        sys.exit(0)
-    except OSError as exc:   # an OS failure no module turned into a PhoneposeError: still one line
-        error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
     except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
         if os.environ.get("PHONEPOSE_TRACEBACK"):
             raise
+        if _out_of_memory(exc):
+            error(f"out of memory ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}): the command needs "
+                  f"{_memory_limit()}", 1)
+        if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+            error(f"{exc.filename + ': ' if exc.filename else ''}too many open files (the limit, `ulimit -n`, is "
+                  f"{_soft_open_files()}): raise it", 1)
+        if isinstance(exc, OSError):   # an OS failure no module turned into a PhoneposeError: still one line
+            error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
         error(f"unexpected {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug in phonepose: please "
               f"report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)", 1)
+    return rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+
+
+def _soft_open_files() -> int:
+    import resource
+
+    return resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+
+
+def _exit_code(exc: SystemExit) -> int:
+    return exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+
+
+# A report whose reader went away (`phonepose info s.mcap | head -1`): silent, and the code a shell shows for a
+# command stopped by SIGPIPE (as 130 and 143 for SIGINT and SIGTERM), never 0; the command's outputs are written.
+EXIT_BROKEN_PIPE = 141
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script: every error is one line on stderr and its exit code.
+
+    Standard output and error are :class:`~phonepose.cli.output.ReportStream` while the command runs: a report
+    that cannot be written (``/dev/full``, a full disk, a closed pipe) never stops the work or loses an output,
+    and is never success either: exit 6 and one line, or 141 and silence for a pipe whose reader left."""
+    quiet_library_warnings()
+    _one_line_warnings()
+    in_main = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
+    saved = sys.stdout, sys.stderr
+    out = sys.stdout = ReportStream(sys.stdout) if sys.stdout is not None else None
+    sys.stderr = ReportStream(sys.stderr) if sys.stderr is not None else None
+    try:
+        try:
+            code = _run(argv)
+        except SystemExit as exc:
+            code = _exit_code(exc)
+        if out is not None:
+            out.flush()
+        if out is not None and out.failure is not None and code == 0:
+            if out.failure.errno == errno.EPIPE:
+                code = EXIT_BROKEN_PIPE
+            else:
+                code = OutputError.exit_code
+                typer.echo(f"phonepose: error: cannot write the report to standard output: "
+                           f"{out.failure.strerror or out.failure} (the report is incomplete; the command's own "
+                           f"outputs, if any, are written)", err=True)
     finally:
         if old_term is not None:
             signal.signal(signal.SIGTERM, old_term)
-    sys.exit(rv if isinstance(rv, int) and not isinstance(rv, bool) else 0)
+        sys.stdout, sys.stderr = saved
+    sys.exit(code)

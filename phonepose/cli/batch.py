@@ -14,7 +14,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import TRACKER_HELP, number
-from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.cli.output import shown as shown_text
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX
 from phonepose.text import printable
@@ -151,7 +151,7 @@ def batch(
             n = len(prepared.table.rows)
             raise type(exc)(f"{n} finished row{'s' if n != 1 else ''} {'are' if n != 1 else 'is'} in {out}; the next "
                             "run with the same --out goes on from there") from None
-    stdout_console().print(summary_table(summarize(result.rows), result.out))
+    print_table(stdout_console(), summary_table(summarize(result.rows), result.out))
     rate = f" ({result.rows_run / result.wall_s:.1f} rows/s)" if result.rows_run and result.wall_s > 0 else ""
     typer.echo(f"{result.units_run} playbacks ({result.rows_run} rows) run in {result.wall_s:.1f} s{rate}, "
                f"{result.skipped} rows skipped (already in the table) -> {result.out}")

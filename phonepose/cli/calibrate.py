@@ -13,7 +13,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import Paper, number
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.files import check_input, check_output, write_text_output
 
@@ -155,7 +155,7 @@ def calibrate_camera(
     for name, value, sd in zip(("k1", "k2", "p1", "p2", "k3"), D, (s[4], s[5], s[6], s[7], s[8]), strict=True):
         table.add_row(name, f"{value:+.5f}", f"{sd:.5f}")
     table.caption = board_spec(b)
-    stdout_console().print(table)
+    print_table(stdout_console(), table)
     notes = []
     if len(result.views) < RECOMMENDED_VIEWS:
         notes.append(f"only {len(result.views)} views: {RECOMMENDED_VIEWS}-40 from different angles give a steadier result")
@@ -272,7 +272,7 @@ def calibrate_gt(
     t0 = time.perf_counter()
     cal = calibrate_gt_session(session, gt, gt_format=gt_format, max_offset_s=max_offset, bootstrap=bootstrap)
     save_gt_calibration(out, cal, inputs=inputs)
-    stdout_console().print(_gt_table(out, cal))
+    print_table(stdout_console(), _gt_table(out, cal))
     for line in cal.warnings:
         typer.echo(f"phonepose: warning: {line}", err=True)
     typer.echo(f"{out}: written in {time.perf_counter() - t0:.1f} s")

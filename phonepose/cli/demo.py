@@ -8,7 +8,7 @@ import typer
 
 from phonepose.cli import app
 from phonepose.cli.options import SEED
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import print_table, stdout_console
 
 
 @app.command()
@@ -43,7 +43,7 @@ def demo(
         with console.status("playing it back through T1-T7, T7L and T8 at 20 Hz..."):
             result = run_playback(session, trackers="all", out_dir=work / "playback", rerun_path=work / "demo.rrd")
         console.print(f"[green]2/3[/green] played back {result.n_ticks} ticks in {result.wall_s:.1f} s")
-        console.print(metrics_table(result.metrics))
+        print_table(console, metrics_table(result.metrics))
         final = folder.final(session)
         console.print("r_ATE is ~11-13 deg for every tracker, as in the paper: the simulated motion capture measures "
                       "a rigid body turned 11 deg from the phone. To score without it:\n"

@@ -12,7 +12,7 @@ import typer
 
 from phonepose.cli import app
 from phonepose.cli.options import Align, DeltaUnit, Metric, PoseRelation, TrajectoryFormat, number
-from phonepose.cli.output import stdout_console
+from phonepose.cli.output import print_table, stdout_console
 from phonepose.errors import ConfigError, PhoneposeError, SessionContentError
 from phonepose.numbers import SECONDS_MAX
 
@@ -63,7 +63,7 @@ def _stats_row(table, name: str, length: str, unit: str, s: dict, end_section: b
 def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
     from rich.table import Table
 
-    console = stdout_console(min_width=112)
+    console = stdout_console()
     al = result["align"]
     console.print(f"estimate [bold]{est}[/bold]\nvs GT    [bold]{gt}[/bold]", soft_wrap=True)
     console.print(f"{result['n_matched']} matched poses, align {al['method']} "
@@ -87,7 +87,7 @@ def _print_table(result: dict, metric: str, gt: Path, est: Path) -> None:
         if metric == "rpe":
             length = f"Δ {s['delta']} {s['delta_unit']}{' all' if s['all_pairs'] else ''}"
         _stats_row(table, name, length, unit, s)
-    console.print(table)
+    print_table(console, table)
 
 
 def _paper(gt_traj, est_traj, in_view: Path | None, max_diff: float) -> dict:
@@ -245,8 +245,8 @@ def evaluate(
             typer.echo(json.dumps(result, indent=2, allow_nan=False))
         else:
             from phonepose.cli.playback import metrics_table
-            stdout_console().print(metrics_table({"session": f"{est.name} vs {gt.name}", "rate_hz": None,
-                                           "trackers": {est.stem: result}}))
+            print_table(stdout_console(), metrics_table({"session": f"{est.name} vs {gt.name}", "rate_hz": None,
+                                                           "trackers": {est.stem: result}}))
         return
     if metric == "rpg":
         result = evaluate_rpg(gt_traj, est_traj, align or "posyaw", align_frames, lens,

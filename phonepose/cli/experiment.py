@@ -10,7 +10,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import SEED, CorrectionMath, number
-from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import WORKERS_MAX
 
@@ -115,7 +115,7 @@ def exp2(
     if hand_eye:
         console.print("ground truth in the phone's frame and clock: each session's hand-eye calibrated from itself")
     for table in exp2_summary_tables(result):
-        console.print(table)
+        print_table(console, table)
     for name, path in result.files.items():
         console.print(f"  {name}: {path}")
 
@@ -155,6 +155,6 @@ def exp1(
                           correction_math=correction_math.value, record_progress=recorded, playback_progress=played,
                           trackers=tracker)
     for table in exp1_tables(result):
-        console.print(table)
+        print_table(console, table)
     for name, path in result.files.items():
         console.print(f"  {name}: {path}")

@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import shown, stdout_console
+from phonepose.cli.output import print_table, shown, stdout_console
 from phonepose.errors import SessionContentError
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
@@ -64,6 +64,6 @@ def info(
     table = Table("topic", "schema", "encoding", "messages")
     for c in s.channels:
         table.add_row(shown(c.topic), shown(c.schema), shown(c.encoding), str(c.count))
-    console.print(table)
+    print_table(console, table)
     if verify:
         typer.echo(f"verified: {chunks} chunks intact (CRC checked)")

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import typer
 
+from phonepose.cli.output import takes_unicode
 from phonepose.cli.record import record_app
 from phonepose.errors import ConfigError
 
@@ -97,16 +98,22 @@ def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str,
     typer.echo(f"recording to {out}: open this page on the phone (same network; accept the certificate warning):")
     typer.echo(f"  {url}")
     if qr:
-        import segno
-
-        segno.make(url, error="m").terminal(out=sys.stdout, compact=True)
+        print_qr(url)
     typer.echo(f"ground truth (optional): open this page in the headset's browser, its {gt_controller} controller "
                "fixed to the phone:")
     typer.echo(f"  {session.headset_url}")
     if qr:
-        segno.make(session.headset_url, error="m").terminal(out=sys.stdout, compact=True)
+        print_qr(session.headset_url)
     typer.echo("Ctrl-C stops the recording.", err=True)
     sys.stdout.flush()
     t0 = time.perf_counter()
     result = session.run()
     return result, time.perf_counter() - t0
+
+
+def print_qr(url: str) -> None:
+    """``url`` as a QR code on standard output: half blocks (compact) where the terminal takes them, else
+    coloured spaces (a C or latin-1 locale showed the blocks as \\u2580 escapes: no code at all)."""
+    import segno
+
+    segno.make(url, error="m").terminal(out=sys.stdout, compact=takes_unicode(sys.stdout))

@@ -1,10 +1,18 @@
-"""How commands print: a progress bar that appears with the work, result tables that are never cut."""
+"""How commands print: a progress bar that appears with the work, result tables that are never cut, and
+standard output and error as streams whose failure never stops the work (:class:`ReportStream`)."""
 
 from __future__ import annotations
 
+import codecs
+import errno
+import io
+import os
+
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.progress import Progress
+from rich.table import Table
 
 from phonepose.text import printable
 
@@ -41,10 +49,115 @@ def shown(text: str) -> str:
 PIPED_WIDTH = 1000   # a table printed into a pipe or file is never cut to 80 columns
 
 
-def stdout_console(min_width: int = 0) -> Console:
-    """The console for a command's results: the terminal's width (at least ``min_width``), or
-    unlimited when piped."""
+def stdout_console() -> Console:
+    """The console for a command's results: the terminal's width, or unlimited when piped."""
     console = Console()
-    if not console.is_terminal:
-        return Console(width=PIPED_WIDTH)
-    return console if console.width >= min_width else Console(width=min_width)
+    return console if console.is_terminal else Console(width=PIPED_WIDTH)
+
+
+def print_table(console: Console, table: Table) -> None:
+    """A results table with every cell whole. rich fits a table to the terminal by cutting cells ("0.0…" for
+    0.0123: a wrong number, "p_…" for both p_ATE and p_RE); here no column is narrower than its longest word,
+    so cells wrap at their spaces, and a terminal too narrow even for that wraps the table's lines instead."""
+    unbounded = console.options.update_width(10**6)    # (a measurement is never wider than the options say)
+    for column in table.columns:
+        column.min_width = max(Measurement.get(console, unbounded, cell).minimum for cell in (column.header, *column.cells))
+    needed = Measurement.get(console, unbounded, table).minimum
+    width = console.width
+    if needed > width:    # rich would squeeze the columns below their words (or drop one: width 0) to fit
+        console.width = needed
+    try:
+        console.print(table, crop=False)
+    finally:
+        console.width = width
+
+
+# ----------------------------------------------------------------------------- standard output and error
+# What a terminal or file in a narrower encoding than UTF-8 (LC_ALL=C, PYTHONIOENCODING=ascii or latin-1) gets
+# for the few symbols phonepose prints; anything else (a topic name's letters) is shown as its escape, \u2192.
+_PLAIN = {"±": "+/-", "°": " deg", "×": "x", "–": "-", "—": "-", "…": "...", "Δ": "delta",
+          "σ": "sigma", "²": "^2", "·": "*", "≤": "<=", "≥": ">=", "µ": "u", "━": "-", "─": "-", "│": "|"}
+
+
+def _plain(exc: UnicodeError) -> tuple[str, int]:
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    text = exc.object[exc.start:exc.end]
+    return "".join(_PLAIN.get(c) or c.encode("ascii", "backslashreplace").decode("ascii") for c in text), exc.end
+
+
+codecs.register_error("phonepose-plain", _plain)
+
+
+def takes_unicode(stream) -> bool:
+    """Does ``stream`` take every character (UTF-8, -16, -32), or only some (ASCII, latin-1)?"""
+    return codecs.lookup(getattr(stream, "encoding", None) or "utf-8").name.startswith("utf-")
+
+
+class ReportStream(io.TextIOBase):
+    """``sys.stdout`` or ``sys.stderr`` while a command runs. A write that fails (the reader of a pipe gone,
+    ``/dev/full``, a full disk, a file size limit) never stops the command's work, so its outputs are still
+    written; the failure is kept in :attr:`failure` for ``main`` to report, and what follows is dropped. Text
+    the stream's encoding cannot hold is written as plain ASCII (``+/-`` for ``±``) or escapes, never a
+    UnicodeEncodeError."""
+
+    def __init__(self, stream):
+        super().__init__()
+        self.stream = stream
+        self.failure: OSError | None = None
+        self._narrow = not takes_unicode(stream)
+
+    # rich draws ASCII tables for an ASCII stream; click writes through this one (it has no .buffer to go around it)
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return getattr(self.stream, "encoding", None) or "utf-8"
+
+    @property
+    def errors(self) -> str | None:  # type: ignore[override]
+        return getattr(self.stream, "errors", None)
+
+    def isatty(self) -> bool:
+        try:
+            return self.stream.isatty()
+        except (OSError, ValueError):
+            return False
+
+    def fileno(self) -> int:
+        return self.stream.fileno()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        if not isinstance(text, str):       # (click asks with b"" whether a stream takes bytes: it does not)
+            raise TypeError(f"write() argument must be str, not {type(text).__name__}")
+        if self.failure is None:
+            if self._narrow:
+                text = text.encode(self.encoding, "phonepose-plain").decode(self.encoding)
+            self._guarded(self.stream.write, text)
+        return len(text)
+
+    def flush(self) -> None:
+        if self.failure is None:
+            self._guarded(self.stream.flush)
+
+    def _guarded(self, call, *args) -> None:
+        try:
+            call(*args)
+        except OSError as exc:
+            self.failure = exc
+            self._discard()
+        except ValueError:      # closed underneath (I/O operation on closed file)
+            self.failure = OSError(errno.EBADF, os.strerror(errno.EBADF))
+
+    def _discard(self) -> None:
+        """What the stream still buffers goes to /dev/null, so that Python's own flush at exit fails no more."""
+        try:
+            fd = self.stream.fileno()
+        except (OSError, ValueError, AttributeError):
+            return
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, fd)
+        finally:
+            os.close(null)

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from phonepose.cli import app
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
-from phonepose.cli.output import ProgressBar, stdout_console
+from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
 from phonepose.schemas.topics import Topic
@@ -110,7 +110,7 @@ def playback(
                               correction_math=correction_math, rerun_path=rrd.tmp if rrd is not None else None,
                               spawn=spawn, start_s=start, end_s=end, realtime=realtime, progress=progress,
                               gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
-    stdout_console().print(metrics_table(result.metrics))
+    print_table(stdout_console(), metrics_table(result.metrics))
     if gt is not None and not result.has_gt:   # asked for, and unusable: a problem, not a fact about the session
         logging.getLogger("phonepose").warning(
             "phonepose: warning: --gt %s: no usable ground truth from it (it needs a --gt-calibration from "

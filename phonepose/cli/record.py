@@ -121,7 +121,7 @@ def rehearse(
     """
     from rich.table import Table
 
-    from phonepose.cli.output import stdout_console
+    from phonepose.cli.output import print_table, stdout_console
     from phonepose.record.rehearse import LEAD_IN_S, rows
     from phonepose.record.rehearse import rehearse as run_rehearsal
 
@@ -133,7 +133,7 @@ def rehearse(
         table.add_column(col)
     for r in rows(result.scores):
         table.add_row(r.what, r.value, r.goal, "" if r.met is None else ("yes" if r.met else "NO"))
-    stdout_console().print(table)
+    print_table(stdout_console(), table)
     missed = [r.what for r in rows(result.scores) if r.met is False]
     if missed:
         typer.echo(f"phonepose: rehearsal: {len(missed)} goal(s) missed: {'; '.join(missed)}", err=True)

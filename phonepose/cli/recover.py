@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.output import shown, stdout_console
+from phonepose.cli.output import print_table, shown, stdout_console
 from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
 from phonepose.text import printable
@@ -71,7 +71,7 @@ def recover(
     fixed = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", session=True, force=force)
     with plan:   # checked before reading; written to a temporary; renamed only when complete
         assert fixed.tmp is not None   # the plan's block made it
-        r = salvage(file, fixed.tmp, replace=True)
+        r = salvage(file, fixed.tmp, replace=True, staged=False)
     r.out = str(out)
     if as_json:
         typer.echo(json.dumps({
@@ -89,6 +89,6 @@ def recover(
     table = Table("topic", "messages recovered")
     for topic, n in r.messages_per_topic.items():
         table.add_row(shown(topic), str(n))     # a damaged file's topic names: anyone's text
-    console.print(table)
+    print_table(console, table)
     for line in report_lines(r):
         typer.echo(printable(line))

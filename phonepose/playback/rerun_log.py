@@ -35,6 +35,7 @@ from phonepose.viewer import entities as E
 from phonepose.viewer.scene import log_camera, log_task
 from phonepose.viewer.sink import (
     Columns,
+    close_recording,
     open_recording,
     time_columns,
     transform_columns,
@@ -426,6 +427,7 @@ class PlaybackRerunLogger:
         self.context = context
         self.tracker_names = list(tracker_names)
         self.blueprint_sent = False
+        self.rrd_path = rrd_path if recording is None and not spawn else None
         if recording is not None:
             self.rec = recording
         else:
@@ -520,5 +522,4 @@ class PlaybackRerunLogger:
         if not self.blueprint_sent:
             self.send_blueprint(None)
         self.flush()
-        self.rec.flush()
-        self.rec.disconnect()   # the .rrd footer is written when the sink is dropped: before it is renamed into place
+        close_recording(self.rec, self.rrd_path)   # the .rrd's footer is written now: before it is renamed into place

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from phonepose.errors import SessionContentError
+from phonepose.errors import OutputError, SessionContentError
 from phonepose.record.source import Record, Source
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionWriter
@@ -63,19 +63,34 @@ class Recorder:
 
     def run(self) -> RecordResult:
         handlers = self._install_signal_handlers()
+        done = False
         try:
             static = list(self.source.static())
             if self.rerun_path is not None or self.spawn:
                 from phonepose.record.rerun_log import open_record_logger
                 self.rerun = open_record_logger(self.out, static, rrd_path=self.rerun_path, spawn=self.spawn,
                                                 source=_source_kind(static))
-            return self._run(static)
+            result = self._run(static)
+            done = True
+            return result
         finally:
             for sig, old in handlers.items():
                 signal.signal(sig, old)
-            if self.rerun is not None:
-                self.rerun.close()
-            self.source.close()
+            try:
+                if self.rerun is not None:
+                    self._close_rerun(report=done)
+            finally:
+                self.source.close()
+
+    def _close_rerun(self, report: bool) -> None:
+        """A .rrd that could not be written whole is an error of its own (its temporary is removed, never put
+        in place); after another error, that one is the line the user reads."""
+        assert self.rerun is not None
+        try:
+            self.rerun.close()
+        except OutputError:
+            if report:
+                raise
 
     def _install_signal_handlers(self) -> dict:
         if not self.stop_on_signals or threading.current_thread() is not threading.main_thread():

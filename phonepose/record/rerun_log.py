@@ -28,7 +28,7 @@ from phonepose.schemas.topics import Topic
 from phonepose.session import codec
 from phonepose.viewer import entities as E
 from phonepose.viewer.scene import log_body_marker, log_camera, log_task
-from phonepose.viewer.sink import Columns, open_recording, transform_columns
+from phonepose.viewer.sink import Columns, close_recording, open_recording, transform_columns
 from phonepose.viewer.style import GT_COLOR, TRACKER_COLORS
 
 APPLICATION_ID = "phonepose_record"
@@ -53,8 +53,9 @@ def record_recording_id(out: str | os.PathLike, static: list[Record]) -> str:
 class RecordRerunLogger:
     """Logs every record written; :func:`open_record_logger` makes one."""
 
-    def __init__(self, rec: rr.RecordingStream):
+    def __init__(self, rec: rr.RecordingStream, rrd_path: str | os.PathLike | None = None):
         self.rec = rec
+        self.rrd_path = rrd_path
         rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for path, width in ((E.DISPLAY, 1.5), (E.CONTROLLER_VIO, 1.0), (E.GT_CONTROLLER, 1.0), (E.GT_DISPLAY, 1.0)):
             rec.log(path, rr.TransformAxes3D(AXIS_LENGTH_M * width), static=True)
@@ -132,12 +133,8 @@ class RecordRerunLogger:
     def close(self) -> None:
         """Send what is buffered and close the sink: a .rrd gets its footer only when the sink is
         dropped, so before the caller renames it into place."""
-        try:
-            self.flush()
-            self.rec.flush()
-            self.rec.disconnect()
-        except Exception:  # pragma: no cover - best effort at shutdown
-            pass
+        self.flush()
+        close_recording(self.rec, self.rrd_path)
 
 
 def open_record_logger(out: str | os.PathLike, static: list[Record], *, rrd_path: str | os.PathLike | None = None,
@@ -148,4 +145,4 @@ def open_record_logger(out: str | os.PathLike, static: list[Record], *, rrd_path
     start = min((r.log_time_ns for r in static), default=None)
     rec = open_recording(APPLICATION_ID, record_recording_id(out, static), name=name, rrd_path=rrd_path, spawn=spawn,
                          start_time_ns=start)
-    return RecordRerunLogger(rec)
+    return RecordRerunLogger(rec, rrd_path)

@@ -19,7 +19,7 @@ from mcap.records import ChunkIndex
 from mcap.records import Message as McapMessage
 from mcap_protobuf.decoder import DecoderFactory
 
-from phonepose.errors import InputFileError, PhoneposeError, SessionContentError
+from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
 from phonepose.session.index import (
     MCAP_MAGIC,
@@ -101,6 +101,7 @@ class SessionReader:
     def __init__(self, path: str | os.PathLike):
         self.path = check_mcap_file(path)
         self._file = open(self.path, "rb")
+        self._opened = os.fstat(self._file.fileno())
         try:
             self.index: SessionIndex = read_index(self._file, self.path)
         except PhoneposeError:
@@ -138,9 +139,22 @@ class SessionReader:
         chunk and check its CRC. Returns the number of chunks checked.
         """
         if deep:
-            for ci in self.index.chunks:
-                self._chunk_messages(ci, None, None, None)
+            try:
+                for ci in self.index.chunks:
+                    self._chunk_messages(ci, None, None, None)
+            except DamagedFileError:
+                self._check_unchanged()
+                raise
         return len(self.index.chunks)
+
+    def _check_unchanged(self) -> None:
+        """Damage found after opening may be another program writing or cutting the file meanwhile (a copy
+        still going on): then that is the line, not "damaged: run recover"."""
+        now = os.fstat(self._file.fileno())
+        if (now.st_size, now.st_mtime_ns) != (self._opened.st_size, self._opened.st_mtime_ns):
+            raise InputFileError(f"{self.path}: changed while it was read ({self._opened.st_size} bytes, now "
+                                 f"{now.st_size}): another program is writing or cutting it; run phonepose again "
+                                 f"when it is done") from None
 
     def log_times(self) -> dict[str, np.ndarray]:
         """The log time of every message, per topic (uint64 ns as in MCAP, in file order): from the message index
@@ -310,9 +324,13 @@ class SessionReader:
             for m in self._iter_sorted(chunks, wanted, start_ns, end_ns):
                 channel = channels[m.channel_id]
                 yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, m
+        except DamagedFileError:
+            self._check_unchanged()
+            raise
         except PhoneposeError:
             raise
         except Exception:  # noqa: BLE001 - anything the mcap/zstd/lz4 layers raise on damaged bytes
+            self._check_unchanged()
             raise damaged(self.path, "its data cannot be read where the index points") from None
 
     def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,

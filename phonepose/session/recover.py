@@ -1,6 +1,6 @@
 """Salvage a truncated or partly corrupted session into a valid, indexed MCAP file.
 
-The damaged file is scanned record by record (no summary, no index needed, memory-mapped so
+The damaged file is scanned record by record (no summary, no index needed, read through a window so
 nothing loads the whole file). Every chunk whose compressed data decompresses to the size and
 CRC its header promises is kept; a record that does not parse (truncated tail, flipped bits,
 overwritten bytes) is skipped by scanning forward for the next chunk record (opcode 0x06) that
@@ -16,7 +16,6 @@ their topic, schema, log_time, publish_time and sequence, into a temporary file 
 from __future__ import annotations
 
 import io
-import mmap
 import os
 import struct
 import zlib
@@ -100,7 +99,7 @@ _U8 = struct.Struct("<Q")
 
 
 def _u8(b, off: int) -> int:
-    return _U8.unpack_from(b, off)[0]
+    return _U8.unpack(b[off:off + 8])[0]
 
 
 def _decode(cls, b, start: int, end: int, *args):
@@ -132,8 +131,7 @@ def _chunk_header(b, off: int, end: int):
     """(start, end, uncompressed size, crc, compression, data offset, data length) of a chunk record body."""
     if off + 32 > end:
         raise _Bad("chunk header")
-    t0, t1, usize = struct.unpack_from("<QQQ", b, off)
-    crc, clen = struct.unpack_from("<II", b, off + 24)
+    t0, t1, usize, crc, clen = struct.unpack("<QQQII", b[off:off + 32])
     if clen > 4 or off + 32 + clen + 8 > end:
         raise _Bad("chunk compression")
     comp = bytes(b[off + 32:off + 32 + clen])
@@ -205,7 +203,7 @@ class _Salvager:
         taken from a damaged summary are counted for the report."""
         if end - start < 20:
             return
-        summary_start, _, crc = struct.unpack_from("<QQI", self.b, start)
+        summary_start, _, crc = struct.unpack("<QQI", self.b[start:start + 20])
         if crc and (summary_start >= start or zlib.crc32(self.b[summary_start:start + 16]) != crc):
             self.report.summary_damaged = True
         for k, v in self.summary_schemas.items():
@@ -281,7 +279,7 @@ class _Salvager:
         """Log times a damaged chunk header at ``pos`` still tells, if it parses."""
         b, n = self.b, self.n
         if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
-            t0, t1 = struct.unpack_from("<QQ", b, pos + 9)
+            t0, t1 = struct.unpack("<QQ", b[pos + 9:pos + 25])
             if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
                 return t0, t1
         return None, None
@@ -321,8 +319,13 @@ def _topic_of(channels, cid):
     return None if ch is None else ch[1]
 
 
-def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = True) -> RecoveryReport:
+def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = True,
+            staged: bool = True) -> RecoveryReport:
     """Recover every intact chunk of ``path`` into ``out``; returns what was recovered and lost.
+
+    ``staged``: written to ``OUT.partial`` and renamed when complete; False when ``out`` is already a temporary
+    of :mod:`phonepose.files` (the CLI's), whose name the next command finds and clears after a crash (a
+    ``.partial`` beside it stayed for good).
 
     Raises InputFileError (missing, unreadable, or the same file as ``out``), OutputError
     (``out`` not writable, or existing while ``replace`` is false) and DamagedFileError when
@@ -342,24 +345,76 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
     except OSError as exc:
         raise InputFileError(f"{src}: cannot read ({exc.strerror or exc})") from None
     with f:
-        size = os.fstat(f.fileno()).st_size
-        report.file_size = size
-        if size == 0:
+        before = os.fstat(f.fileno())
+        report.file_size = before.st_size
+        if before.st_size == 0:
             raise InputFileError(f"{src}: empty file, nothing to recover")
+        sal = _Salvager(_FileBytes(f.fileno(), before.st_size), report)
+        sal.run()
+        _check_unchanged(src, f.fileno(), before)
         try:
-            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-        except (OSError, ValueError) as exc:
-            raise InputFileError(f"{src}: cannot read ({exc})") from None
-        try:
-            sal = _Salvager(buf, report)
-            sal.run()
-            _write(sal, report, dst)
+            _write(sal, report, dst, staged)
         finally:
-            buf.close()
+            _check_unchanged(src, f.fileno(), before)   # its chunks were read again to be written
     return report
 
 
-def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
+class _FileBytes:
+    """The input as the salvager reads it: ``b[i]``, ``b[i:j]`` and ``b.find``, by ``os.pread`` through a 1 MiB
+    window. It was an mmap: a file that another program cut while recover read it (a copy still going on)
+    killed recover with SIGBUS (exit 135, no line, its temporaries left); a short read is damage like any
+    other here, and :func:`salvage` then says the file changed."""
+
+    WINDOW = 1 << 20
+
+    def __init__(self, fd: int, size: int):
+        self.fd, self.n = fd, size
+        self._at, self._window = 0, b""
+
+    def __len__(self) -> int:
+        return self.n
+
+    def _read(self, start: int, stop: int) -> bytes:
+        stop = min(stop, self.n)
+        if start >= stop:
+            return b""
+        if self._at <= start and stop <= self._at + len(self._window):
+            return self._window[start - self._at:stop - self._at]
+        if stop - start > self.WINDOW:          # a chunk's data: read once, not through the window
+            return os.pread(self.fd, stop - start, start)
+        self._at, self._window = start, os.pread(self.fd, self.WINDOW, start)
+        return self._window[:stop - start]
+
+    def __getitem__(self, key):
+        if isinstance(key, slice):
+            start, stop, _ = key.indices(self.n)
+            return self._read(start, stop)
+        byte = self._read(key, key + 1)
+        if not byte:
+            raise IndexError("beyond the end of the file")
+        return byte[0]
+
+    def find(self, sub: bytes, start: int = 0) -> int:
+        pos = max(start, 0)
+        while pos < self.n:
+            block = self._read(pos, pos + self.WINDOW)
+            if len(block) < len(sub):
+                return -1
+            found = block.find(sub)
+            if found >= 0:
+                return pos + found
+            pos += len(block) - len(sub) + 1
+        return -1
+
+
+def _check_unchanged(src: str, fd: int, before: os.stat_result) -> None:
+    now = os.fstat(fd)
+    if (now.st_size, now.st_mtime_ns) != (before.st_size, before.st_mtime_ns):
+        raise InputFileError(f"{src}: changed while recover read it ({before.st_size} bytes, now {now.st_size}): "
+                             f"another program is writing or cutting it; run recover again when it is done")
+
+
+def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True) -> None:
     counts: dict[str, int] = {}
     t_min = t_max = None
     stats = [per_channel for _, _, per_channel, _, _ in sal.chunks]
@@ -385,7 +440,7 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             "no intact chunk with known channels)")
     report.messages_per_topic = dict(sorted(counts.items()))
 
-    tmp = dst + ".partial"
+    tmp = dst + ".partial" if staged else dst
     try:
         fo = open(tmp, "wb")
     except OSError as exc:
@@ -416,12 +471,15 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str) -> None:
             w.finish()
             fo.flush()
             os.fsync(fo.fileno())
-        os.replace(tmp, dst)
-    except OSError as exc:
+        if staged:
+            os.replace(tmp, dst)
+    except (OSError, _Bad) as exc:    # _Bad: a chunk read again no longer parses (the file changed meanwhile)
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, _Bad):
+            raise
         raise OutputError(f"cannot write {dst}: {exc.strerror or exc}") from None
 
 

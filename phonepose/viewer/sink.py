@@ -14,6 +14,7 @@ one ``log`` call per entity per tick costs ~0.2 ms and dominated playback otherw
 
 from __future__ import annotations
 
+import errno
 import os
 from collections.abc import Callable
 from typing import Any
@@ -54,6 +55,52 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
     if start_time_ns is not None:
         rec.send_recording_start_time_nanos(int(start_time_ns))
     return rec
+
+
+def close_recording(rec: rr.RecordingStream, rrd_path: str | os.PathLike | None) -> None:
+    """Send what is buffered and close the sink (a .rrd gets its footer only then). A write that failed on the
+    way (a full disk, `ulimit -f`: rerun's file writer stopped and the process carried on) is one OutputError
+    naming ``rrd_path``, so that the caller never puts a cut .rrd in place: ``record --rerun`` did, exit 0."""
+    try:
+        rec.flush()
+        rec.disconnect()
+    except RuntimeError as exc:    # "File-writer thread shut down prematurely"; the cause was rerun's log line
+        if rrd_path is None:
+            raise OutputError(f"the Rerun viewer stopped taking the recording ({exc})") from None
+        raise OutputError(f"cannot write {rrd_path}: {_sink_failure(rrd_path, exc)}") from None
+    if rrd_path is not None and not os.path.exists(rrd_path):      # its folder removed meanwhile
+        raise OutputError(f"cannot write {rrd_path}: {os.strerror(errno.ENOENT)} (removed while it was written)")
+    if rrd_path is not None and not _ends_with_footer(rrd_path):   # the last write failed: rerun only logged it
+        raise OutputError(f"cannot write {rrd_path}: {_sink_failure(rrd_path, None)}")
+
+
+RRD_FOOTER = b"RRF2FOOT"    # what the last bytes of a complete .rrd hold (rerun's footer), its version after it
+
+
+def _ends_with_footer(rrd_path: str | os.PathLike) -> bool:
+    try:
+        with open(rrd_path, "rb") as f:
+            f.seek(max(os.fstat(f.fileno()).st_size - 64, 0))
+            return RRD_FOOTER in f.read()
+    except OSError:
+        return False
+
+
+def _sink_failure(rrd_path: str | os.PathLike, exc: Exception | None) -> str:
+    """Why rerun's file writer stopped: it logs the OS error and raises a generic one; the file system says."""
+    try:
+        usage = os.statvfs(os.path.dirname(os.path.abspath(rrd_path)))
+        if usage.f_bavail == 0:
+            return os.strerror(errno.ENOSPC)
+    except OSError:
+        pass
+    import resource
+    limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if limit != resource.RLIM_INFINITY and os.path.exists(rrd_path) and os.path.getsize(rrd_path) >= limit:
+        return f"{os.strerror(errno.EFBIG)} (the limit of `ulimit -f`, {limit} bytes)"
+    if exc is None:
+        return "it ends without its footer (a write failed)"
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
 def time_columns(t_ns, ticks=None) -> list:
