@@ -19,8 +19,9 @@ import threading
 import typer
 
 from phonepose import __version__
+from phonepose.cli import process
 from phonepose.cli.output import ReportStream
-from phonepose.errors import ConfigError, OutputError, PhoneposeError, quiet_library_warnings
+from phonepose.errors import OutputError, PhoneposeError, quiet_library_warnings
 from phonepose.text import printable
 
 app = typer.Typer(
@@ -163,32 +164,6 @@ def _prepare(command) -> None:
         _prepare(sub)
 
 
-def _check_text(args: list[str]) -> None:
-    """Every argument is UTF-8 text. A file name in another encoding reaches Python with its bytes escaped
-    (PEP 383), and the libraries the commands hand paths to cannot take it: OpenCV crashed (exit 139), rerun,
-    rich and the JSON outputs raised; one line here instead, before any work."""
-    for arg in args:
-        try:
-            arg.encode("utf-8")
-        except UnicodeEncodeError:
-            raw = os.fsencode(arg)
-            shown = raw.decode("utf-8", "backslashreplace")
-            if _is_utf8(raw):   # UTF-8 after all, read by a Python whose locale is ASCII (LC_ALL=C PYTHONUTF8=0)
-                raise ConfigError(f"the argument '{shown}' cannot be read in this locale (arguments and file names "
-                                  f"are read as {sys.getfilesystemencoding()}): run phonepose in a UTF-8 locale "
-                                  f"(LC_ALL=C.UTF-8) or with PYTHONUTF8=1") from None
-            raise ConfigError(f"the argument '{shown}' is not UTF-8 text (a file name in another encoding?): "
-                              f"rename the file with a UTF-8 name") from None
-
-
-def _is_utf8(raw: bytes) -> bool:
-    try:
-        raw.decode("utf-8")
-    except UnicodeDecodeError:
-        return False
-    return True
-
-
 def command():
     """The click command of ``app``, as ``phonepose`` runs it."""
     cmd = typer.main.get_command(app)
@@ -196,73 +171,12 @@ def command():
     return cmd
 
 
-# What a command needs of open files at the least (a playback with --rerun: rerun's runtime aborted the process
-# below 20), and what is asked for when the soft limit (`ulimit -Sn`) is lower and the hard limit allows it.
-MIN_OPEN_FILES = 64
-WANTED_OPEN_FILES = 1024
-
-
-def _open_files_limit() -> None:
-    """Enough file descriptors before any work: the soft limit raised to what is wanted when the hard limit allows,
-    and one line below :data:`MIN_OPEN_FILES` (rerun's Rust runtime panicked with a page of backtrace, exit 134;
-    other commands failed half-way with "Too many open files")."""
-    import resource
-
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if soft != resource.RLIM_INFINITY and soft < WANTED_OPEN_FILES:
-        wanted = WANTED_OPEN_FILES if hard == resource.RLIM_INFINITY else min(hard, WANTED_OPEN_FILES)
-        if wanted > soft:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
-            soft = wanted
-    if soft != resource.RLIM_INFINITY and soft < MIN_OPEN_FILES:
-        raise PhoneposeError(f"the limit on open files is {soft} (`ulimit -n`); phonepose needs at least "
-                             f"{MIN_OPEN_FILES}: raise it (`ulimit -n 1024`)")
-
-
-def _standard_streams() -> None:
-    """Standard input, output and error open before any work. A descriptor the caller closed (``>&-``) gets
-    /dev/null, so that no file phonepose opens becomes descriptor 1 or 2 (what a library writes there would land
-    in an output); a closed standard output is refused, since the report would be lost while exit 0 said all
-    is well."""
-    closed = []
-    for fd, name in ((0, "stdin"), (1, "stdout"), (2, "stderr")):
-        if getattr(sys, name) is None:
-            closed.append(name)
-            try:
-                os.fstat(fd)
-            except OSError:
-                null = os.open(os.devnull, os.O_RDWR)
-                if null != fd:
-                    os.dup2(null, fd)
-                    os.close(null)
-    if "stdout" in closed:
-        raise OutputError("standard output is closed (>&-): the report would be lost; send it to a file, or to "
-                          "/dev/null to discard it")
-
-
-def _out_of_memory(exc: BaseException) -> bool:
-    """A MemoryError, or a library that could not be loaded for want of memory (`ulimit -v`)."""
-    return isinstance(exc, MemoryError) or (isinstance(exc, ImportError) and any(
-        words in str(exc) for words in ("failed to map segment", "cannot allocate memory", "Cannot allocate memory")))
-
-
-def _memory_limit() -> str:
-    import resource
-
-    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft == resource.RLIM_INFINITY:
-        return "free memory or a larger swap"
-    return f"a larger limit than the {soft / 2**30:.2g} GiB of `ulimit -v`"
-
-
 def _run(argv: list[str] | None) -> int:
     """The command, its every error one line on stderr: the exit code."""
     ClickException = _click_exceptions().ClickException
 
     try:
-        _standard_streams()
-        _open_files_limit()
-        _check_text(sys.argv[1:] if argv is None else argv)
+        process.check_before_any_work(sys.argv[1:] if argv is None else argv)
         rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
         error(str(exc), exc.exit_code)
@@ -277,23 +191,12 @@ def _run(argv: list[str] | None) -> int:
     except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
         if os.environ.get("PHONEPOSE_TRACEBACK"):
             raise
-        if _out_of_memory(exc):
-            error(f"out of memory ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}): the command needs "
-                  f"{_memory_limit()}", 1)
-        if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
-            error(f"{exc.filename + ': ' if exc.filename else ''}too many open files (the limit, `ulimit -n`, is "
-                  f"{_soft_open_files()}): raise it", 1)
-        if isinstance(exc, OSError):   # an OS failure no module turned into a PhoneposeError: still one line
-            error(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}", 1)
+        line = process.failure_line(exc)   # out of memory or open files, an OS failure: still one line
+        if line is not None:
+            error(line, 1)
         error(f"unexpected {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug in phonepose: please "
               f"report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)", 1)
     return rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
-
-
-def _soft_open_files() -> int:
-    import resource
-
-    return resource.getrlimit(resource.RLIMIT_NOFILE)[0]
 
 
 def _exit_code(exc: SystemExit) -> int:
