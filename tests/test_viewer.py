@@ -308,6 +308,28 @@ def test_a_rrd_that_cannot_be_written_whole_is_one_line_and_never_put_in_place(t
     assert not (tmp_path / "r.rrd").exists() and not list(tmp_path.glob(f".*{TMP_SUFFIX}"))
 
 
+def test_closing_waits_for_the_sink_a_bounded_time(tmp_path):
+    """rerun's flush waits forever by default; once, its file writer had stopped and a command hung there. The
+    close asks for FLUSH_TIMEOUT_S, and rerun's error when it passes is one line naming the .rrd."""
+    from phonepose.errors import OutputError
+    from phonepose.viewer.sink import FLUSH_TIMEOUT_S, close_recording
+
+    asked = []
+
+    class StuckSink:
+        def flush(self, *, timeout_sec=1e38):
+            asked.append(timeout_sec)
+            raise RuntimeError("Flush timed out")
+
+        def disconnect(self):
+            raise AssertionError("not reached")
+
+    with pytest.raises(OutputError) as err:
+        close_recording(StuckSink(), tmp_path / "p.rrd")
+    assert asked == [FLUSH_TIMEOUT_S] and 10 <= FLUSH_TIMEOUT_S <= 600
+    assert str(err.value) == f"cannot write {tmp_path / 'p.rrd'}: Flush timed out"
+
+
 def test_a_rrd_removed_while_it_is_written_is_one_line(tmp_path):
     """Its folder removed under a playback (`rm -rf` of the output's parent): "it ends without its footer" was
     the line; what happened is that the file is gone."""
