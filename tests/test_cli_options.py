@@ -289,6 +289,37 @@ def test_result_tables_never_cut_a_number_in_a_narrow_terminal(width):
     assert "…" not in text
 
 
+def test_a_table_that_fits_without_its_padding_loses_the_padding_not_a_digit():
+    """Playback's table at 80 columns needed 91 with rich's side padding: the terminal wrapped every line. Without
+    the padding it fits in 80, every number whole; where even that is too wide, the padding stays."""
+    import io
+
+    from rich.console import Console
+
+    from phonepose.cli.output import print_table
+    from phonepose.cli.playback import metrics_table
+
+    scope = {"frames": 84, "p_ate_m": 0.0776, "r_ate_deg": 14.26, "p_re_m": 0.0331}
+    total = {**scope, "boundary_jumps": 2, "boundary_jump_max_m": 0.0055, "boundary_jump_rms_m": 0.0053,
+             "lag_s": 0.105, "jitter_m": 0.00204, "jitter_deg": 0.57, "availability": 1.0}
+    metrics = {"session": "s.mcap", "rate_hz": 20.0,
+               "trackers": {t: {"inside": scope, "outside": scope, "total": total} for t in ("T1", "T7L", "T8")}}
+
+    def printed(width: int) -> list[str]:
+        out = io.StringIO()
+        print_table(Console(file=out, width=width, force_terminal=True, color_system=None), metrics_table(metrics))
+        return out.getvalue().splitlines()
+
+    wide = printed(200)
+    assert "│ T1 " in "\n".join(wide)                               # padded where there is room
+    narrow = printed(80)
+    assert max(map(len, narrow)) == 80 and "│T1 " in "\n".join(narrow)
+    for cell in ("7.76", "14.26", "3.31", "0.55 /", "0.53", "105", "2.04 /", "0.57", "100.0", "T7L", "outside"):
+        assert cell in "\n".join(narrow), narrow
+    too_narrow = printed(40)
+    assert "│ T1 " in "\n".join(too_narrow) and max(map(len, too_narrow)) > 40   # wrapped by the terminal, padded
+
+
 def test_too_few_open_files_is_one_line_before_any_work(tmp_path):
     """`ulimit -n 16`: rerun's runtime panicked (a page of Rust backtrace, exit 134) and experiment failed
     half-way with "Too many open files". A low soft limit is raised to what the hard one allows; below the

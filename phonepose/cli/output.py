@@ -58,12 +58,22 @@ def stdout_console() -> Console:
 def print_table(console: Console, table: Table) -> None:
     """A results table with every cell whole. rich fits a table to the terminal by cutting cells ("0.0…" for
     0.0123: a wrong number, "p_…" for both p_ATE and p_RE); here no column is narrower than its longest word,
-    so cells wrap at their spaces, and a terminal too narrow even for that wraps the table's lines instead."""
+    so cells wrap at their spaces. When that is still too wide, the cells lose their side padding if that makes
+    the table fit (playback's table of every tracker: 91 -> 71 columns, in an 80-column terminal); a terminal
+    too narrow even for that wraps the table's lines instead."""
     unbounded = console.options.update_width(10**6)    # (a measurement is never wider than the options say)
     for column in table.columns:
         column.min_width = max(Measurement.get(console, unbounded, cell).minimum for cell in (column.header, *column.cells))
     needed = Measurement.get(console, unbounded, table).minimum
     width = console.width
+    if needed > width:
+        padding = table.padding
+        table.padding = (0, 0)
+        tight = Measurement.get(console, unbounded, table).minimum
+        if tight <= width:
+            needed = tight
+        else:
+            table.padding = padding    # wrapped by the terminal either way: the padded table reads better
     if needed > width:    # rich would squeeze the columns below their words (or drop one: width 0) to fit
         console.width = needed
     try:
