@@ -122,6 +122,16 @@ def refuse_while_recorded(path: str) -> None:
                              f"index come last): wait for it to finish")
 
 
+def check_unchanged(path: str, fd: int, before: os.stat_result, reading: str = "it was read",
+                    again: str = "run phonepose again") -> None:
+    """Damage found after opening may be another program writing or cutting the file meanwhile (a copy still
+    going on): then that is the line, not "damaged: run recover". ``before``: the file's stat when opened."""
+    now = os.fstat(fd)
+    if (now.st_size, now.st_mtime_ns) != (before.st_size, before.st_mtime_ns):
+        raise InputFileError(f"{path}: changed while {reading} ({before.st_size} bytes, now {now.st_size}): another "
+                             f"program is writing or cutting it; {again} when it is done") from None
+
+
 def _crc(f: BinaryIO, start: int, end: int) -> int:
     f.seek(start)
     crc, left = 0, end - start

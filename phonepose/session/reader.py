@@ -24,6 +24,7 @@ from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
 from phonepose.session.index import (
     MCAP_MAGIC,
     SessionIndex,
+    check_unchanged,
     damaged,
     message_index_times,
     read_chunk,
@@ -148,13 +149,7 @@ class SessionReader:
         return len(self.index.chunks)
 
     def _check_unchanged(self) -> None:
-        """Damage found after opening may be another program writing or cutting the file meanwhile (a copy
-        still going on): then that is the line, not "damaged: run recover"."""
-        now = os.fstat(self._file.fileno())
-        if (now.st_size, now.st_mtime_ns) != (self._opened.st_size, self._opened.st_mtime_ns):
-            raise InputFileError(f"{self.path}: changed while it was read ({self._opened.st_size} bytes, now "
-                                 f"{now.st_size}): another program is writing or cutting it; run phonepose again "
-                                 f"when it is done") from None
+        check_unchanged(self.path, self._file.fileno(), self._opened)
 
     def log_times(self) -> dict[str, np.ndarray]:
         """The log time of every message, per topic (uint64 ns as in MCAP, in file order): from the message index

@@ -29,7 +29,7 @@ from mcap.writer import CompressionType, Writer
 
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
-from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC
+from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC, check_unchanged
 from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
 
 # opcodes (MCAP spec)
@@ -349,13 +349,16 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
         report.file_size = before.st_size
         if before.st_size == 0:
             raise InputFileError(f"{src}: empty file, nothing to recover")
+        def unchanged() -> None:
+            check_unchanged(src, f.fileno(), before, reading="recover read it", again="run recover again")
+
         sal = _Salvager(_FileBytes(f.fileno(), before.st_size), report)
         sal.run()
-        _check_unchanged(src, f.fileno(), before)
+        unchanged()
         try:
             _write(sal, report, dst, staged)
         finally:
-            _check_unchanged(src, f.fileno(), before)   # its chunks were read again to be written
+            unchanged()   # its chunks were read again to be written
     return report
 
 
@@ -405,13 +408,6 @@ class _FileBytes:
                 return pos + found
             pos += len(block) - len(sub) + 1
         return -1
-
-
-def _check_unchanged(src: str, fd: int, before: os.stat_result) -> None:
-    now = os.fstat(fd)
-    if (now.st_size, now.st_mtime_ns) != (before.st_size, before.st_mtime_ns):
-        raise InputFileError(f"{src}: changed while recover read it ({before.st_size} bytes, now {now.st_size}): "
-                             f"another program is writing or cutting it; run recover again when it is done")
 
 
 def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True) -> None:
