@@ -9,7 +9,6 @@ times: the clock playback associates the ground truth on.
 
 from __future__ import annotations
 
-import logging
 import os
 from dataclasses import dataclass
 
@@ -18,8 +17,6 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose, interpolate_many
-
-log = logging.getLogger("phonepose")
 
 MAX_DISPLAY_GAP_S = 0.5   # as playback (scheduler.MAX_GAP_S): a frame farther from display VIO is not placed
 STILL_M = 0.003           # a display whose VIO moves less than this (1σ per axis) and turns less than
@@ -76,7 +73,7 @@ def read_sightings(path: str | os.PathLike) -> Sightings:
     """Every marker sighting of the session; SessionContentError when it has no camera or no display VIO."""
     from phonepose.pipeline.context import has_camera, read_context
     from phonepose.pipeline.markers import MarkerRecognizer
-    from phonepose.pipeline.shared import decode_gray, frame_size_problem
+    from phonepose.pipeline.shared import decode_gray, frame_size_problem, warn_wrong_size
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader
 
@@ -114,9 +111,7 @@ def read_sightings(path: str | os.PathLike) -> Sightings:
             cam_body.append(seen.T_camera_marker @ T_marker_body)
             rms.append(seen.reprojection_error_px)
         t_d, display = _display_vio(reader)
-    if wrong_size:
-        log.warning("phonepose: warning: %s: %d camera frame(s) are %s; they count as showing no marker",
-                    Topic.CAMERA_IMAGE, wrong_size, first_wrong)
+    warn_wrong_size(wrong_size, first_wrong)
     t = np.asarray(stamps, dtype=float)
     if len(t) == 0 or len(t_d) < 2:
         return _none(frames)

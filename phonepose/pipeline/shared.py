@@ -22,6 +22,7 @@ share when a second core is free, and by 10-15 % more with the decode on its own
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -54,6 +55,15 @@ def frame_size_problem(gray: np.ndarray, camera) -> str | None:
     if (w, h) == (camera.width, camera.height):
         return None
     return f"{w}x{h} px, not the calibration's {camera.width}x{camera.height}"
+
+
+def warn_wrong_size(count: int, first: str) -> None:
+    """The one warning line for ``count`` frames of another size than the calibration (``first``: what
+    :func:`frame_size_problem` said of the first): playback and calibrate-gt say it alike."""
+    if count:
+        logging.getLogger("phonepose").warning(
+            "phonepose: warning: %s: %d camera frame(s) are %s; they count as showing no marker",
+            topics.Topic.CAMERA_IMAGE, count, first)
 
 
 class SharedStages:
