@@ -163,9 +163,8 @@ def run_unit(unit: Unit, budget_s: float | None = None) -> list[dict]:
         # Exception, the time budget, and a SystemExit that got this far (which would otherwise end a local
         # worker's task as a SystemExit raised in the batch itself: a silent exit with no table)
         return error_rows(unit, exc, time.perf_counter() - t0)
-    rows = {} if result is None else \
-        {r["tracker"]: r for r in _result_rows(dataclasses.replace(unit, trackers=tuple(
-            t for t in unit.trackers if t not in failed)), result, sig)}
+    ran = tuple(t for t in unit.trackers if t not in failed)    # none: every tracker failed, no result
+    rows = {r["tracker"]: r for r in _result_rows(dataclasses.replace(unit, trackers=ran), result, sig)} if ran else {}
     for name, message in failed.items():
         rows[name] = error_rows(dataclasses.replace(unit, trackers=(name,)), message, time.perf_counter() - t0)[0]
     return [rows[t] for t in unit.trackers]
