@@ -290,7 +290,7 @@ def test_result_tables_never_cut_a_number_in_a_narrow_terminal(width):
 
 
 def test_a_table_that_fits_without_its_padding_loses_the_padding_not_a_digit():
-    """Playback's table at 80 columns needed 91 with rich's side padding: the terminal wrapped every line. Without
+    """Playback's table at 80 columns needed 84 with rich's side padding: the terminal wrapped every line. Without
     the padding it fits in 80, every number whole; where even that is too wide, the padding stays."""
     import io
 

@@ -59,7 +59,7 @@ def print_table(console: Console, table: Table) -> None:
     """A results table with every cell whole. rich fits a table to the terminal by cutting cells ("0.0…" for
     0.0123: a wrong number, "p_…" for both p_ATE and p_RE); here no column is narrower than its longest word,
     so cells wrap at their spaces. When that is still too wide, the cells lose their side padding if that makes
-    the table fit (playback's table of every tracker: 91 -> 71 columns, in an 80-column terminal); a terminal
+    the table fit (playback's table of every tracker needs 84 columns padded, 64 without, in an 80-column terminal); a terminal
     too narrow even for that wraps the table's lines instead."""
     unbounded = console.options.update_width(10**6)    # (a measurement is never wider than the options say)
     for column in table.columns:
