@@ -393,31 +393,19 @@ def quat_matrix(q: Quat) -> list[list[float]]:
             [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]]
 
 
-def _turn_forms() -> np.ndarray:
-    """quat_apply_rows' weights (48, 3): each matrix entry of quat_matrix is a quadratic form of (x y z w), so
-    each turned component is a bilinear form of a row's 16 pairwise products and the vector's 3 components."""
-    forms = np.zeros((4, 4, 9))
-    for k, terms in enumerate((
-            ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 0, 1), (-2, 2, 3)), ((2, 0, 2), (2, 1, 3)),
-            ((2, 0, 1), (2, 2, 3)), ((-1, 0, 0), (1, 1, 1), (-1, 2, 2), (1, 3, 3)), ((2, 1, 2), (-2, 0, 3)),
-            ((2, 0, 2), (-2, 1, 3)), ((2, 1, 2), (2, 0, 3)), ((-1, 0, 0), (-1, 1, 1), (1, 2, 2), (1, 3, 3)))):
-        for sign, a, b in terms:
-            forms[a, b, k] = sign
-    return forms.reshape(16, 3, 3).transpose(0, 2, 1).reshape(48, 3)
-
-
-_TURN_FORMS = _turn_forms()
-
-
 def quat_apply_rows(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``Rotation.from_quat(q).apply(v)`` row by row: quaternions (n, 4) x y z w, any norm, and vectors (n, 3).
-    To rounding, not to the bit (the products are summed in another order): every turned component is a
-    bilinear form of the quaternion's 16 pairwise products and the vector, so all rows take one matrix
-    product, divided by the squared norm. Four array operations: T8 turns 1-60 rows several times a tick,
-    where quat_matrices' gathers and an einsum after them cost ~3x more."""
-    qq = q[:, :, None] * q[:, None, :]
-    turned = (qq.reshape(-1, 16, 1) * v[:, None, :]).reshape(-1, 48) @ _TURN_FORMS
-    return turned / np.add.reduce(qq.reshape(-1, 16)[:, ::5], axis=1, keepdims=True)   # the diagonal: |q|^2
+    To rounding, not to the bit: ((w^2 - |u|^2) v + 2 (u.v) u + 2 w (u x v)) / |q|^2 with u = (x, y, z).
+    Only elementwise operations, no BLAS product: a row's result depends on that row alone, not on how many rows
+    are turned together nor on which matrix kernel the CPU selects (docs/playback.md, "Determinism")."""
+    x, y, z, w = q[:, 0:1], q[:, 1:2], q[:, 2:3], q[:, 3:4]
+    a, b, c = v[:, 0:1], v[:, 1:2], v[:, 2:3]
+    uu = x * x + y * y + z * z
+    ww = w * w
+    uv2 = 2 * (x * a + y * b + z * c)
+    w2 = 2 * w
+    cross = np.concatenate((y * c - z * b, z * a - x * c, x * b - y * a), axis=1)
+    return ((ww - uu) * v + uv2 * q[:, :3] + w2 * cross) / (ww + uu)
 
 
 def quat_apply(q: Quat, v) -> np.ndarray:

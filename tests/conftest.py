@@ -10,7 +10,9 @@ test slower, and a condition that never comes fails with a message naming it.
 from __future__ import annotations
 
 import asyncio
+import functools
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import NamedTuple, TypeVar
 
 import pytest
@@ -43,6 +45,30 @@ async def within(awaitable: Awaitable[T], *, what: str, timeout: float = DEADLIN
         return await asyncio.wait_for(awaitable, timeout)
     except TimeoutError:
         raise AssertionError(waiting.timed_out(what, timeout, None, show_last=True)) from None
+
+
+@functools.cache
+def _browser_missing() -> str | None:
+    """Why no headless Chromium can be started here, or None: Debian's (tools/install-test-browser.sh) or
+    Playwright's own build, whichever exists."""
+    from phonepose.record.rehearse.browser import find_chromium
+    if find_chromium():
+        return None
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as pw:
+        if Path(pw.chromium.executable_path).is_file():
+            return None
+    return "no headless Chromium: tools/install-test-browser.sh could not install one (apt or Playwright)"
+
+
+def require_browser() -> str | None:
+    """The Chromium executable to launch (None: Playwright's own build), or skip the test with the reason:
+    the test command runs every other test when no browser could be installed."""
+    reason = _browser_missing()
+    if reason:
+        pytest.skip(reason)
+    from phonepose.record.rehearse.browser import find_chromium
+    return find_chromium()
 
 
 def pytest_collection_modifyitems(config, items) -> None:

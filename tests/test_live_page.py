@@ -14,7 +14,6 @@ import asyncio
 import importlib.resources
 import json
 import math
-import shutil
 import threading
 import time
 from pathlib import Path
@@ -23,13 +22,11 @@ import cv2
 import numpy as np
 import pytest
 from aiohttp import WSMsgType, web
-from conftest import DEADLINE_S, wait_until
+from conftest import DEADLINE_S, require_browser, wait_until
 from playwright.sync_api import sync_playwright
 
 from phonepose.record.live.websocket import PageSocket
 
-# Debian's chromium when installed (tools/install-test-browser.sh), else Playwright's own build
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -203,8 +200,9 @@ def server():
 
 @pytest.fixture(scope="module")
 def browser():
-    with sync_playwright() as pw:   # no browser at all: launch fails and says so (run tools/install-test-browser.sh)
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=DEADLINE_S * 1000)
+    chromium = require_browser()
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS, headless=True, timeout=DEADLINE_S * 1000)
         yield b
         b.close()
 

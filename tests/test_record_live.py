@@ -24,7 +24,7 @@ import aiohttp
 import cv2
 import numpy as np
 import pytest
-from conftest import DEADLINE_S, wait_until, wait_until_async, within
+from conftest import DEADLINE_S, require_browser, wait_until, wait_until_async, within
 from scipy.spatial.transform import Rotation
 
 from phonepose.calibration.camera_file import CameraCalibrationFile, save_calibration
@@ -588,11 +588,9 @@ def test_an_existing_recording_is_never_replaced_without_force(media, tmp_path):
 def test_the_real_phone_page_in_headless_chromium_records_imu(long_media, tmp_path):
     """The page of static/ (not a script) against the real server over HTTPS: hello, marker size,
     clock pings and DeviceMotion samples end up in the session. (No WebXR in headless Chromium.)"""
-    import shutil
-
     from playwright.sync_api import sync_playwright
 
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")   # else Playwright's own build
+    chromium = require_browser()
     s, out, th, lines = _start(long_media, tmp_path)
     n = 30
     with sync_playwright() as pw:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import DEADLINE_S
+from conftest import DEADLINE_S, require_browser
 from scipy.spatial.transform import Rotation
 
 from phonepose.geometry import Pose
@@ -137,6 +137,7 @@ def test_rehearsal_end_to_end(tmp_path):
         find_iwer()
     except ConfigError as exc:   # no node: tools/install-test-browser.sh could not run npm ci
         pytest.skip(str(exc))
+    require_browser()
 
     # a longer lead-in than the command's: the browser may take longer to start on a loaded machine
     result = rehearse(tmp_path / "r", lead_in_s=30.0, timeout_s=DEADLINE_S, echo=lambda line: None)
@@ -190,7 +191,10 @@ def test_cli_refuses_before_any_work(tmp_path, cli, monkeypatch):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("the user's\n")
-    r = run("--out", "mine")
+    iwer = tmp_path / "mine" / "iwer.min.js"   # the output rule is checked whether or not npm installed IWER
+    iwer.write_text("// not run\n")
+    r = run("--out", "mine", "--iwer", str(iwer))
     assert r.returncode == 6 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "holds files phonepose did not write" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"] and (mine / "notes.txt").read_text() == "the user's\n"
+    assert sorted(p.name for p in mine.iterdir()) == ["iwer.min.js", "notes.txt"]

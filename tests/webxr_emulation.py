@@ -9,10 +9,10 @@ The device is ``window.__xrDevice`` in the page; set poses with :func:`set_pose`
 
 from __future__ import annotations
 
-from conftest import DEADLINE_S
+from conftest import DEADLINE_S, require_browser
 
 # the rehearsal's browser: the same Chromium, flags, IWER file and small viewport (IWER's canvas costs CPU per pixel)
-from phonepose.record.rehearse.browser import CHROMIUM_ARGS, VIEWPORT, find_chromium, find_iwer
+from phonepose.record.rehearse.browser import CHROMIUM_ARGS, VIEWPORT, find_iwer
 
 INSTALL = """(() => {{
   const device = new IWER.XRDevice(IWER.{device});
@@ -24,7 +24,7 @@ INSTALL = """(() => {{
 
 def launch(pw):
     """Headless Chromium with WebGL (SwiftShader: an XR session needs a WebGL base layer)."""
-    return pw.chromium.launch(executable_path=find_chromium(), headless=True, timeout=DEADLINE_S * 1000, args=CHROMIUM_ARGS)
+    return pw.chromium.launch(executable_path=require_browser(), headless=True, timeout=DEADLINE_S * 1000, args=CHROMIUM_ARGS)
 
 
 def new_page(browser, *, device: str | None = "metaQuest3"):

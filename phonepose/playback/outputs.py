@@ -54,6 +54,7 @@ def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict], gr
     return doc
 
 
+
 def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict],
                   ground_truth: dict | None = None) -> dict:
     doc = metrics_document(session, rate_hz, trackers, ground_truth)
