@@ -423,10 +423,10 @@ def _rss_mb() -> float:
 
 @pytest.mark.long
 def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_media, tmp_path):
-    """2000 TCP connections that never start TLS (anyone on the network can open them), then the
-    phone: the gate (phonepose/record/live/gate.py) keeps at most MAX_CONNECTIONS, dropping the
-    oldest silent one for each newcomer, so the phone is served and memory stays flat."""
-    from phonepose.record.live.server import MAX_CONNECTIONS
+    """2000 TCP connections that never start TLS (anyone on the network can open them) from one address, then
+    the phone from another: the gate (phonepose/record/live/gate.py) holds at most PER_ADDRESS of them and
+    refuses or drops the rest, so the phone is served and memory stays flat."""
+    from phonepose.record.live.server import PER_ADDRESS
 
     s, out, th, lines = _start(long_media, tmp_path)
     _wait_video_start(s)
@@ -436,13 +436,14 @@ def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_m
         for _ in range(2000):
             idle.append(socket.create_connection(("127.0.0.1", s.port), timeout=DEADLINE_S))
         gate = s.source.server.gate
-        wait_until(lambda: gate.dropped >= 2000 - MAX_CONNECTIONS, what="the gate to drop the oldest idle connections")
-        assert gate.open <= MAX_CONNECTIONS
+        wait_until(lambda: gate.dropped + gate.refused >= 2000 - PER_ADDRESS, what="the gate to refuse the idle ones")
+        assert len(gate.untrusted.get("127.0.0.1", ())) <= PER_ADDRESS
         grown = _rss_mb() - before
         phone = Phone(s, s.port, s.token)
 
         async def script():
-            async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as http:
+            connector = aiohttp.TCPConnector(ssl=False, local_addr=(PHONE_ADDRESS, 0))
+            async with aiohttp.ClientSession(connector=connector) as http:
                 ws, reader = await phone.connect(http)
                 await _imu(phone, ws, 20)
                 await wait_until_async(lambda: s.source.recording.stats["imu"] >= 20, what="the phone's samples")
@@ -457,7 +458,64 @@ def test_2000_idle_connections_neither_grow_memory_nor_lock_out_the_phone(long_m
     _finish(th)
     assert grown < 80, f"{grown:.0f} MB for 2000 idle connections"     # ~590 MB before the gate, 35 MB in a bare server
     assert sum(m.topic == Topic.CONTROLLER_IMU for m in _messages(tmp_path / "s.mcap")) == 20
-    assert any("connections closed while idle" in line for line in lines)
+    assert any("connections without the token closed" in line for line in lines)
+
+
+PHONE_ADDRESS = "127.0.0.2"    # another loopback address (Linux routes 127/8 to lo): the phone, apart from attackers
+
+
+@pytest.mark.parametrize("mode", ["halfopen", "slow"])
+def test_an_attacker_on_one_address_never_keeps_the_token_bearer_out(long_media, tmp_path, mode):
+    """tools/live_attack.py from 127.0.0.1 (in its own process): 80 connections that send a ClientHello and no more,
+    reopened as soon as they are closed, or 4 new connections a second that finish TLS and send their request a
+    byte a second. The gate keeps the attacker to PER_ADDRESS untrusted connections, closes the slow ones at the
+    request deadline, and the page with the token is served to the phone's address throughout."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from phonepose.record.live.server import PER_ADDRESS
+
+    tools = Path(__file__).resolve().parents[1] / "tools"
+    sys.path.insert(0, str(tools))
+    try:
+        import live_attack
+    finally:
+        sys.path.remove(str(tools))
+    s, out, th, lines = _start(long_media, tmp_path)
+    _wait_video_start(s)
+    gate = s.source.server.gate
+    attacker = subprocess.Popen([sys.executable, str(tools / "live_attack.py"), mode, "--port", str(s.port)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    shares: list[int] = []
+
+    def attacker_share() -> int:
+        shares.append(len(gate.untrusted.get("127.0.0.1", ())))
+        return shares[-1]
+
+    try:
+        if mode == "halfopen":   # its share full and newer connections refused
+            wait_until(lambda: attacker_share() == PER_ADDRESS and gate.refused >= 100, what="the flood at its cap")
+        else:                    # slow clients closed at the deadline, others still trickling
+            wait_until(lambda: gate.dropped >= 4 and attacker_share() >= 4, what="slow clients closed at the deadline")
+        closed_before = gate.dropped + gate.refused
+
+        async def probes():
+            results = []
+            for _ in range(5):
+                results.append((await live_attack.probe("127.0.0.1", s.port, s.token, PHONE_ADDRESS, DEADLINE_S))[0])
+                attacker_share()
+            return results
+
+        assert asyncio.run(probes()) == [200] * 5
+        assert attacker.poll() is None and gate.dropped + gate.refused > closed_before   # the attack went on
+    finally:
+        attacker.kill()
+        attacker.wait(timeout=DEADLINE_S)
+    s.stop("test done")
+    _finish(th)
+    assert max(shares) <= PER_ADDRESS
+    assert any("connections without the token closed" in line for line in lines)
 
 
 def test_deep_static_paths_and_oversized_request_lines_are_one_line_not_a_traceback(long_media, tmp_path, capfd):

@@ -9,6 +9,7 @@ frame (a fixed transform away from display_vio) on a clock offset by :data:`OFFS
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import math
 import os
@@ -136,6 +137,79 @@ def test_certificate_is_made_once_then_reused(tmp_path):
     assert not b.created and b.sha256 == a.sha256
     c = ensure_certificate(d, ["localhost", "10.0.0.5"])     # a new address: a new certificate
     assert c.created and c.sha256 != a.sha256
+
+
+def _break_pair(d, how: str, cut: float) -> str:
+    """Damage the pair in ``d`` as ``how`` says (``cut``: the fraction of a file kept); the reason expected."""
+    cert, key = d / "cert.pem", d / "key.pem"
+    if how in ("key cut", "cert cut"):
+        f = key if how == "key cut" else cert
+        f.write_bytes(f.read_bytes()[:int(len(f.read_bytes()) * cut)])
+        if cut == 0.0:
+            return f"{f.name}: empty"
+        return f"{f.name}: not a PEM {'private key' if f is key else 'certificate'} (cut short or damaged)"
+    if how == "cert without key":
+        key.unlink()
+        return f"key.pem: {os.strerror(errno.ENOENT)}"
+    if how == "key without cert":
+        cert.unlink()
+        return f"cert.pem: {os.strerror(errno.ENOENT)}"
+    if how == "both empty":
+        cert.write_bytes(b"")
+        key.write_bytes(b"")
+        return "cert.pem: empty"
+    assert how == "mismatched"
+    other = ensure_certificate(d.parent / "other", ["localhost"])
+    key.write_bytes(other.key_path.read_bytes())
+    return "key.pem is not the key of cert.pem"
+
+
+@pytest.mark.parametrize("how, cut", [(how, cut) for how in ("key cut", "cert cut") for cut in (0.0, 0.01, 0.3, 0.6, 0.95)]
+                         + [(how, 0.0) for how in ("cert without key", "key without cert", "both empty", "mismatched")])
+def test_a_broken_certificate_pair_is_replaced_with_a_reason(tmp_path, how, cut):
+    """A pair that cannot be used (what an interrupted write or a user's edit leaves) is replaced, with the reason
+    naming the file; the new pair loads into an SSL context and is reused by the next run."""
+    d = tmp_path / "tls"
+    hosts = ["localhost", "127.0.0.1"]
+    first = ensure_certificate(d, hosts)
+    reason = _break_pair(d, how, cut)
+    again = ensure_certificate(d, hosts)
+    assert (again.created, again.broken) == (True, reason) and again.sha256 != first.sha256
+    assert again.ssl_context() is not None
+    assert stat.S_IMODE(os.stat(again.key_path).st_mode) == 0o600
+    assert sorted(p.name for p in d.iterdir()) == ["cert.pem", "key.pem"]          # no temporary left
+    reused = ensure_certificate(d, hosts)
+    assert (reused.created, reused.broken, reused.sha256) == (False, "", again.sha256)
+
+
+@pytest.mark.parametrize("failing", [1, 2])
+def test_a_write_cut_between_the_files_leaves_a_pair_the_next_run_replaces(tmp_path, monkeypatch, failing):
+    """Each file is renamed into place whole; a run stopped at the first or second rename leaves the old pair or
+    a new key with the old certificate, and the next run uses the old pair or makes a new one."""
+    from phonepose.record.live import tls
+
+    d = tmp_path / "tls"
+    old = ensure_certificate(d, ["localhost"])
+    renames = []
+    real_replace = os.replace
+
+    def replace(src, dst):
+        renames.append(dst)
+        if len(renames) == failing:
+            raise KeyboardInterrupt
+        real_replace(src, dst)
+
+    monkeypatch.setattr(tls.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt):
+        ensure_certificate(d, ["localhost", "10.0.0.5"])      # a new address: a new pair is written
+    monkeypatch.setattr(tls.os, "replace", real_replace)
+    assert sorted(p.name for p in d.iterdir()) == ["cert.pem", "key.pem"]
+    after = ensure_certificate(d, ["localhost"])
+    if failing == 1:   # nothing renamed: the old pair is whole and still used
+        assert (after.created, after.broken, after.sha256) == (False, "", old.sha256)
+    else:              # the new key is in place, the old certificate is not its certificate
+        assert after.created and after.broken == "key.pem is not the key of cert.pem"
+        assert after.ssl_context() is not None
 
 
 @pytest.mark.parametrize("text, kind", [

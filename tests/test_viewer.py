@@ -343,3 +343,64 @@ def test_a_rrd_removed_while_it_is_written_is_one_line(tmp_path):
     with pytest.raises(OutputError) as e:
         close_recording(rec, path)
     assert str(e.value) == f"cannot write {path}: No such file or directory (removed while it was written)"
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("asked, listens", [(None, "127.0.0.1"), ("127.0.0.1", "127.0.0.1"), ("0.0.0.0", "0.0.0.0")])
+def test_a_spawned_viewer_listens_on_localhost_unless_asked_otherwise(monkeypatch, capfd, asked, listens):
+    """``--spawn``'s viewer (a real one, headless) listens on loopback only; $PHONEPOSE_VIEWER_BIND opens it to
+    other interfaces (rr.spawn's viewer listens on 0.0.0.0). Where it listens is the viewer's own log line: a
+    headless viewer without a GPU render context exits right after binding, before it could be asked."""
+    import psutil
+    from conftest import wait_until
+
+    from phonepose.viewer import sink
+
+    port = _free_port()
+    pids: list[int] = []
+    real_spawn = sink.spawn_viewer
+
+    def headless_spawn(*, port: int, bind: str, headless: bool = False):
+        pid = real_spawn(port=port, bind=bind, headless=True)
+        assert pid is not None      # a new viewer, not one already on the port
+        pids.append(pid)
+        return pid
+
+    monkeypatch.setenv("PATH", os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", ""))
+    monkeypatch.delenv("_RERUN_TEST_FORCE_SAVE", raising=False)
+    if asked is None:
+        monkeypatch.delenv(sink.VIEWER_BIND_ENV, raising=False)
+    else:
+        monkeypatch.setenv(sink.VIEWER_BIND_ENV, asked)
+    monkeypatch.setattr(sink, "VIEWER_PORT", port)
+    monkeypatch.setattr(sink, "spawn_viewer", headless_spawn)
+    err: list[str] = []
+    rec = sink.open_recording("phonepose-test", f"bind-{listens}", name="bind", spawn=True)
+    try:
+        line = wait_until(lambda: err.append(capfd.readouterr().err) or re.search(
+            r"Listening for gRPC connections on (\S+):(\d+)\.", "".join(err)), what="the viewer's listening line")
+        assert (line.group(1), int(line.group(2))) == (listens, port)
+    finally:
+        rec.disconnect()
+        for pid in pids:
+            viewer = psutil.Process(pid)
+            viewer.kill()
+            viewer.wait(timeout=60)    # our child: reaped, not left a zombie
+
+
+@pytest.mark.parametrize("asked", ["everywhere", "localhost", "300.1.1.1", "0.0.0.0:80"])
+def test_a_viewer_bind_that_is_not_an_ip_address_is_one_line_before_spawning(monkeypatch, asked):
+    from phonepose.errors import ConfigError
+    from phonepose.viewer import sink
+
+    monkeypatch.setenv(sink.VIEWER_BIND_ENV, asked)
+    monkeypatch.setattr(sink, "spawn_viewer", lambda **kw: pytest.fail("spawned"))
+    with pytest.raises(ConfigError, match=rf"^PHONEPOSE_VIEWER_BIND='{re.escape(asked)}': expected an IP address"):
+        sink.open_recording("phonepose-test", "bad-bind", name="bad", spawn=True)

@@ -93,6 +93,9 @@ def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str,
                           rerun_path=rerun, spawn=spawn, echo=echo, gt_controller=gt_controller)
     url = session.start()
     cert = session.certificate
+    if cert.broken:
+        typer.echo(f"phonepose: warning: the TLS certificate in {cert.cert_path.parent} could not be used "
+                   f"({cert.broken}); made a new one", err=True)
     typer.echo(f"{'created' if cert.created else 'using'} the self-signed certificate {cert.cert_path} "
                f"(SHA-256 {cert.sha256})", err=True)
     typer.echo(f"recording to {out}: open this page on the phone (same network; accept the certificate warning):")

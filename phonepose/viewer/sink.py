@@ -22,8 +22,48 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from phonepose.errors import OutputError
+from phonepose.errors import ConfigError, OutputError
 from phonepose.viewer.entities import TICK, TIME
+
+VIEWER_PORT = 9876                      # rerun's own default: a viewer already listening there is reused
+VIEWER_BIND = "127.0.0.1"               # the spawned viewer's server address unless PHONEPOSE_VIEWER_BIND says another
+VIEWER_BIND_ENV = "PHONEPOSE_VIEWER_BIND"
+
+
+def viewer_bind() -> str:
+    """The address a spawned viewer listens on: :data:`VIEWER_BIND`, or an IP address in ``$PHONEPOSE_VIEWER_BIND``
+    (``0.0.0.0``: every interface, for a viewer on another machine)."""
+    import ipaddress
+
+    given = os.environ.get(VIEWER_BIND_ENV, "").strip()
+    if not given:
+        return VIEWER_BIND
+    try:
+        return str(ipaddress.ip_address(given))
+    except ValueError:
+        raise ConfigError(f"{VIEWER_BIND_ENV}={given[:60]!r}: expected an IP address such as 127.0.0.1 or "
+                          f"0.0.0.0") from None
+
+
+def _reach(bind: str) -> str:
+    """Where this process reaches a viewer listening on ``bind``: loopback for a wildcard or loopback address."""
+    import ipaddress
+
+    ip = ipaddress.ip_address(bind)
+    if ip.is_unspecified or ip.is_loopback:
+        return "[::1]" if ip.version == 6 and not ip.is_unspecified else "127.0.0.1"
+    return f"[{ip}]" if ip.version == 6 else str(ip)
+
+
+def spawn_viewer(*, port: int, bind: str, headless: bool = False) -> int | None:
+    """Start a Rerun viewer whose server listens on ``bind``:``port`` and wait until it takes connections; its
+    pid (None: a viewer already listening on ``port`` is used). ``rr.spawn`` has no bind address and rerun's
+    own default is 0.0.0.0, so the viewer's ``--bind`` goes through the same binding ``rr.spawn`` calls."""
+    import rerun_bindings
+
+    return rerun_bindings.spawn(port=port, memory_limit="75%", hide_welcome_screen=False, detach_process=True,
+                                executable_name="rerun", extra_args=["--bind", bind],
+                                extra_env=[("RERUN_APP_ONLY", "true")], headless=headless)
 
 
 def open_recording(application_id: str, recording_id: str, *, name: str, rrd_path: str | os.PathLike | None = None,
@@ -37,7 +77,10 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
     rec.set_log_time_enabled(False)
     try:
         if spawn:
-            rec.spawn(default_blueprint=blueprint)
+            bind = viewer_bind()
+            if rr.is_enabled(rec) and os.environ.get("_RERUN_TEST_FORCE_SAVE") is None:   # as rr.spawn skips
+                spawn_viewer(port=VIEWER_PORT, bind=bind)
+            rec.connect_grpc(f"rerun+http://{_reach(bind)}:{VIEWER_PORT}/proxy", default_blueprint=blueprint)
         elif rrd_path is not None:
             path: str = os.fspath(rrd_path)
             if os.path.isdir(path):

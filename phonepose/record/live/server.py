@@ -61,9 +61,10 @@ OFFSET_LOG_CHANGE_NS = 2_000_000      # log the offset again when the estimate m
 DRAIN_QUIET_S = 0.1                   # at stop: the page's messages already in flight are still taken
 DRAIN_MAX_S = 2.0
 MAX_CONNECTIONS = 64                  # open TCP connections at a time (a phone page uses a few); see gate.py
+RESERVED_FOR_TOKEN = 16               # of them, only for connections whose request carried the token
+PER_ADDRESS = 16                      # connections without the token from one address (a browser opens ~6)
+REQUEST_DEADLINE_S = 5.0              # TLS and a whole request head within this, or the connection is closed
 LOGGED_CONNECTIONS = 20               # WebSockets whose own lines are logged; later ones' are counted (Connection.log)
-HANDSHAKE_TIMEOUT_S = 10.0            # TLS handshake deadline
-FIRST_REQUEST_S = 15.0                # a connection silent this long after it opened is closed
 KEEPALIVE_S = 15.0                    # an idle HTTP keep-alive connection is closed after this
 CLOSE_TIMEOUT_S = 2.0                 # how long a close waits for the page's close frame (a vanished phone)
 ROLES = ("phone", "headset")          # one connection of each at a time
@@ -631,8 +632,9 @@ class LiveServer:
         await self._runner.setup()
         # aiohttp's protocol factory behind the gate (connection cap, TLS and first-request deadlines)
         assert self._runner.server is not None   # made by setup()
-        self.gate = ConnectionGate(self._runner.server, self.ssl_context, limit=MAX_CONNECTIONS,
-                                   handshake_timeout_s=HANDSHAKE_TIMEOUT_S, first_request_s=FIRST_REQUEST_S)
+        self.gate = ConnectionGate(self._runner.server, self.ssl_context, token=self.token, limit=MAX_CONNECTIONS,
+                                   reserved=RESERVED_FOR_TOKEN, per_address=PER_ADDRESS,
+                                   deadline_s=REQUEST_DEADLINE_S)
         loop = asyncio.get_running_loop()
         self._listener = await loop.create_server(self.gate, self.host, self.port, reuse_address=True)
         sockets = list(self._listener.sockets or [])
@@ -648,8 +650,9 @@ class LiveServer:
             self._listener.close()
             self._listener = None
         if self.gate is not None and (self.gate.dropped or self.gate.refused):
-            self.recording.log(f"connections closed while idle: {self.gate.dropped}, refused (all "
-                               f"{MAX_CONNECTIONS} busy): {self.gate.refused}", level="warning")
+            self.recording.log(f"connections without the token closed (no request within {REQUEST_DEADLINE_S:g} s, "
+                               f"or room made): {self.gate.dropped}, refused (over {PER_ADDRESS} from one address, "
+                               f"or every slot taken): {self.gate.refused}", level="warning")
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
