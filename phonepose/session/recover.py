@@ -29,6 +29,7 @@ from mcap.writer import CompressionType, Writer
 
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
+from phonepose.files import check_input
 from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC, check_unchanged
 from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
 
@@ -332,10 +333,7 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
     nothing at all can be recovered.
     """
     src, dst = os.fspath(path), os.fspath(out)
-    if not os.path.exists(src):
-        raise InputFileError(f"{src}: no such file")
-    if os.path.isdir(src):
-        raise InputFileError(f"{src}: is a directory, not an MCAP file")
+    check_input(src, "MCAP file")      # a FIFO, socket or device: refused before open() could wait forever
     if os.path.exists(dst) and os.path.samefile(src, dst) or Path(src).resolve() == Path(dst).resolve():
         raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another --out)")
     refuse_to_replace(dst, replace)
