@@ -194,3 +194,42 @@ def test_every_command_refuses_a_fifo_as_an_input_at_once(good, tmp_path, cli, n
     line = one_error_line(err)
     assert code in (2, 5) and "in.fifo" in line and "not a regular file" in line, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.fifo", "t.tum"]
+
+
+# ----------------------------------------------------------------------------- recover's resynchronisation
+GARBAGE = {"opcode 0x06 bytes": b"\x06", "0x06 and a zero length": b"\x06" + bytes(8),
+           "0x06 and a length that fits": b"\x06" + (40).to_bytes(8, "little") + bytes(40)}   # an empty chunk: valid
+
+
+@pytest.mark.parametrize("pattern", list(GARBAGE), ids=list(GARBAGE))
+def test_recover_reads_garbage_that_looks_like_records_in_linear_work(good, tmp_path, monkeypatch, pattern):
+    """A valid prefix, then garbage of 1, 4 and 16 MiB made of record starts: recover reads each byte a bounded
+    number of times and tries at most one candidate record a start, whatever the size."""
+    from phonepose.session import recover as R
+    prefix = good.read_bytes()                  # a whole valid session, then the garbage
+    with SessionReader(good) as r:
+        messages = r.summary().message_count
+    read, tried = [0], [0]
+    pread, plausible = os.pread, R._Salvager._plausible_chunk_at
+
+    def counting_pread(fd, n, off):
+        data = pread(fd, n, off)
+        read[0] += len(data)
+        return data
+
+    def counting_plausible(self, pos):
+        tried[0] += 1
+        return plausible(self, pos)
+    monkeypatch.setattr(R.os, "pread", counting_pread)
+    monkeypatch.setattr(R._Salvager, "_plausible_chunk_at", counting_plausible)
+    for mib in (1, 4, 16):
+        unit = GARBAGE[pattern]
+        path = tmp_path / f"g{mib}.mcap"
+        path.write_bytes(prefix + unit * ((mib << 20) // len(unit)))
+        read[0] = tried[0] = 0
+        with deadline(600):
+            report = R.salvage(path, tmp_path / f"o{mib}.mcap")
+        size = path.stat().st_size
+        assert read[0] <= 4 * size + (4 << 20), (mib, read[0])
+        assert tried[0] <= (mib << 20) // len(unit) + 1, (mib, tried[0])
+        assert report.messages == messages    # every message of the session, none made of the garbage
