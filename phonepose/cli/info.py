@@ -13,7 +13,7 @@ from phonepose.cli import app
 from phonepose.cli.output import print_table, shown, stdout_console
 from phonepose.errors import SessionContentError
 from phonepose.schemas.topics import Topic
-from phonepose.session import SessionReader
+from phonepose.session import SessionReader, codec
 
 
 def _task_window(reader: SessionReader, s) -> list[float] | None:
@@ -24,7 +24,7 @@ def _task_window(reader: SessionReader, s) -> list[float] | None:
         info = reader.first(Topic.SESSION_INFO)
     except SessionContentError:     # a broken info message: info still shows the rest
         return None
-    t0, t1 = info.task_start.ToNanoseconds(), info.task_end.ToNanoseconds()
+    t0, t1 = codec.timestamp_ns(info.task_start), codec.timestamp_ns(info.task_end)
     if not (t0 and t1):
         return None
     return [round((t0 - s.start_ns) / 1e9, 3), round((t1 - s.start_ns) / 1e9, 3)]

@@ -66,7 +66,7 @@ def _marker_model(path: str, spec) -> MarkerModel:
 
 
 def _stamp_ns(ts) -> int | None:
-    ns = ts.ToNanoseconds()
+    ns = codec.timestamp_ns(ts)
     return ns if ns != 0 else None
 
 

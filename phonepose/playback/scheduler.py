@@ -353,7 +353,7 @@ class _PassState:
 
         Judged by the header stamp only: controller streams carry the receipt time as log_time,
         so several samples of one network packet share it legitimately."""
-        stamp = msg.timestamp.ToNanoseconds()
+        stamp = codec.timestamp_ns(msg.timestamp)
         prev = self.last_stamp.get(topic)
         if prev is not None and stamp and prev[1] and stamp <= prev[1]:
             self.s.skipped[(topic, "duplicate or non-monotonic timestamp")] += 1

@@ -106,9 +106,76 @@ def transform_of(msg: FrameTransform) -> Pose:
     return Pose.from_xyzw([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
 
 
+# ----------------------------------------------------------------------------- times
+# Every time phonepose reads from a file (a message's log time, a header stamp, the task window) is int64
+# nanoseconds since 1970, 1677-09-21..2262-04-11: what numpy, rerun and the TUM files hold. protobuf's Timestamp
+# (years 1..9999) and MCAP's uint64 log times reach beyond it.
+MIN_TIME_NS, MAX_TIME_NS = -(1 << 63), (1 << 63) - 1
+TIME_RANGE = "int64 nanoseconds, 1677-09-21..2262-04-11"
+
+
+def time_problem(seconds: int, nanos: int) -> str | None:
+    """Why a ``google.protobuf.Timestamp`` is no time phonepose reads, or None."""
+    if not 0 <= nanos < 1_000_000_000:
+        return f"seconds={seconds} nanos={nanos}: nanos outside 0..999999999"
+    if not MIN_TIME_NS <= seconds * 1_000_000_000 + nanos <= MAX_TIME_NS:
+        return f"seconds={seconds} nanos={nanos}: outside the times phonepose reads ({TIME_RANGE})"
+    return None
+
+
+def timestamp_ns(ts) -> int:
+    """A ``google.protobuf.Timestamp`` in ns, the one conversion of a stamp; ValueError naming the value when out
+    of range (a message from :class:`SessionReader` was checked by :func:`times_problem`)."""
+    problem = time_problem(ts.seconds, ts.nanos)
+    if problem is not None:
+        raise ValueError(problem)
+    return ts.seconds * 1_000_000_000 + ts.nanos
+
+
 def stamp_ns(msg, fallback_ns: int) -> int:
     """A message's header ``timestamp`` in ns; an unset stamp (0) is ``fallback_ns`` (its log time)."""
-    return msg.timestamp.ToNanoseconds() or fallback_ns
+    return timestamp_ns(msg.timestamp) or fallback_ns
+
+
+_TIMESTAMP = "google.protobuf.Timestamp"
+_plans: dict[str, list] = {}
+
+
+def _plan(descriptor) -> list:
+    """(field name, repeated, sub-plan or None for a Timestamp) for every field of ``descriptor`` that is or
+    holds a Timestamp; computed once a message type."""
+    plan = _plans.get(descriptor.full_name)
+    if plan is None:
+        _plans[descriptor.full_name] = []         # a recursive type: its own fields hold no Timestamp of another
+        plan = []
+        for f in descriptor.fields:
+            if f.message_type is None:
+                continue
+            if f.message_type.full_name == _TIMESTAMP:
+                plan.append((f.name, f.is_repeated, None))
+            else:
+                sub = _plan(f.message_type)
+                if sub:
+                    plan.append((f.name, f.is_repeated, sub))
+        _plans[descriptor.full_name] = plan
+    return plan
+
+
+def times_problem(msg) -> str | None:
+    """The first Timestamp anywhere in a decoded message that :func:`time_problem` refuses, as "FIELD
+    seconds=.. nanos=..: why"; None when all are times phonepose reads. A few attribute reads a message."""
+    return _times_problem(msg, _plan(msg.DESCRIPTOR), "")
+
+
+def _times_problem(msg, plan: list, prefix: str) -> str | None:
+    for name, repeated, sub in plan:
+        values = getattr(msg, name)
+        for i, v in enumerate(values if repeated else (values,)):
+            where = f"{prefix}{name}[{i}]" if repeated else f"{prefix}{name}"
+            problem = time_problem(v.seconds, v.nanos) if sub is None else _times_problem(v, sub, where + ".")
+            if problem is not None:
+                return problem if sub is not None else f"{where} {problem}"
+    return None
 
 
 # No phone IMU measures beyond these (gyroscopes saturate near 35 rad/s, accelerometers near 16 g): a

@@ -20,7 +20,9 @@ from mcap.records import Message as McapMessage
 from mcap_protobuf.decoder import DecoderFactory
 
 from phonepose.errors import DamagedFileError, InputFileError, PhoneposeError, SessionContentError
+from phonepose.files import check_input
 from phonepose.schemas.topics import TOPIC_TYPES, message_type_for
+from phonepose.session.codec import MAX_TIME_NS, TIME_RANGE, times_problem
 from phonepose.session.index import (
     MCAP_MAGIC,
     SessionIndex,
@@ -77,10 +79,7 @@ class SessionSummary:
 def check_mcap_file(path: str | os.PathLike) -> str:
     """Raise InputFileError unless ``path`` is an existing, readable, non-empty MCAP file."""
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise InputFileError(f"{path}: no such file")
-    if os.path.isdir(path):
-        raise InputFileError(f"{path}: is a directory, not an MCAP file")
+    check_input(path, "MCAP file")     # a FIFO, socket or device: refused before open() could wait forever
     try:
         with open(path, "rb") as f:
             head = f.read(len(MCAP_MAGIC))
@@ -125,6 +124,9 @@ class SessionReader:
             schema = ix.schemas.get(ch.schema_id)
             channels.append(ChannelSummary(ch.topic, schema.name if schema else "", ch.message_encoding,
                                            counts.get(cid, 0)))
+        if stats is not None and stats.message_count and stats.message_end_time > MAX_TIME_NS:
+            self.log_times()        # names the topic
+            self._bad_log_time(None, stats.message_end_time)   # only a chunk header claims it
         return SessionSummary(
             path=self.path, channels=channels,
             start_ns=stats.message_start_time if stats else 0,
@@ -175,7 +177,11 @@ class SessionReader:
             ch = ix.channels.get(cid)
             if ch is not None:
                 parts.setdefault(ch.topic, []).extend(arrays)
-        return {topic: np.concatenate(arrays) for topic, arrays in parts.items()}
+        out = {topic: np.concatenate(arrays) for topic, arrays in parts.items()}
+        for topic, ts in out.items():
+            if ts.size and int(ts.max()) > MAX_TIME_NS:
+                self._bad_log_time(topic, int(ts.max()))
+        return out
 
     def topics(self) -> set[str]:
         return {ch.topic for ch in self.index.channels.values()}
@@ -318,6 +324,8 @@ class SessionReader:
             chunks, wanted = self._chunks(topics, start_ns, end_ns)
             for m in self._iter_sorted(chunks, wanted, start_ns, end_ns):
                 channel = channels[m.channel_id]
+                if m.log_time > MAX_TIME_NS or m.publish_time > MAX_TIME_NS:
+                    self._bad_log_time(channel.topic, max(m.log_time, m.publish_time))
                 yield schemas.get(channel.schema_id) if channel.schema_id else None, channel, m
         except DamagedFileError:
             self._check_unchanged()
@@ -332,8 +340,17 @@ class SessionReader:
                  end_ns: int | None = None) -> Iterator[Message]:
         """Decoded messages; ``end_ns`` is exclusive."""
         for schema, channel, m in self.raw_messages(topics, start_ns, end_ns):
-            yield Message(channel.topic, m.log_time, m.publish_time, channel.id, m.sequence,
-                          self._decode(schema, channel, m.data))
+            msg = self._decode(schema, channel, m.data)
+            problem = times_problem(msg)
+            if problem is not None:
+                raise SessionContentError(f"{self.path}: topic {channel.topic}: the message at log time {m.log_time} "
+                                          f"has {problem}")
+            yield Message(channel.topic, m.log_time, m.publish_time, channel.id, m.sequence, msg)
+
+    def _bad_log_time(self, topic: str | None, value: int) -> None:
+        where = f"topic {topic}: " if topic is not None else ""
+        raise SessionContentError(f"{self.path}: {where}log time {value} is outside the times phonepose reads "
+                                  f"({TIME_RANGE})")
 
     def first(self, topic: str):
         """The first decoded message on ``topic``, or None."""

@@ -22,6 +22,7 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
@@ -29,6 +30,7 @@ from mcap.writer import CompressionType, Writer
 
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
+from phonepose.files import check_input
 from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC, check_unchanged
 from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
 
@@ -260,12 +262,7 @@ class _Salvager:
 
     def resync(self, pos: int) -> int | None:
         """The offset of the next chunk record after ``pos`` that validates, or None."""
-        b = self.b
-        p = pos
-        while True:
-            p = b.find(b"\x06", p + 1)
-            if p < 0:
-                return None
+        for p in self.b.record_starts(pos + 1, OP_CHUNK):
             if not self._plausible_chunk_at(p):
                 continue
             try:
@@ -274,6 +271,7 @@ class _Salvager:
                 continue
             self.chunks.pop()
             return p
+        return None
 
     def _time_at(self, pos: int) -> tuple[int | None, int | None]:
         """Log times a damaged chunk header at ``pos`` still tells, if it parses."""
@@ -332,10 +330,7 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
     nothing at all can be recovered.
     """
     src, dst = os.fspath(path), os.fspath(out)
-    if not os.path.exists(src):
-        raise InputFileError(f"{src}: no such file")
-    if os.path.isdir(src):
-        raise InputFileError(f"{src}: is a directory, not an MCAP file")
+    check_input(src, "MCAP file")      # a FIFO, socket or device: refused before open() could wait forever
     if os.path.exists(dst) and os.path.samefile(src, dst) or Path(src).resolve() == Path(dst).resolve():
         raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another --out)")
     refuse_to_replace(dst, replace)
@@ -397,16 +392,42 @@ class _FileBytes:
             raise IndexError("beyond the end of the file")
         return byte[0]
 
-    def find(self, sub: bytes, start: int = 0) -> int:
+    def record_starts(self, start: int, opcode: int):
+        """Every offset from ``start`` on whose byte is ``opcode`` and whose length field fits in the file, in
+        order: a window at a time with numpy, so garbage full of ``opcode`` bytes costs linear time, not a Python
+        step a byte."""
         pos = max(start, 0)
         while pos < self.n:
-            block = self._read(pos, pos + self.WINDOW)
-            if len(block) < len(sub):
-                return -1
-            found = block.find(sub)
+            block = np.frombuffer(os.pread(self.fd, self.WINDOW + 8, pos), dtype=np.uint8)
+            if block.size == 0:
+                return
+            head = block[:self.WINDOW]
+            at = np.flatnonzero(head == opcode)
+            at = at[at + 9 <= block.size]            # the rest have no whole length field in the file
+            lengths = np.zeros(at.size, dtype=np.uint64)
+            for k in range(8):                       # the little-endian uint64 after each opcode
+                lengths |= block[at + 1 + k].astype(np.uint64) << np.uint64(8 * k)
+            room = self.n - 9 - (pos + at)           # bytes the file has for the record's body
+            at = at[(room >= 0) & (lengths <= np.maximum(room, 0).astype(np.uint64))]
+            for a in at.tolist():
+                yield pos + a
+            pos += head.size
+
+    def find(self, sub: bytes, start: int = 0) -> int:
+        """Searched inside the window, never copied out of it: the resync scan calls this once a candidate byte,
+        so each call costs what it scans (a slice of the window's rest made garbage full of 0x06 quadratic)."""
+        pos = max(start, 0)
+        while pos < self.n:
+            if not self._at <= pos < self._at + len(self._window):
+                self._at, self._window = pos, os.pread(self.fd, self.WINDOW, pos)
+            found = self._window.find(sub, pos - self._at)
             if found >= 0:
-                return pos + found
-            pos += len(block) - len(sub) + 1
+                return self._at + found
+            end = self._at + len(self._window)
+            if end >= self.n or not self._window:
+                return -1
+            pos = end - len(sub) + 1        # a match across the window's end: read a window from there
+            self._at, self._window = pos, os.pread(self.fd, self.WINDOW, pos)
         return -1
 
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from phonepose.errors import ConfigError
+from phonepose.files import check_input
 from phonepose.waiting import wait_until
 
 DRIVER_JS = Path(__file__).with_name("driver.js")
@@ -36,9 +37,9 @@ VIEWPORT = {"width": 240, "height": 400}
 def find_iwer(path: str | os.PathLike | None = None) -> Path:
     """iwer.min.js: the given file, else $PHONEPOSE_IWER, else the repository's tests/js/node_modules."""
     if path is not None:
-        if not Path(path).is_file():
+        if not os.path.lexists(path):
             raise ConfigError(f"--iwer {path}: no such file (expected IWER's build/iwer.min.js)")
-        return Path(path)
+        return check_input(path, "the file IWER's build/iwer.min.js")   # a FIFO or device: refused, never read
     for candidate in (os.environ.get("PHONEPOSE_IWER"), IWER_IN_REPO):
         if candidate and Path(candidate).is_file():
             return Path(candidate)
