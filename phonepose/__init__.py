@@ -11,8 +11,9 @@ numpy, OpenCV or the session reader. No import statement of a submodule here: th
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+TYPE_CHECKING = False      # not typing's: importing typing would double the import's time (type checkers know the name)
+if TYPE_CHECKING:
+    from typing import Any
 
 __version__ = "0.1.0"
 
@@ -34,7 +35,7 @@ def __getattr__(name: str) -> Any:
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'phonepose' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    value = getattr(__import__(module, fromlist=[name]), name)   # the builtin: no importlib to load
     globals()[name] = value    # later lookups are plain attribute reads
     return value
 
