@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import errno
 import os
-import resource
 import sys
+
+try:
+    import resource
+except ImportError:   # Windows: no rlimits, the C runtime's own limits apply
+    resource = None  # type: ignore[assignment]
 
 from phonepose.errors import ConfigError, OutputError, PhoneposeError
 
@@ -75,7 +79,9 @@ def standard_streams() -> None:
 def ensure_open_files() -> None:
     """Enough file descriptors before any work: the soft limit raised to what is wanted when the hard limit allows,
     and one line below :data:`MIN_OPEN_FILES` (rerun's Rust runtime panicked with a page of backtrace, exit 134;
-    other commands failed half-way with "Too many open files")."""
+    other commands failed half-way with "Too many open files"). Nothing to check where the system has no rlimits."""
+    if resource is None:
+        return
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft != resource.RLIM_INFINITY and soft < WANTED_OPEN_FILES:
         wanted = WANTED_OPEN_FILES if hard == resource.RLIM_INFINITY else min(hard, WANTED_OPEN_FILES)
@@ -97,6 +103,8 @@ def failure_line(exc: BaseException) -> str | None:
         return None
     where = f"{exc.filename}: " if exc.filename else ""
     if exc.errno in (errno.EMFILE, errno.ENFILE):
+        if resource is None:
+            return f"{where}too many open files: close other programs"
         soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
         return f"{where}too many open files (the limit, `ulimit -n`, is {soft}): raise it"
     return f"{where}{exc.strerror or exc}"
@@ -109,6 +117,8 @@ def _out_of_memory(exc: BaseException) -> bool:
 
 
 def _memory_limit() -> str:
+    if resource is None:
+        return "free memory or a larger page file"
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft == resource.RLIM_INFINITY:
         return "free memory or a larger swap"

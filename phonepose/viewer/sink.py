@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 from collections.abc import Callable
 from typing import Any
 
@@ -139,18 +140,26 @@ def _ends_with_footer(rrd_path: str | os.PathLike) -> bool:
 def _sink_failure(rrd_path: str | os.PathLike, exc: Exception | None) -> str:
     """Why rerun's file writer stopped: it logs the OS error and raises a generic one; the file system says."""
     try:
-        usage = os.statvfs(os.path.dirname(os.path.abspath(rrd_path)))
-        if usage.f_bavail == 0:
+        if shutil.disk_usage(os.path.dirname(os.path.abspath(rrd_path))).free == 0:
             return os.strerror(errno.ENOSPC)
     except OSError:
         pass
-    import resource
-    limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
-    if limit != resource.RLIM_INFINITY and os.path.exists(rrd_path) and os.path.getsize(rrd_path) >= limit:
+    limit = _file_size_limit()
+    if limit is not None and os.path.exists(rrd_path) and os.path.getsize(rrd_path) >= limit:
         return f"{os.strerror(errno.EFBIG)} (the limit of `ulimit -f`, {limit} bytes)"
     if exc is None:
         return "it ends without its footer (a write failed)"
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def _file_size_limit() -> int | None:
+    """`ulimit -f` in bytes; None when unlimited or where the system has no such limit (Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if limit == resource.RLIM_INFINITY else limit
 
 
 def time_columns(t_ns, ticks=None) -> list:
