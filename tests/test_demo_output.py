@@ -147,7 +147,7 @@ def test_the_figure_titles_its_views_marks_leaving_and_coming_back_and_has_one_l
     assert front.get_title() == "front view: x-y, seen along z from the camera"
     assert (front.get_xlabel(), front.get_ylabel()) == ("x (cm, right)", "y (cm, up)")
     assert side.get_title() == "side view: z-y, seen along x"
-    assert (side.get_xlabel(), side.get_ylabel()) == ("z (cm, forward from the camera)", "y (cm, up)")
+    assert (side.get_xlabel(), side.get_ylabel()) == ("z (cm, forward)", "y (cm, up)")
     assert front.get_legend() is None and side.get_legend() is None and len(fig.legends) == 1
     runs = plots.outside_runs(np.array(inside))
     labels = [text.get_text() for text in fig.legends[0].get_texts()]

@@ -20,7 +20,7 @@ OUTSIDE_COLOR = "#ffb000"   # the band under the ground truth where the marker i
 # the two panels: (horizontal axis, vertical axis) of the display axes, and what each shows
 VIEWS = (((0, 1), "front view: x-y, seen along z from the camera"),
          ((2, 1), "side view: z-y, seen along x"))
-AXIS_LABELS = ("x (cm, right)", "y (cm, up)", "z (cm, forward from the camera)")
+AXIS_LABELS = ("x (cm, right)", "y (cm, up)", "z (cm, forward)")
 DASHED = ("T1", "T2", "T4", "T5")   # the paper's rows drawn dashed, so the overlapping ones stay apart
 
 
@@ -51,11 +51,11 @@ def plot_fig11(path: str | Path, title: str, T_dvio_camera: Pose, gt: Pose, esti
     gt_xyz = to_display_view(T_dvio_camera, gt) * 100.0 if len(gt) else np.zeros((0, 3))
     xyz_of = {name: gt_xyz if name == "GT" else to_display_view(T_dvio_camera, poses) * 100.0
               for name, poses in {"GT": gt, **estimates}.items() if len(poses)}
-    # each panel as wide as its data for the same scale (equal aspect): the front view is wide, the side view narrow
+    # each panel about as wide as its data at one scale (equal aspect), within limits that keep titles readable
     span = np.ptp(np.vstack(list(xyz_of.values())), axis=0) if xyz_of else np.ones(3)
     span = np.maximum(span, 0.2 * span.max() + 1e-9)
     fig, axes = plt.subplots(1, 2, figsize=(12, 6.2),
-                             gridspec_kw={"width_ratios": [max(span[h] / span[v], 0.8) for (h, v), _ in VIEWS]})
+                             gridspec_kw={"width_ratios": [np.clip(span[h] / span[v], 1.0, 2.5) for (h, v), _ in VIEWS]})
     marks: dict[str, Line2D] = {}   # the legend's entries of the view's marks, after the lines'
     lines: dict[str, Line2D] = {}
     runs = outside_runs(gt_inside) if gt_inside is not None and len(gt) else []
