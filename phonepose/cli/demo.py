@@ -23,7 +23,7 @@ def demo(
     go to --out, all at once when complete: the session, playback/ (TUM trajectories and
     metrics.json), a Fig. 11-style plot, demo.rrd.
     """
-    from phonepose.cli.playback import metrics_table
+    from phonepose.cli.playback import TABLE_LEGEND, metrics_table
     from phonepose.experiments.common import sequence_arrays
     from phonepose.experiments.exp2 import plot_sequence
     from phonepose.files import OutputPlan
@@ -43,7 +43,9 @@ def demo(
         with console.status("playing it back through T1-T7, T7L and T8 at 20 Hz..."):
             result = run_playback(session, trackers="all", out_dir=work / "playback", rerun_path=work / "demo.rrd")
         console.print(f"[green]2/3[/green] played back {result.n_ticks} ticks in {result.wall_s:.1f} s")
-        print_table(console, metrics_table(result.metrics))
+        print_table(console, metrics_table(result.metrics, mark_best=True, title_ours=True))
+        for line in TABLE_LEGEND:
+            console.print(line, highlight=False)
         final = folder.final(session)
         console.print("r_ATE is ~11-13 deg for every tracker, as in the paper: the simulated motion capture measures "
                       "a rigid body turned 11 deg from the phone. To score without it:\n"

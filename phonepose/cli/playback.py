@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
 from phonepose.cli import app
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
@@ -22,33 +23,101 @@ def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
     return "n/a" if v is None else f"{v * scale:.{digits}f}"
 
 
-def metrics_table(metrics: dict) -> Table:
-    """One row per tracker and scope (inside / outside the FoV / total); n/a where not computable."""
+SCOPES = ("inside", "outside", "total")
+# metrics_table's number columns: header, the numbers of a cell ((metrics.json key, scale, digits) each), the
+# scopes that have it, which value is best ("min", "max", "zero": nearest 0) and whether a scope's metrics show
+# it (the boundary jump needs a transition, the controller metrics a source that has them, jitter a still phone)
+COLUMNS = (
+    ("p_ATE cm", [("p_ate_m", 100.0, 2)], SCOPES, "min", lambda d: True),
+    ("r_ATE deg", [("r_ate_deg", 1.0, 2)], SCOPES, "min", lambda d: True),
+    ("p_RE cm", [("p_re_m", 100.0, 2)], SCOPES, "min", lambda d: True),
+    ("jump max / RMS cm", [("boundary_jump_max_m", 100.0, 2), ("boundary_jump_rms_m", 100.0, 2)], ("total",), "min",
+     lambda d: bool(d.get("boundary_jumps"))),
+    ("lag ms", [("lag_s", 1000.0, 0)], ("total",), "zero", lambda d: "lag_s" in d),
+    ("jitter mm / deg", [("jitter_m", 1000.0, 2), ("jitter_deg", 1.0, 2)], ("total",), "min",
+     lambda d: "lag_s" in d and d["jitter_m"] is not None),
+    ("avail. %", [("availability", 100.0, 1)], ("total",), "max", lambda d: "lag_s" in d),
+)
+BEST_MARK = "*"
+# the lines under the demo's table: what the marks and the columns beyond the paper's three mean
+TABLE_LEGEND = (
+    f"{BEST_MARK} best of its column in that scope (inside / outside the camera's view, total)",
+    "p_ATE, r_ATE: RMS position, rotation error; p_RE: RMS position error of sub-paths",
+    "jump: how much more the estimate moved than the phone where the marker enters or leaves the view",
+    "lag: the time shift that best fits the estimate to the truth; positive: late, negative: ahead",
+    "jitter: the error's tick-to-tick shake while the phone is held still",
+    "avail.: the share of the task's ticks at which the tracker has a pose",
+    "definitions: docs/evaluation.md",
+)
+
+
+def metrics_table(metrics: dict, mark_best: bool = False, title_ours: bool = False) -> Table:
+    """One row per tracker and scope (inside / outside the FoV / total); n/a where not computable.
+
+    ``mark_best``: the best value of each column within its scope in bold after a ``*`` (before the number, so
+    that right-aligned digits stay aligned; in a cell of two numbers the first one decides); no mark where every
+    tracker shows the same. ``title_ours``: the title says which trackers are the paper's and which ours."""
+    from phonepose.viewer.style import PAPER
+
     rate = metrics.get("rate_hz")
-    table = Table(title=f"{metrics['session']}" + (f" @ {rate} Hz" if rate is not None else ""))
+    title = f"{metrics['session']}" + (f" @ {rate} Hz" if rate is not None else "")
+    trackers = metrics["trackers"]
+    ours = [name for name in trackers if name not in PAPER]
+    if title_ours:   # the title wraps where the table is narrow; a longer tracker name would widen every row
+        paper = [name for name in trackers if name in PAPER]
+        title += ": " + " and ".join(part for part in (f"the paper's {_names(paper)}" if paper else "",
+                                                       f"ours ({_names(ours)})" if ours else "") if part)
+    table = Table(title=title)
     table.add_column("tracker", style="bold")
     table.add_column("scope")
-    for label in ("frames", "p_ATE cm", "r_ATE deg", "p_RE cm", "jump max / RMS cm", "lag ms",
-                  "jitter mm / deg", "avail. %"):
-        table.add_column(label, justify="right")
-    for name, m in metrics["trackers"].items():
-        for i, scope in enumerate(("inside", "outside", "total")):
+    table.add_column("frames", justify="right")
+    for header, *_ in COLUMNS:
+        table.add_column(header, justify="right")
+    best = _best_cells(trackers) if mark_best else {}
+    for name, m in trackers.items():
+        for i, scope in enumerate(SCOPES):
             d = m[scope]
-            jump = ""   # the boundary jump: at the ticks where the marker enters or leaves the view
-            if scope == "total" and d.get("boundary_jumps"):
-                jump = f"{_fmt(d['boundary_jump_max_m'], 100.0)} / {_fmt(d['boundary_jump_rms_m'], 100.0)}"
-            table.add_row(name if i == 0 else "", scope, str(d["frames"]), _fmt(d["p_ate_m"], 100.0),
-                          _fmt(d["r_ate_deg"]), _fmt(d["p_re_m"], 100.0), jump, *_controller_cells(d, scope),
-                          end_section=(scope == "total"))
+            cells: list[str | Text] = []
+            for column in range(len(COLUMNS)):
+                shown = _shown(d, column, scope)
+                if shown is None:
+                    cells.append("")
+                elif shown[0] in best.get((column, scope), ()):
+                    cells.append(Text.assemble(BEST_MARK, (" / ".join(shown), "bold")))
+                else:
+                    cells.append(Text(" / ".join(shown)))
+            table.add_row(name if i == 0 else "", scope, str(d["frames"]), *cells, end_section=(scope == "total"))
     return table
 
 
-def _controller_cells(d: dict, scope: str) -> list[str]:
-    """Lag, jitter and availability (phonepose.evaluation.controller): the total row only."""
-    if scope != "total" or "lag_s" not in d:
-        return ["", "", ""]
-    jitter = "" if d["jitter_m"] is None else f"{_fmt(d['jitter_m'], 1000.0)} / {_fmt(d['jitter_deg'])}"
-    return [_fmt(d["lag_s"], 1000.0, 0), jitter, _fmt(d["availability"], 100.0, 1)]
+def _names(names: list[str]) -> str:
+    """T1-T7 for the paper's seven in order, else the names one by one."""
+    from phonepose.viewer.style import PAPER
+
+    return "T1-T7" if tuple(names) == PAPER else ", ".join(names)
+
+
+def _shown(d: dict, column: int, scope: str) -> list[str] | None:
+    """A cell's numbers as printed, or None where the cell is empty."""
+    _, parts, scopes, _, shows = COLUMNS[column]
+    if scope not in scopes or not shows(d):
+        return None
+    return [_fmt(d[key], scale, digits) for key, scale, digits in parts]
+
+
+def _best_cells(trackers: dict) -> dict[tuple[int, str], set[str]]:
+    """The best first numbers as printed (ties: all of them, lag's -15 and 15 alike), per (column, scope),
+    where the trackers differ."""
+    best = {}
+    for column, (_, _, scopes, goal, _) in enumerate(COLUMNS):
+        order = {"min": lambda x: x, "max": lambda x: -x, "zero": abs}[goal]
+        for scope in scopes:
+            values = {v[0] for m in trackers.values()
+                      if (v := _shown(m[scope], column, scope)) is not None and v[0] != "n/a"}
+            if len({float(v) for v in values}) > 1:
+                top = min(order(float(v)) for v in values)
+                best[column, scope] = {v for v in values if order(float(v)) == top}
+    return best
 
 
 @app.command()

@@ -187,13 +187,13 @@ def plot_sequence(seq: dict, out_png: Path) -> Path | None:
     if gt is None:
         return None
     estimates = {name: p for name, tr in seq["trajectories"].items() if (p := _poses(tr)) is not None}
-    inside = None
-    t7 = seq["trajectories"].get("T7")
-    if t7 is not None and t7["translation"] is not None:
-        flags = dict(zip(t7["stamps_ns"].tolist(), t7["inside"].tolist(), strict=True))
-        inside = np.array([flags.get(int(t), True) for t in seq["gt"]["stamps_ns"]])
-    return plot_fig11(out_png, f"{seq['name']}: ground truth, T1-T7 and ours (display camera axes)",
-                      display_camera_pose(seq["session"]), gt, estimates, inside)
+    flags: dict[int, bool] = {}   # marker recognised at a tick: the same for every tracker that has a pose there
+    for tr in seq["trajectories"].values():
+        if tr["translation"] is not None:
+            flags.update(zip(tr["stamps_ns"].tolist(), tr["inside"].tolist(), strict=True))
+    inside = np.array([flags.get(int(t), True) for t in seq["gt"]["stamps_ns"]]) if flags else None
+    return plot_fig11(out_png, f"{seq['name']}: ground truth, the paper's T1-T7 and ours (T7L, T8), "
+                      "in the display camera's axes", display_camera_pose(seq["session"]), gt, estimates, inside)
 
 
 def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | None = None,
