@@ -20,7 +20,8 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
 from phonepose.geometry import Pose
-from phonepose.pipeline.fusion import CorrectionFilter, FusedTracker, FusionConfig, _RateCorrelation
+from phonepose.pipeline.t8 import CorrectionFilter, FusedTracker, FusionConfig
+from phonepose.pipeline.t8.motion import RateCorrelation as _RateCorrelation
 from phonepose.pipeline.trackers import make_tracker
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
@@ -459,7 +460,7 @@ def test_a_sighting_nearer_facing_the_camera_pulls_less(ambiguity, noise_factor)
 def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     """T8 turns the specific forces past the newest VIO sample by the gyro with its own cross products (two
     gathered products instead of np.cross's argument handling, half the cost on a few rows): np.cross to the bit."""
-    from phonepose.pipeline.fusion import _cross
+    from phonepose.pipeline.t8.motion import cross_rows as _cross
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()
 
 
@@ -488,7 +489,7 @@ def test_the_specific_forces_kept_between_ticks_are_those_computed_afresh():
 def test_adding_a_batch_of_samples_is_adding_each_in_turn(batches):
     """T8's sample rings keep a row only if its stamp is newer than every earlier one, whether the rows come one
     by one or a batch at a time (in order, with repeats, out of order, older than what is kept)."""
-    from phonepose.pipeline.fusion import _Ring
+    from phonepose.pipeline.t8.motion import Ring as _Ring
     one, many = _Ring(3, capacity=4), _Ring(3, capacity=4)
     for stamps in batches:
         t = np.array(stamps, dtype=float)
