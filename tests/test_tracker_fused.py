@@ -9,6 +9,7 @@ the output is the truth.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import hypothesis.strategies as st
@@ -537,3 +538,21 @@ def test_the_filter_skips_a_sighting_it_cannot_weigh_and_rejects_an_absurd_one()
     assert f.q == state[0] and np.array_equal(f.t, state[1]) and f.d == state[2]
     assert f.update((q, np.array([0.01, 0.0, 0.0])), (q, zero), zero, zero, np.eye(6) * 1e-4)
     assert f.accepted == 1 and f.t[0] > 0.004          # an ordinary sighting still moves it
+
+
+FLAGS = [f.name for f in dataclasses.fields(FusionConfig) if f.type in ("bool", bool)]
+
+
+@given(st.sampled_from(FLAGS), st.sampled_from([True, False]), st.sampled_from([str, lambda v: str(v).upper(), int, bool]))
+def test_a_flag_reads_as_a_bool_whatever_its_spelling(name, value, spell):
+    """FusionConfig's flags are bool fields: true/false (any case), 1/0, as values or strings, read the same."""
+    got = getattr(FusionConfig.from_dict({name: spell(value)}), name)
+    assert got is value
+
+
+@pytest.mark.parametrize("bad", ["2", "maybe", "", 0.5])
+def test_a_flag_given_anything_else_is_refused_by_name(bad):
+    from phonepose.errors import ConfigError
+    for name in FLAGS:
+        with pytest.raises(ConfigError, match=f"T8 parameter {name}=.* is not a flag"):
+            FusionConfig.from_dict({name: bad})
