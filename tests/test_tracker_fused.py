@@ -9,6 +9,7 @@ the output is the truth.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import hypothesis.strategies as st
@@ -20,7 +21,8 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.evaluation.boundary import boundary_jump_stats, boundary_jumps
 from phonepose.geometry import Pose
-from phonepose.pipeline.fusion import CorrectionFilter, FusedTracker, FusionConfig, _RateCorrelation
+from phonepose.pipeline.t8 import CorrectionFilter, FusedTracker, FusionConfig
+from phonepose.pipeline.t8.motion import RateCorrelation as _RateCorrelation
 from phonepose.pipeline.trackers import make_tracker
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
@@ -459,7 +461,7 @@ def test_a_sighting_nearer_facing_the_camera_pulls_less(ambiguity, noise_factor)
 def test_the_accelerometer_path_s_cross_products_are_numpy_s(a, b):
     """T8 turns the specific forces past the newest VIO sample by the gyro with its own cross products (two
     gathered products instead of np.cross's argument handling, half the cost on a few rows): np.cross to the bit."""
-    from phonepose.pipeline.fusion import _cross
+    from phonepose.pipeline.t8.motion import cross_rows as _cross
     assert _cross(a, b).tobytes() == np.cross(a, b).tobytes()
 
 
@@ -488,7 +490,7 @@ def test_the_specific_forces_kept_between_ticks_are_those_computed_afresh():
 def test_adding_a_batch_of_samples_is_adding_each_in_turn(batches):
     """T8's sample rings keep a row only if its stamp is newer than every earlier one, whether the rows come one
     by one or a batch at a time (in order, with repeats, out of order, older than what is kept)."""
-    from phonepose.pipeline.fusion import _Ring
+    from phonepose.pipeline.t8.motion import Ring as _Ring
     one, many = _Ring(3, capacity=4), _Ring(3, capacity=4)
     for stamps in batches:
         t = np.array(stamps, dtype=float)
@@ -536,3 +538,21 @@ def test_the_filter_skips_a_sighting_it_cannot_weigh_and_rejects_an_absurd_one()
     assert f.q == state[0] and np.array_equal(f.t, state[1]) and f.d == state[2]
     assert f.update((q, np.array([0.01, 0.0, 0.0])), (q, zero), zero, zero, np.eye(6) * 1e-4)
     assert f.accepted == 1 and f.t[0] > 0.004          # an ordinary sighting still moves it
+
+
+FLAGS = [f.name for f in dataclasses.fields(FusionConfig) if f.type in ("bool", bool)]
+
+
+@given(st.sampled_from(FLAGS), st.sampled_from([True, False]), st.sampled_from([str, lambda v: str(v).upper(), int, bool]))
+def test_a_flag_reads_as_a_bool_whatever_its_spelling(name, value, spell):
+    """FusionConfig's flags are bool fields: true/false (any case), 1/0, as values or strings, read the same."""
+    got = getattr(FusionConfig.from_dict({name: spell(value)}), name)
+    assert got is value
+
+
+@pytest.mark.parametrize("bad", ["2", "maybe", "", 0.5])
+def test_a_flag_given_anything_else_is_refused_by_name(bad):
+    from phonepose.errors import ConfigError
+    for name in FLAGS:
+        with pytest.raises(ConfigError, match=f"T8 parameter {name}=.* is not a flag"):
+            FusionConfig.from_dict({name: bad})

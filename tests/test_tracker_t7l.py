@@ -11,7 +11,8 @@ import numpy as np
 
 from phonepose.geometry import Pose
 from phonepose.pipeline.corrections import marker_correction
-from phonepose.pipeline.trackers import PAPER_TRACKERS, LatencyAwareCM3Tracker, make_tracker, make_trackers, tracker_names
+from phonepose.pipeline.t7l import LatencyAwareCM3Tracker
+from phonepose.pipeline.trackers import PAPER_TRACKERS, make_tracker, make_trackers, tracker_names
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, Tick
 
 LATENCY_NS = 120_000_000

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from phonepose.experiments.common import sequence_seed
-from phonepose.pipeline.fusion import markov_carry_s
+from phonepose.pipeline.t8.motion import markov_carry_s
 from phonepose.record.sim import SimSession, default_config
 from phonepose.record.sim.recorded import MotionSpec
 from phonepose.record.sim.world import marker_in_view

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from phonepose.pipeline.fusion import FusedTracker
+from phonepose.pipeline.t8 import FusedTracker
 from phonepose.playback.engine import run_playback
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from phonepose.experiments.common import sequence_seed
-from phonepose.pipeline.fusion import FusionConfig, _RateCorrelation, markov_carry_s
+from phonepose.pipeline.t8 import FusionConfig
+from phonepose.pipeline.t8.motion import RateCorrelation, markov_carry_s
 from phonepose.record.sim import SimSession, default_config
 from phonepose.record.sim.world import marker_in_view
 
@@ -52,7 +53,7 @@ def session_errors(path: str, trial: int, seed: int) -> dict[str, np.ndarray]:
     # the mean rate decaying with the correlation time T8 estimates online (FusionConfig.gyro_rate_*), fed the
     # same mean rates tick by tick
     cfg = FusionConfig()
-    est = _RateCorrelation(cfg.gyro_window_s, cfg.gyro_rate_adapt_s, cfg.gyro_rate_adapt_min_s, cfg.gyro_rate_time_s)
+    est = RateCorrelation(cfg.gyro_window_s, cfg.gyro_rate_adapt_s, cfg.gyro_rate_adapt_min_s, cfg.gyro_rate_time_s)
     carried = np.empty_like(h)      # how long the rate acts over each tick's h (T8's markov_carry_s)
     for i, (tg, rate) in enumerate(zip(t_g, held, strict=True)):
         tau = est.update(float(tg), rate) if i == 0 or tg != t_g[i - 1] else est.tau   # once per new sample

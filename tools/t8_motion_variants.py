@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from t8_variants import parse_variants  # noqa: E402
 
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig  # noqa: E402
+from phonepose.pipeline.t8 import FusedTracker, FusionConfig  # noqa: E402
 from phonepose.pipeline.trackers import make_trackers  # noqa: E402
 
 OTHERS = ["T6", "T7L"]

@@ -26,8 +26,8 @@ def _outputs(session: Path) -> tuple[object, float, int]:
     import numpy as np
 
     from phonepose.pipeline.context import read_context
-    from phonepose.pipeline.fusion import FusedTracker
     from phonepose.pipeline.shared import SharedStages
+    from phonepose.pipeline.t8 import FusedTracker
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
 

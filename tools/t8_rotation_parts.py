@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation as R
 from scipy.spatial.transform import Slerp
 
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig
+from phonepose.pipeline.t8 import FusedTracker, FusionConfig
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.playback.engine import run_playback
 

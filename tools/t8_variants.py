@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from exp2_cells import PAPER_ROWS, TIE, cells, load_sequences, mean_cell  # noqa: E402
 
-from phonepose.pipeline.fusion import FusedTracker, FusionConfig  # noqa: E402
+from phonepose.pipeline.t8 import FusedTracker, FusionConfig  # noqa: E402
 from phonepose.playback.engine import run_playback  # noqa: E402
 
 
