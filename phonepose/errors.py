@@ -64,30 +64,3 @@ class StopRequest(BaseException):
 
 # What a recorder's disk-full error adds: the file it wrote so far is a valid prefix (docs/reliability.md).
 RECOVER_HINT = " (the file written so far stays readable; run `phonepose recover`)"
-
-
-def quiet_library_warnings() -> None:
-    """Keep the libraries' own diagnostics off the user's terminal: phonepose reports what matters in
-    its own lines (``phonepose: error:`` / ``phonepose: warning:``). numpy's floating-point warnings
-    (an overflow on an absurd input: results are checked for NaN/inf where they are used), the
-    RuntimeWarnings numpy and scipy raise themselves, and OpenCV's WARN log lines (a camera or video
-    that cannot be opened), FFmpeg's lines from inside OpenCV's video reader ("moov atom not found" for
-    a file that is no video: phonepose says "not a video OpenCV can read"), and rerun's log lines
-    ("Dropping data in MemorySink" at exit; a write that failed is phonepose's own line, see
-    ``viewer.sink.close_recording``). ``OPENCV_LOG_LEVEL``, ``OPENCV_FFMPEG_LOGLEVEL`` or ``RUST_LOG`` set
-    by the user wins. Called by the CLI and by every worker
-    process it starts."""
-    import os
-    import sys
-    import warnings
-
-    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")     # read when cv2 loads (workers inherit it)
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read when a video is first opened
-    os.environ.setdefault("RUST_LOG", "off")   # rerun's Rust log, read when it loads: its errors are our lines
-                                               # (its "Failed to write" named the temporary, in colour)
-    cv2 = sys.modules.get("cv2")
-    if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"(numpy|scipy)(\.|$)")
-    import numpy as np
-    np.seterr(all="ignore")

@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 
+from phonepose import logs
+
 PR_SET_PDEATHSIG = 1
 
 
@@ -42,11 +44,12 @@ def die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _initialize(parent_pid: int, initializer: Callable[[], None] | None) -> None:
-    from phonepose.errors import quiet_library_warnings
-
+def _initialize(parent_pid: int, initializer: Callable[[], None] | None, terminal: bool) -> None:
     die_with_parent(parent_pid)
-    quiet_library_warnings()          # a worker prints on the same terminal as its parent
+    if terminal:   # a worker of a command prints on its parent's terminal, as its parent does
+        from phonepose import logs
+        logs.to_terminal()
+        logs.quiet_libraries()
     if initializer is not None:
         initializer()
 
@@ -77,7 +80,7 @@ def worker_pool(workers: int, initializer: Callable[[], None] | None = None) -> 
     if _QUIET_TRACKER not in sys.warnoptions:
         sys.warnoptions.append(_QUIET_TRACKER)
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_initialize, initargs=(os.getpid(), initializer))
+                               initializer=_initialize, initargs=(os.getpid(), initializer, logs.on_terminal()))
     try:
         yield pool
     except BaseException:

@@ -350,7 +350,7 @@ def test_playback_reads_a_sidecar_ground_truth_through_its_calibration(tmp_path,
     r = cli("playback", str(bare), "-q", "-t", "T1", "--gt", str(tmp_path / "mocap.tum"), "--out", str(tmp_path / "p"))
     assert r.returncode == 0, r.stderr
     assert [rec.getMessage() for rec in caplog.records if rec.levelname == "WARNING"] == [
-        f"phonepose: warning: --gt {tmp_path / 'mocap.tum'}: no usable ground truth from it (it needs a --gt-calibration "
+        f"--gt {tmp_path / 'mocap.tum'}: no usable ground truth from it (it needs a --gt-calibration "
         "from `phonepose calibrate-gt SESSION --gt FILE`, or the session's /gt/calibration, and poses within 0.02 s of "
         "the task window's ticks: not another session's, nor on another clock); accuracy metrics are null in "
         "metrics.json"]

@@ -594,7 +594,7 @@ def test_errors_are_one_line(case, tmp_path, cli):
 @pytest.mark.parametrize("suffix", [".mp4", ".mkv", ".mp3"])
 def test_ffmpegs_own_lines_stay_off_the_terminal(suffix, tmp_path):
     """OpenCV's video reader is FFmpeg, which writes to file descriptor 2 itself ("moov atom not found"
-    for a text file named .mp4): the user sees phonepose's one line only (errors.quiet_library_warnings)."""
+    for a text file named .mp4): the user sees phonepose's one line only (logs.quiet_libraries)."""
     import os
     import subprocess
     import sys

@@ -146,13 +146,13 @@ def test_library_warnings_stay_off_the_terminal():
 
     import numpy as np
 
-    from phonepose.errors import quiet_library_warnings
+    from phonepose.logs import quiet_libraries
 
     old = np.geterr()
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            quiet_library_warnings()
+            quiet_libraries()
             big = np.array([1e200, 1e200])
             assert np.isinf(big * big).all()                        # ufunc overflow: no warning
             np.linalg.norm(np.full((3, 3), 1e300))                  # numpy's own RuntimeWarning: filtered
@@ -378,3 +378,32 @@ def test_a_qr_code_is_drawn_with_what_the_terminal_takes(encoding):
     text = raw.getvalue().decode(encoding)
     assert stream.failure is None and "\\u" not in text
     assert ("▀" in text or "▄" in text) == (encoding == "utf-8")
+
+
+def test_the_library_logs_plain_messages_and_the_cli_prefixes_them(capsys):
+    """A library user's log shows the plain message; the command line's handler prints it as one
+    ``phonepose: warning:`` line, its escapes shown (a message may quote a file's text)."""
+    import logging
+
+    from phonepose import logs
+
+    logger = logging.getLogger("phonepose")
+    handlers, propagate = list(logger.handlers), logger.propagate
+    records: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record)
+
+    keep = Keep()
+    logger.handlers[:] = [keep]   # as in a library user's process, whatever ran in this one before
+    try:
+        logger.warning("%s: %d sample(s) skipped", "/imu\x1b[2J", 3)
+        assert [r.getMessage() for r in records] == ["/imu\x1b[2J: 3 sample(s) skipped"]
+        assert capsys.readouterr().err == ""            # no handler of its own before to_terminal
+        logs.to_terminal()
+        logs.to_terminal()                               # once a process
+        logger.warning("%s: %d sample(s) skipped", "/imu\x1b[2J", 3)
+        assert capsys.readouterr().err == "phonepose: warning: /imu\\x1b[2J: 3 sample(s) skipped\n"
+    finally:
+        logger.handlers[:], logger.propagate = handlers, propagate

@@ -66,7 +66,7 @@ def test_a_far_future_message_is_skipped_and_reported_and_changes_nothing(clean,
         code = _play(cli, bad, tmp_path / "bad")
     assert code == 0 and time.perf_counter() - t0 < 60
     assert [r.getMessage() for r in caplog.records] == [
-        "phonepose: warning: /controller/vio/pose: 1 sample(s) skipped: log time more than an hour away from the "
+        "/controller/vio/pose: 1 sample(s) skipped: log time more than an hour away from the "
         "rest of the session"]
     for f in sorted((tmp_path / "clean").rglob("*")):
         if f.is_file():

@@ -170,7 +170,7 @@ def test_the_red_teams_summary_flips_play_back_like_the_undamaged_file(small, tm
     assert code == 0
     warnings = [r.getMessage() for r in caplog.records if "summary section" in r.getMessage()]
     assert len(warnings) == 1 and warnings[0].startswith(
-        f"phonepose: warning: {bad}: the summary section is damaged (CRC ")
+        f"{bad}: the summary section is damaged (CRC ")
     assert warnings[0].endswith("); read the data section instead (`phonepose recover` writes a file with a good "
                                 "summary)")
     for f in sorted((tmp_path / "clean").rglob("*")):

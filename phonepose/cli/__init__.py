@@ -10,7 +10,6 @@ from __future__ import annotations
 import errno
 import functools
 import inspect
-import logging
 import os
 import signal
 import sys
@@ -18,10 +17,10 @@ import threading
 
 import typer
 
-from phonepose import __version__
+from phonepose import __version__, logs
 from phonepose.cli import process
 from phonepose.cli.output import ReportStream
-from phonepose.errors import OutputError, PhoneposeError, quiet_library_warnings
+from phonepose.errors import OutputError, PhoneposeError
 from phonepose.text import printable
 
 app = typer.Typer(
@@ -67,20 +66,6 @@ def error(message: str, code: int = 1) -> None:
     # and newlines must not reach the terminal; the error stays the one line it is
     typer.echo(f"phonepose: error: {printable(message)}", err=True)
     sys.exit(code)
-
-
-class _OneLine(logging.Filter):
-    """The same for every ``phonepose: warning:`` line (the "phonepose" logger's records)."""
-
-    def filter(self, entry: logging.LogRecord) -> bool:
-        entry.msg, entry.args = printable(entry.getMessage()), None
-        return True
-
-
-def _one_line_warnings() -> None:
-    logger = logging.getLogger("phonepose")
-    if not any(isinstance(f, _OneLine) for f in logger.filters):
-        logger.addFilter(_OneLine())
 
 
 def _click_exceptions():
@@ -214,8 +199,8 @@ def main(argv: list[str] | None = None) -> None:
     Standard output and error are :class:`~phonepose.cli.output.ReportStream` while the command runs: a report
     that cannot be written (``/dev/full``, a full disk, a closed pipe) never stops the work or loses an output,
     and is never success either: exit 6 and one line, or 141 and silence for a pipe whose reader left."""
-    quiet_library_warnings()
-    _one_line_warnings()
+    logs.quiet_libraries()
+    logs.to_terminal()
     in_main = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
     saved = sys.stdout, sys.stderr

@@ -132,7 +132,7 @@ def _warn_on_small_overlap(gt: Path, est: Path, gt_traj, est_traj, max_diff: flo
     if est_frac == 0.0 or min(est_frac, gt_frac) >= MIN_COVERAGE:
         return     # no match at all is an error of its own
     logging.getLogger("phonepose").warning(
-        "phonepose: warning: the matched poses cover %.0f%% of %s's poses and %.0f%% of %s's time span: are they "
+        "the matched poses cover %.0f%% of %s's poses and %.0f%% of %s's time span: are they "
         "from the same session?", 100 * est_frac, est, 100 * gt_frac, gt)
 
 
@@ -163,7 +163,7 @@ def _warn_on_other_unit(gt: Path, est: Path, gt_traj, est_traj, max_diff: float,
     if not any(abs(r / unit - 1) <= UNIT_RATIO_TOL for unit in UNIT_RATIOS for r in (ratio, 1 / ratio)):
         return
     logging.getLogger("phonepose").warning(
-        "phonepose: warning: %s's positions spread %.3g m, %s's %.3g m (%.3gx): are both in metres? (--align sim3 "
+        "%s's positions spread %.3g m, %s's %.3g m (%.3gx): are both in metres? (--align sim3 "
         "estimates a scale)", est, spread[1], gt, spread[0], ratio)
 
 
@@ -175,7 +175,7 @@ def _warn_on_other_session(gt: Path, est: Path, in_view: Path | None) -> None:
     known = {p: t for p, t in tags.items() if t}
     if len({t.rsplit(" ", 1)[-1] for t in known.values()}) > 1:
         logging.getLogger("phonepose").warning(
-            "phonepose: warning: these files come from different sessions (%s): the errors compare two recordings",
+            "these files come from different sessions (%s): the errors compare two recordings",
             "; ".join(f"{p}: {t}" for p, t in known.items()))
 
 

@@ -182,7 +182,7 @@ def playback(
     print_table(stdout_console(), metrics_table(result.metrics))
     if gt is not None and not result.has_gt:   # asked for, and unusable: a problem, not a fact about the session
         logging.getLogger("phonepose").warning(
-            "phonepose: warning: --gt %s: no usable ground truth from it (it needs a --gt-calibration from "
+            "--gt %s: no usable ground truth from it (it needs a --gt-calibration from "
             "`phonepose calibrate-gt SESSION --gt FILE`, or the session's %s, and poses within 0.02 s of the task "
             "window's ticks: not another session's, nor on another clock); accuracy metrics are null in metrics.json",
             gt, Topic.GT_CALIBRATION)

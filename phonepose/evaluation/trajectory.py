@@ -165,10 +165,10 @@ def _report_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> None:
     n_quat = int(np.count_nonzero(off))
     n_time = int(np.count_nonzero(np.diff(stamps) <= 0))
     if n_quat:
-        log.warning("phonepose: warning: %s: %d pose(s) whose quaternion is not unit length (|q| %.6g to %.6g): "
+        log.warning("%s: %d pose(s) whose quaternion is not unit length (|q| %.6g to %.6g): "
                     "normalised, as evo and rpg do", path, n_quat, norms[off].min(), norms[off].max())
     if n_time:
-        log.warning("phonepose: warning: %s: %d duplicate or non-monotonic timestamp(s), used as evo/rpg do",
+        log.warning("%s: %d duplicate or non-monotonic timestamp(s), used as evo/rpg do",
                     path, n_time)
 
 

@@ -62,7 +62,7 @@ def warn_wrong_size(count: int, first: str) -> None:
     :func:`frame_size_problem` said of the first): playback and calibrate-gt say it alike."""
     if count:
         logging.getLogger("phonepose").warning(
-            "phonepose: warning: %s: %d camera frame(s) are %s; they count as showing no marker",
+            "%s: %d camera frame(s) are %s; they count as showing no marker",
             topics.Topic.CAMERA_IMAGE, count, first)
 
 

@@ -102,7 +102,7 @@ class CM1Source(CorrectionSource):
             if event.kind == pb.CalibrationEvent.CM1:
                 fix, align = _event_pose(event.pose_fix_vio), _event_pose(event.pose_align_vio)
                 if fix is None or align is None:
-                    log.warning("phonepose: warning: CM1 event at %d ns ignored: a pose is missing, NaN/inf or "
+                    log.warning("CM1 event at %d ns ignored: a pose is missing, NaN/inf or "
                                 "its quaternion is not unit length", obs.tick.t_ns)
                     continue
                 self.current = cm1_correction(fix, align, self.math, self.cm1_reading)

@@ -358,10 +358,10 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             stack.callback(engine.writer.finish)
         _play(scheduler, engine, options)
     if context.session_info is None:    # e.g. a session cut by a tool that keeps only some topics
-        log.warning("phonepose: warning: %s: no %s, so no task window: the metrics cover the whole session",
+        log.warning("%s: no %s, so no task window: the metrics cover the whole session",
                     session, Topic.SESSION_INFO)
     if stages.frames_undecodable:
-        log.warning("phonepose: warning: %s: %d camera frame(s) could not be decoded; they count as showing no marker",
+        log.warning("%s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
     warn_wrong_size(stages.frames_wrong_size, stages.wrong_size)
     trajs = engine.trajectories()

@@ -275,7 +275,7 @@ class TickScheduler:
         while state.next_t <= info.last_tick_ns:
             yield state.build()
         for (topic, reason), n in sorted(self.skipped.items()):
-            log.warning("phonepose: warning: %s: %d sample(s) skipped: %s", topic, n, reason)
+            log.warning("%s: %d sample(s) skipped: %s", topic, n, reason)
 
     def _across_idle_gap(self, state: _PassState, last_message_ns: int, now: int) -> Iterator[tuple[Tick, Pose | None]]:
         """The ticks the data before a gap of more than IDLE_GAP_S supports, then none until the data resumes."""

@@ -97,7 +97,7 @@ def read_index(f: BinaryIO, path: str) -> SessionIndex:
         return scan_data_section(f, path, size)
     scanned = scan_data_section(f, path, size)     # damaged data too: that is the one line, not this warning
     scanned.problem = problem
-    log.warning("phonepose: warning: %s: the summary section is damaged (%s); read the data section instead "
+    log.warning("%s: the summary section is damaged (%s); read the data section instead "
                 "(`phonepose recover` writes a file with a good summary)", path, problem)
     return scanned
 
