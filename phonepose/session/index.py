@@ -314,7 +314,11 @@ def read_chunk(f: BinaryIO, path: str, ci: ChunkIndex, t0_ns: int | None = None)
 def _parse_chunk(body: bytes, path: str, pos: int) -> Chunk:
     """A chunk record's body, parsed from memory: no length inside it reaches past the record."""
     try:
-        return Chunk.read(ReadDataStream(io.BytesIO(body)))
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+        declared = struct.unpack_from("<Q", body, _CHUNK_FIXED.size + len(chunk.compression.encode()))[0]
+        if declared != len(chunk.data):     # mcap's read stops quietly at the record's end
+            raise ValueError("the compressed data runs past the record")
+        return chunk
     except Exception:  # noqa: BLE001 - a header that does not parse
         raise damaged(path, f"the chunk at byte {pos} has a header that does not parse") from None
 
