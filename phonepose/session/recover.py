@@ -308,13 +308,40 @@ class _Salvager:
             return p
         return None
 
+    def _framed_end(self, pos: int) -> int | None:
+        """The end of the bad record at ``pos`` when its framing holds though its content does not (a chunk whose
+        data fails its CRC, an attachment whose CRC fails): the lengths inside it add up to its length field, so
+        the next record starts there and nothing between is lost to a resync; else None."""
+        b, n = self.b, self.n
+        try:        # a short read (the file cut meanwhile) is damage here like any other
+            if pos + 9 > n:
+                return None
+            op, length = b[pos], _u8(b, pos + 1)
+            start, end = pos + 9, pos + 9 + length
+            if end > n or length > MAX_RECORD_BYTES or end == pos + 9:
+                return None
+            if op == OP_CHUNK:
+                _chunk_header(b, start, end)
+                return end
+            if op == OP_ATTACHMENT:
+                p = start + 16
+                for _ in range(2):          # name, media type
+                    p += 4 + _U4.unpack(b[p:p + 4])[0]
+                return end if p + 8 <= end and p + 8 + _u8(b, p) + 4 == end else None
+        except (_Bad, struct.error, IndexError):
+            return None
+        return None
+
     def _time_at(self, pos: int) -> tuple[int | None, int | None]:
         """Log times a damaged chunk header at ``pos`` still tells, if it parses."""
         b, n = self.b, self.n
-        if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
-            t0, t1 = struct.unpack("<QQ", b[pos + 9:pos + 25])
-            if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
-                return t0, t1
+        try:        # a short read (the file cut meanwhile): nothing told
+            if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
+                t0, t1 = struct.unpack("<QQ", b[pos + 9:pos + 25])
+                if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
+                    return t0, t1
+        except (IndexError, struct.error):
+            pass
         return None, None
 
     def run(self) -> None:
@@ -339,7 +366,9 @@ class _Salvager:
             except (_Bad, struct.error, IndexError, ValueError):
                 pass
             t0, t1 = self._time_at(pos)
-            nxt = self.resync(pos)
+            nxt = self._framed_end(pos)
+            if nxt is None:
+                nxt = self.resync(pos)
             stop = n if nxt is None else nxt
             self.bad_regions.append((pos, stop, t0, t1))
             if nxt is None:
