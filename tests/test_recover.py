@@ -318,3 +318,146 @@ def test_a_file_cut_while_recover_reads_it_is_one_line(session, tmp_path, cli, m
                                            f"bytes, now {len(data) // 2}): another program is writing or cutting "
                                            f"it; run recover again when it is done\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.mcap"]
+
+
+# ----------------------------------------------------------------------------- every record kind kept
+def _with_extras(src, dst, seed: int = 3):
+    """``src``'s messages through mcap's Writer (profile "phonepose-test", chunks of ~64 KB) with Attachment and
+    Metadata records among them: generated names, media types, times and contents (empty to 300 KB)."""
+    rng = np.random.default_rng(seed)
+    with open(src, "rb") as f:
+        records = list(make_reader(f).iter_messages(log_time_order=False))
+    extras = []
+    with open(dst, "wb") as g:
+        from mcap.writer import Writer
+        w = Writer(g, chunk_size=64 << 10)
+        w.start(profile="phonepose-test", library="a test")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        every = len(records) // 7
+        for k, (schema, channel, m) in enumerate(records):
+            if k % every == every // 2:
+                n = len(extras)
+                if n % 2:
+                    meta = {f"key{i}": f"value {n} {i}" for i in range(n)}
+                    w.add_metadata(f"meta{n}", meta)
+                    extras.append(("metadata", f"meta{n}", meta))
+                else:
+                    data = rng.bytes(int(rng.integers(0, 300_000)) if n else 0)
+                    w.add_attachment(m.log_time + 1, m.log_time, f"file{n}.bin", "application/octet-stream", data)
+                    extras.append(("attachment", f"file{n}.bin", (m.log_time + 1, m.log_time, data)))
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding, schemas[schema.id])
+            w.add_message(channels[channel.id], m.log_time, m.data, m.publish_time, m.sequence)
+        w.finish()
+    return extras
+
+
+def _extras_in(path) -> list:
+    """The Attachment and Metadata records of a file as :func:`_with_extras` lists them, in file order."""
+    with open(path, "rb") as f:
+        from mcap.records import Attachment, Metadata
+        from mcap.stream_reader import StreamReader
+        out = []
+        for r in StreamReader(f, skip_magic=False).records:
+            if isinstance(r, Attachment):
+                out.append(("attachment", r.name, (r.create_time, r.log_time, r.data)))
+            elif isinstance(r, Metadata):
+                out.append(("metadata", r.name, r.metadata))
+    return out
+
+
+def _record_spans(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, start, end) of every record of the data section."""
+    out, pos = [], 8
+    while data[pos] != 0x0F:
+        end = pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+        out.append((data[pos], pos, end))
+        pos = end
+    return out
+
+
+@pytest.fixture(scope="module")
+def extras_session(session, tmp_path_factory):
+    path = tmp_path_factory.mktemp("extras") / "x.mcap"
+    extras = _with_extras(session[0], path)
+    return path, path.read_bytes(), extras
+
+
+def test_recover_keeps_every_attachment_metadata_record_schema_and_the_profile(extras_session, tmp_path):
+    path, _, extras = extras_session
+    assert _extras_in(path) == extras and {e[0] for e in extras} == {"attachment", "metadata"}
+    r = salvage(path, tmp_path / "r.mcap")
+    assert not r.damaged and (r.attachments, r.metadata_records) == (
+        sum(e[0] == "attachment" for e in extras), sum(e[0] == "metadata" for e in extras))
+    assert _extras_in(tmp_path / "r.mcap") == extras
+    with open(tmp_path / "r.mcap", "rb") as f, open(path, "rb") as g:
+        got, want = make_reader(f), make_reader(g)
+        assert got.get_header().profile == "phonepose-test"
+        assert ({s.name for s in got.get_summary().schemas.values()}
+                == {s.name for s in want.get_summary().schemas.values()})
+
+
+def _damage_places(data: bytes, seed: int = 11):
+    """(name, damaged bytes, where): a flipped byte inside every chunk and inside every attachment's data (where:
+    the attachment's offset), and the file cut at generated offsets after the first chunk (where: the cut)."""
+    rng = np.random.default_rng(seed)
+    spans = _record_spans(data)
+    out = []
+    for op, start, end in spans:
+        if op in (0x06, 0x09) and end - start > 64:
+            at = int(rng.integers(start + 50, end - 8))
+            b = bytearray(data)
+            b[at] ^= 0xFF
+            out.append((f"flip-{op:#04x}-at-{at}", bytes(b), start if op == 0x09 else None))
+    first_chunk_end = next(end for op, _, end in spans if op == 0x06)
+    for at in sorted(int(x) for x in rng.integers(first_chunk_end, spans[-1][2], 6)):
+        out.append((f"cut-at-{at}", data[:at], at))
+    return out
+
+
+def test_recover_keeps_every_attachment_and_metadata_record_damage_spares(extras_session, tmp_path):
+    """Damage in generated places: a flipped byte in each chunk keeps every attachment and metadata record; one in
+    an attachment loses that attachment alone (its CRC), reported as unreadable bytes; a cut keeps those whole
+    before it."""
+    path, data, extras = extras_session
+    spans = {start: (op, end) for op, start, end in _record_spans(data)}
+    order = [(s, e) for s, (op, e) in sorted(spans.items()) if op in (0x09, 0x0C)]
+    assert len(order) == len(extras)
+    for name, damaged, lost in _damage_places(data):
+        src = tmp_path / "d.mcap"
+        src.write_bytes(damaged)
+        r = salvage(src, tmp_path / "r.mcap")
+        if name.startswith("flip-0x09"):
+            expected = [x for x, (s, _) in zip(extras, order, strict=True) if s != lost]
+        elif name.startswith("cut"):
+            expected = [x for x, (_, e) in zip(extras, order, strict=True) if e <= lost]
+        else:
+            expected = extras
+        assert _extras_in(tmp_path / "r.mcap") == expected, name
+        assert r.damaged and r.bytes_unreadable > 0, name
+
+
+def test_another_tools_own_records_are_counted_in_one_warning_line(session, tmp_path, cli, caplog):
+    """Records of opcodes 0x80-0xff (valid MCAP, meaningful only to their tool) cannot be copied: recover keeps
+    every message around them and says how many it left out."""
+    path, data, chunks, keys = session
+    rng = np.random.default_rng(5)
+    spans = _record_spans(data)
+    where = sorted(int(k) for k in rng.choice(np.arange(1, len(spans)), 3, replace=False))
+    out, prev = bytearray(), 0
+    for k in where:
+        at = spans[k][1]
+        body = rng.bytes(int(rng.integers(0, 5000)))
+        out += data[prev:at] + bytes([int(rng.integers(0x80, 0x100))]) + len(body).to_bytes(8, "little") + body
+        prev = at
+    src = tmp_path / "u.mcap"
+    src.write_bytes(bytes(out + data[prev:]))
+    code, _, err = cli("recover", src, "-o", tmp_path / "r.mcap")
+    assert code == 0 and err == "", err
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
+        f"phonepose: warning: {src}: 3 record(s) of another tool's own kinds (opcodes 0x80-0xff) not copied: their "
+        f"meaning is that tool's"]
+    assert read_keys(tmp_path / "r.mcap") == keys

@@ -6,6 +6,7 @@ every command answers in one line and its exit code, at once.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import re
 import signal
@@ -233,3 +234,146 @@ def test_recover_reads_garbage_that_looks_like_records_in_linear_work(good, tmp_
         assert read[0] <= 4 * size + (4 << 20), (mib, read[0])
         assert tried[0] <= (mib << 20) // len(unit) + 1, (mib, tried[0])
         assert report.messages == messages    # every message of the session, none made of the garbage
+
+
+# ----------------------------------------------------------------------------- length fields that lie
+# MCAP opcodes: the kinds a data section may hold, those phonepose reads into memory, and one of another tool's own.
+OPS = {"Header": 0x01, "Footer": 0x02, "Schema": 0x03, "Channel": 0x04, "Message": 0x05, "Chunk": 0x06,
+       "MessageIndex": 0x07, "ChunkIndex": 0x08, "Attachment": 0x09, "AttachmentIndex": 0x0A, "Statistics": 0x0B,
+       "Metadata": 0x0C, "MetadataIndex": 0x0D, "SummaryOffset": 0x0E, "DataEnd": 0x0F, "user": 0x80}
+READ = {"Schema", "Channel", "Message", "Chunk"}             # read into memory by info and playback
+SKIPPED = {"MessageIndex", "Attachment", "Metadata", "user"}  # valid in a data section, not read by info
+
+
+def _data_records(path: Path) -> list[bytes]:
+    """The records of a file's data section, Header first, up to (without) its Data End record."""
+    data = path.read_bytes()
+    out, pos = [], 8
+    while data[pos] != 0x0F:
+        end = pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+        out.append(data[pos:end])
+        pos = end
+    return out
+
+
+def _tail() -> bytes:
+    """A Data End record (no CRC), a footer without a summary section, and the closing magic."""
+    return (b"\x0f" + (4).to_bytes(8, "little") + bytes(4) + b"\x02" + (20).to_bytes(8, "little") + bytes(20)
+            + b"\x89MCAP0\r\n")
+
+
+def _with_record(good: Path, dst: Path, op: int, claim: int, body: bytes = b"", hole: int = 0) -> int:
+    """``good`` without its summary, a record of opcode ``op`` claiming ``claim`` bytes after its first chunk:
+    ``body``, then ``hole`` bytes never written (sparse). Returns the record's offset."""
+    records = _data_records(good)
+    k = next(i for i, r in enumerate(records) if r[0] == 0x06) + 1
+    head = b"\x89MCAP0\r\n" + b"".join(records[:k])
+    with open(dst, "wb") as f:
+        f.write(head + bytes([op]) + claim.to_bytes(8, "little") + body)
+        f.seek(hole, os.SEEK_CUR)
+        f.write(b"".join(records[k:]) + _tail())
+    return len(head)
+
+
+def _expected(kind: str, at: int, claim: int, fits: bool) -> tuple[int, str | None]:
+    """info's exit code and line for a record of ``kind`` at ``at`` claiming ``claim`` bytes."""
+    if not fits:
+        return 3, f"the record at byte {at} runs past the end of the data"
+    if kind not in READ | SKIPPED:
+        return 3, f"the data at byte {at} is not an MCAP record"
+    if kind in SKIPPED:
+        return 0, None
+    return 3, f"the record at byte {at} claims {claim} bytes, more than the 65 MiB any record phonepose reads holds"
+
+
+def _messages(path: Path) -> int:
+    with SessionReader(path) as r:
+        return r.summary().message_count
+
+
+@pytest.mark.parametrize("kind", list(OPS))
+def test_a_length_beyond_the_file_is_one_line_and_recover_keeps_every_chunk(good, tmp_path, cli, kind):
+    """Each record kind claiming from one byte more than the file holds to 2^64-1: info is one line naming the
+    record (or reads past a kind it skips), recover keeps every chunk around it."""
+    from phonepose.session.recover import salvage
+    ref = tmp_path / "ref.mcap"
+    at = _with_record(good, ref, OPS[kind], 0)
+    left = ref.stat().st_size - at - 9
+    for claim in (left + 1, left + 2**20, 1 << 32, 1 << 63, (1 << 64) - 1):
+        path = tmp_path / f"{kind}.mcap"
+        _with_record(good, path, OPS[kind], claim)
+        code, _, err = cli("info", path)
+        want, line = _expected(kind, at, claim, fits=False)
+        assert code == want and line in one_error_line(err), (claim, err)
+        report = salvage(path, tmp_path / "r.mcap")
+        assert report.messages == _messages(good) and report.bytes_unreadable > 0, claim
+
+
+def _run_limited(argv: list, limit: int):
+    """``phonepose ARGV`` in its own process whose address space is at most ``limit`` bytes."""
+    import resource
+    import subprocess
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    return subprocess.run([sys.executable, "-m", "phonepose", *map(str, argv)], capture_output=True, text=True,
+                          preexec_fn=cap, timeout=600)
+
+
+SPARSE_KINDS = sorted(READ | SKIPPED)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform == "win32", reason="RLIMIT_AS and sparse files are POSIX")
+@pytest.mark.parametrize("kind", SPARSE_KINDS)
+def test_a_length_of_gigabytes_in_a_sparse_file_is_never_read(good, tmp_path, kind):
+    """A record claiming from just over MAX_RECORD_BYTES to 4 GiB, all of it in the file (a sparse hole): info,
+    playback and recover run in 1.5 GiB of address space (what they need is under 1 GiB) and answer as for a
+    small file: one line naming the claim, or the record skipped; recover keeps every chunk."""
+    from phonepose.session.index import MAX_RECORD_BYTES
+    limit = 3 << 29
+    for claim in (MAX_RECORD_BYTES + 1, (1 << 32) + 1):
+        path = tmp_path / f"{kind}.mcap"
+        at = _with_record(good, path, OPS[kind], claim, hole=claim)
+        assert path.stat().st_size > claim
+        want, line = _expected(kind, at, claim, fits=True)
+        r = _run_limited(["info", path], limit)
+        assert r.returncode == want, (claim, r.stderr)
+        if line is None:
+            assert r.stderr == "" and f"{_messages(good)}" in r.stdout, r.stdout
+        else:
+            assert line in one_error_line(r.stderr), r.stderr
+            r = _run_limited(["playback", path, "-q", "-t", "T1", "-o", tmp_path / "o"], limit)
+            assert r.returncode == 3 and line in one_error_line(r.stderr) and not (tmp_path / "o").exists()
+        r = _run_limited(["recover", path, "-o", tmp_path / "r.mcap", "--force", "--json"], limit)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+        report = json.loads(r.stdout)
+        assert report["messages"] == _messages(good) and report["bytes_unreadable"] >= claim, report
+
+
+# (field, offset in a chunk record's body, width): the counts inside a chunk record
+CHUNK_COUNTS = {"compression length": (28, 4), "records length": (36, 8)}
+
+
+@pytest.mark.parametrize("field", list(CHUNK_COUNTS))
+def test_a_count_inside_a_chunk_beyond_its_record_is_damage_to_that_chunk_only(good, tmp_path, cli, field):
+    """A chunk's compression-string length or compressed-data length claiming from one byte more than its record
+    to the field's maximum: info names that chunk, recover loses exactly its messages."""
+    from phonepose.session.recover import salvage
+    records = _data_records(good)
+    chunks = [i for i, r in enumerate(records) if r[0] == 0x06]
+    k = chunks[len(chunks) // 2]
+    at = 8 + sum(len(r) for r in records[:k])
+    off, width = CHUNK_COUNTS[field]
+    body = len(records[k]) - 9
+    with SessionReader(good) as r:
+        lost = len(r._chunk_messages(r.index.chunks[chunks.index(k)], None, None, None))
+    for claim in (body + 1, body + 2**20, (1 << 8 * width) - 1):
+        rec = bytearray(records[k])
+        rec[9 + off:9 + off + width] = claim.to_bytes(width, "little")
+        path = tmp_path / "c.mcap"
+        path.write_bytes(b"\x89MCAP0\r\n" + b"".join(records[:k]) + rec + b"".join(records[k + 1:]) + _tail())
+        code, _, err = cli("info", path)
+        assert code == 3 and f"the chunk at byte {at} " in one_error_line(err), (claim, err)
+        report = salvage(path, tmp_path / "r.mcap")
+        assert report.messages == _messages(good) - lost and report.chunks_skipped == 1, claim

@@ -50,8 +50,12 @@ _CHUNK_FIXED = struct.Struct("<QQQII")        # start, end, uncompressed size, C
 # file could otherwise inflate to 1 GiB. SessionWriter closes chunks at 1 MiB and its largest message
 # (a camera JPEG) is far below 1 MiB; 64 MiB leaves room for other writers' larger chunks.
 MAX_CHUNK_BYTES = 64 << 20
+# Any length or count read from a file is checked against this and against what is left of the file before
+# anything is read or allocated: a claim beyond either is damage. The largest record phonepose reads is a
+# chunk of MAX_CHUNK_BYTES (its compressed data may exceed that by zstd's bound, 1/256), with its header.
+MAX_RECORD_BYTES = MAX_CHUNK_BYTES + (1 << 20)
 # A summary larger than this is not one a writer made (1000 chunks of 1 MiB index in ~150 KB).
-_MAX_SUMMARY_BYTES = 256 << 20
+_MAX_SUMMARY_BYTES = MAX_RECORD_BYTES
 
 
 @dataclass
@@ -283,14 +287,40 @@ def _what(exc: Exception) -> str:
     return "holds records that do not parse"
 
 
+def too_long(path: str, pos: int, length: int, left: int) -> DamagedFileError | None:
+    """The error for a record at ``pos`` whose length field claims more than the ``left`` bytes the file has
+    for it, or more than MAX_RECORD_BYTES; None when the claim is possible."""
+    if length > left:
+        return damaged(path, f"the record at byte {pos} claims {length} bytes, more than the {max(left, 0)} "
+                             f"the file has after it")
+    if length > MAX_RECORD_BYTES:
+        return damaged(path, f"the record at byte {pos} claims {length} bytes, more than the "
+                             f"{MAX_RECORD_BYTES >> 20} MiB any record phonepose reads holds")
+    return None
+
+
 def read_chunk(f: BinaryIO, path: str, ci: ChunkIndex, t0_ns: int | None = None) -> list:
-    """The records of the chunk ``ci`` points to."""
+    """The records of the chunk ``ci`` points to: its record read whole (its length checked first), then
+    parsed from memory, so no length inside it reaches past the record."""
+    length = ci.chunk_length - 9
+    problem = too_long(path, ci.chunk_start_offset, length, os.fstat(f.fileno()).st_size - ci.chunk_start_offset - 9)
+    if problem is not None:
+        raise problem
     f.seek(ci.chunk_start_offset + 9)
-    try:
-        chunk = Chunk.read(ReadDataStream(f))
-    except Exception:  # noqa: BLE001 - a header that does not parse
-        raise damaged(path, f"the chunk at byte {ci.chunk_start_offset} has a header that does not parse") from None
+    chunk = _parse_chunk(f.read(length), path, ci.chunk_start_offset)
     return chunk_records(chunk, path, ci.chunk_start_offset, t0_ns)
+
+
+def _parse_chunk(body: bytes, path: str, pos: int) -> Chunk:
+    """A chunk record's body, parsed from memory: no length inside it reaches past the record."""
+    try:
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+        declared = struct.unpack_from("<Q", body, _CHUNK_FIXED.size + len(chunk.compression.encode()))[0]
+        if declared != len(chunk.data):     # mcap's read stops quietly at the record's end
+            raise ValueError("the compressed data runs past the record")
+        return chunk
+    except Exception:  # noqa: BLE001 - a header that does not parse
+        raise damaged(path, f"the chunk at byte {pos} has a header that does not parse") from None
 
 
 _DATA_OPS = frozenset((Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.MESSAGE_INDEX,
@@ -325,7 +355,10 @@ def scan_data_section(f: BinaryIO, path: str, size: int) -> SessionIndex:
             break
         if op not in _DATA_OPS and op < 0x80:       # 0x80-0xff: user records, skipped by every reader
             raise damaged(path, f"the data at byte {pos} is not an MCAP record (overwritten?)")
-        if op in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+        if op in (Opcode.CHUNK, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):     # the kinds read into memory
+            problem = too_long(path, pos, length, limit - pos - 9)
+            if problem is not None:
+                raise problem
             body = f.read(length)
             if op == Opcode.CHUNK:
                 index.chunks.append(_scan_chunk(index, counts, times, body, path, pos, length))
@@ -351,7 +384,8 @@ def message_index_times(f: BinaryIO, ci: ChunkIndex) -> dict[int, np.ndarray] | 
     every playback, 2.4 MB of it never returned to the system (bench/bench_memory.py). The
     (log time, offset) pairs are read as one uint64 array per record instead."""
     offsets = [o for o in ci.message_index_offsets.values()]
-    if not offsets or min(offsets) == 0 or ci.message_index_length == 0 or ci.message_index_length > 1 << 30:
+    left = os.fstat(f.fileno()).st_size - min(offsets, default=0)
+    if not offsets or min(offsets) == 0 or not 0 < ci.message_index_length <= min(left, MAX_RECORD_BYTES):
         return None
     f.seek(min(offsets))
     block = f.read(ci.message_index_length)
@@ -418,10 +452,7 @@ def _add(index: SessionIndex, counts: dict[int, int], times: dict[int, list[int]
 
 def _scan_chunk(index: SessionIndex, counts: dict[int, int], times: dict[int, list[int]], body: bytes, path: str,
                 pos: int, length: int) -> ChunkIndex:
-    try:
-        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
-    except Exception:  # noqa: BLE001
-        raise damaged(path, f"the chunk at byte {pos} has a header that does not parse") from None
+    chunk = _parse_chunk(body, path, pos)
     in_chunk: dict[int, int] = {}
     lo = hi = None
     t0 = index.chunks[0].message_start_time if index.chunks else chunk.message_start_time

@@ -16,6 +16,7 @@ their topic, schema, log_time, publish_time and sequence, into a temporary file 
 from __future__ import annotations
 
 import io
+import logging
 import os
 import struct
 import zlib
@@ -24,20 +25,23 @@ from pathlib import Path
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from phonepose import __version__
 from phonepose.errors import DamagedFileError, InputFileError, OutputError
 from phonepose.files import check_input
-from phonepose.session.index import MAX_CHUNK_BYTES, MCAP_MAGIC, check_unchanged
+from phonepose.session.index import MAX_CHUNK_BYTES, MAX_RECORD_BYTES, MCAP_MAGIC, check_unchanged
 from phonepose.session.writer import CHUNK_SIZE, refuse_to_replace
+
+log = logging.getLogger("phonepose")
 
 # opcodes (MCAP spec)
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-OP_METADATA, OP_DATA_END = 0x0C, 0x0F
+OP_ATTACHMENT, OP_METADATA, OP_DATA_END = 0x09, 0x0C, 0x0F
 _MAX_OPCODE = 0x0F
+_USER_OPCODES = range(0x80, 0x100)     # other tools' own records: valid MCAP, meaningful only to them
 _COMPRESSIONS = (b"", b"zstd", b"lz4")
 
 
@@ -77,6 +81,8 @@ class RecoveryReport:
     summary_damaged: bool = False  # its summary fails its CRC
     channels_from_damaged_summary: list[str] = field(default_factory=list)   # topics only that summary named
     metadata_records: int = 0
+    attachments: int = 0
+    user_records: int = 0         # records of opcodes 0x80-0xff (another tool's own), not copied
 
     @property
     def messages(self) -> int:
@@ -98,6 +104,7 @@ class RecoveryReport:
 # scan tries it at every 0x06 byte of a damaged region, and decoding it with Chunk.read would copy
 # the chunk's data (up to megabytes) for each candidate.
 _U8 = struct.Struct("<Q")
+_U4 = struct.Struct("<I")
 
 
 def _u8(b, off: int) -> int:
@@ -105,11 +112,21 @@ def _u8(b, off: int) -> int:
 
 
 def _decode(cls, b, start: int, end: int, *args):
-    """``cls.read`` (an mcap.records class) over the record body ``b[start:end]``; _Bad if it does not parse."""
+    """``cls.read`` (an mcap.records class) over the record body ``b[start:end]`` (so no length inside it reaches
+    past the record); _Bad if it does not parse."""
     try:
         return cls.read(ReadDataStream(io.BytesIO(bytes(b[start:end]))), *args)
     except Exception as exc:  # noqa: BLE001 - struct.error, EndOfFile, UnicodeDecodeError on damaged bytes
         raise _Bad(f"{cls.__name__}: {type(exc).__name__}") from None
+
+
+def _attachment(b, start: int, end: int) -> Attachment:
+    """An Attachment record whose CRC (over the record's fields before it) holds, or is 0 (not computed)."""
+    r = _decode(Attachment, b, start, end)
+    crc = _U4.unpack(b[end - 4:end])[0]
+    if crc and zlib.crc32(b[start:end - 4]) != crc:
+        raise _Bad("attachment CRC")
+    return r
 
 
 def _schema(b, off: int, end: int):
@@ -142,7 +159,7 @@ def _chunk_header(b, off: int, end: int):
     p = off + 32 + clen
     dlen = _u8(b, p)
     p += 8
-    if p + dlen != end or t1 < t0 or usize > MAX_CHUNK_BYTES:
+    if p + dlen != end or end - off > MAX_RECORD_BYTES or t1 < t0 or usize > MAX_CHUNK_BYTES:
         raise _Bad("chunk lengths")
     return t0, t1, usize, crc, comp.decode(), p, dlen
 
@@ -159,7 +176,9 @@ class _Salvager:
         # stays at one chunk whatever the size of the file.
         self.chunks: list[tuple[int, int, dict, int | None, int | None]] = []
         self.loose: list = []   # messages outside chunks (unchunked writers)
-        self.metadata: list[tuple[str, dict]] = []
+        # Metadata and Attachment records by where they are, (opcode, body start, body end): read again to be written
+        self.extra: list[tuple[int, int, int]] = []
+        self.profile = ""       # the Header's: what kind of session the file says it is
         # schemas and channels read after the Data End record: the summary's, used only if its CRC holds
         self.in_summary = False
         self.summary_schemas: dict[int, tuple[str, str, bytes]] = {}
@@ -174,11 +193,13 @@ class _Salvager:
             raise _Bad("truncated record header")
         op = b[pos]
         length = _u8(b, pos + 1)
-        if op == 0 or op > _MAX_OPCODE:
+        if op == 0 or _MAX_OPCODE < op < _USER_OPCODES.start:
             raise _Bad("opcode")
         start, end = pos + 9, pos + 9 + length
         if end > n:
             raise _Bad("truncated record")
+        if length > MAX_RECORD_BYTES:   # checked before any byte of it is read: a claim beyond it is damage
+            raise _Bad("record length")
         if op == OP_CHUNK:
             self.chunk(start, end)
         elif op == OP_SCHEMA:
@@ -192,8 +213,15 @@ class _Salvager:
         elif op == OP_MESSAGE:
             self.loose.append(_message(b, start, end))
         elif op == OP_METADATA:
-            r = _decode(Metadata, b, start, end)
-            self.metadata.append((r.name, r.metadata))
+            _decode(Metadata, b, start, end)
+            self.extra.append((op, start, end))
+        elif op == OP_ATTACHMENT:
+            _attachment(b, start, end)
+            self.extra.append((op, start, end))
+        elif op == OP_HEADER:
+            self.profile = _decode(Header, b, start, end).profile
+        elif op in _USER_OPCODES:
+            self.report.user_records += 1
         elif op == OP_FOOTER:
             self.report.had_summary = True
             self._take_summary(start, end)
@@ -206,7 +234,7 @@ class _Salvager:
         if end - start < 20:
             return
         summary_start, _, crc = struct.unpack("<QQI", self.b[start:start + 20])
-        if crc and (summary_start >= start or zlib.crc32(self.b[summary_start:start + 16]) != crc):
+        if crc and (summary_start >= start or self._crc(summary_start, start + 16) != crc):
             self.report.summary_damaged = True
         for k, v in self.summary_schemas.items():
             self.schemas.setdefault(k, v)
@@ -214,6 +242,13 @@ class _Salvager:
             if k not in self.channels:
                 self.channels[k] = v
                 self.from_summary.add(k)
+
+    def _crc(self, start: int, end: int) -> int:
+        """CRC32 of the bytes [start, end), read a window at a time (the footer says where they start)."""
+        crc = 0
+        for at in range(start, end, self.b.WINDOW):
+            crc = zlib.crc32(self.b[at:min(at + self.b.WINDOW, end)], crc)
+        return crc
 
     def chunk(self, start: int, end: int) -> None:
         msgs, schemas, channels = self.parse_chunk(start, end)
@@ -273,13 +308,40 @@ class _Salvager:
             return p
         return None
 
+    def _framed_end(self, pos: int) -> int | None:
+        """The end of the bad record at ``pos`` when its framing holds though its content does not (a chunk whose
+        data fails its CRC, an attachment whose CRC fails): the lengths inside it add up to its length field, so
+        the next record starts there and nothing between is lost to a resync; else None."""
+        b, n = self.b, self.n
+        try:        # a short read (the file cut meanwhile) is damage here like any other
+            if pos + 9 > n:
+                return None
+            op, length = b[pos], _u8(b, pos + 1)
+            start, end = pos + 9, pos + 9 + length
+            if end > n or length > MAX_RECORD_BYTES or end == pos + 9:
+                return None
+            if op == OP_CHUNK:
+                _chunk_header(b, start, end)
+                return end
+            if op == OP_ATTACHMENT:
+                p = start + 16
+                for _ in range(2):          # name, media type
+                    p += 4 + _U4.unpack(b[p:p + 4])[0]
+                return end if p + 8 <= end and p + 8 + _u8(b, p) + 4 == end else None
+        except (_Bad, struct.error, IndexError):
+            return None
+        return None
+
     def _time_at(self, pos: int) -> tuple[int | None, int | None]:
         """Log times a damaged chunk header at ``pos`` still tells, if it parses."""
         b, n = self.b, self.n
-        if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
-            t0, t1 = struct.unpack("<QQ", b[pos + 9:pos + 25])
-            if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
-                return t0, t1
+        try:        # a short read (the file cut meanwhile): nothing told
+            if pos + 9 + 16 <= n and b[pos] == OP_CHUNK:
+                t0, t1 = struct.unpack("<QQ", b[pos + 9:pos + 25])
+                if t0 <= t1 and (t1 - t0) < 3600 * 10**9:
+                    return t0, t1
+        except (IndexError, struct.error):
+            pass
         return None, None
 
     def run(self) -> None:
@@ -304,7 +366,9 @@ class _Salvager:
             except (_Bad, struct.error, IndexError, ValueError):
                 pass
             t0, t1 = self._time_at(pos)
-            nxt = self.resync(pos)
+            nxt = self._framed_end(pos)
+            if nxt is None:
+                nxt = self.resync(pos)
             stop = n if nxt is None else nxt
             self.bad_regions.append((pos, stop, t0, t1))
             if nxt is None:
@@ -350,6 +414,9 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
         sal = _Salvager(_FileBytes(f.fileno(), before.st_size), report)
         sal.run()
         unchanged()
+        if report.user_records:     # every other record kind is kept (or rebuilt: the index records)
+            log.warning("phonepose: warning: %s: %d record(s) of another tool's own kinds (opcodes 0x80-0xff) not "
+                        "copied: their meaning is that tool's", src, report.user_records)
         try:
             _write(sal, report, dst, staged)
         finally:
@@ -408,6 +475,7 @@ class _FileBytes:
             for k in range(8):                       # the little-endian uint64 after each opcode
                 lengths |= block[at + 1 + k].astype(np.uint64) << np.uint64(8 * k)
             room = self.n - 9 - (pos + at)           # bytes the file has for the record's body
+            room = np.minimum(room, MAX_RECORD_BYTES)
             at = at[(room >= 0) & (lengths <= np.maximum(room, 0).astype(np.uint64))]
             for a in at.tolist():
                 yield pos + a
@@ -448,7 +516,8 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True
     if report.summary_damaged:
         report.channels_from_damaged_summary = sorted(sal.channels[c][1] for c in sal.from_summary)
     report.chunks_recovered = len(sal.chunks)
-    report.metadata_records = len(sal.metadata)
+    report.metadata_records = sum(op == OP_METADATA for op, _, _ in sal.extra)
+    report.attachments = sum(op == OP_ATTACHMENT for op, _, _ in sal.extra)
     report.start_ns, report.end_ns = t_min, t_max
     _account_losses(sal, report)
     if not counts:
@@ -465,13 +534,12 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True
     try:
         with fo:
             w = Writer(fo, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-            w.start(profile="", library=f"phonepose {__version__} (recovered)")
+            w.start(profile=sal.profile, library=f"phonepose {__version__} (recovered)")
             schema_ids: dict[int, int] = {}
             channel_ids: dict[int, int] = {}
+            for sid, (name, senc, data) in sorted(sal.schemas.items()):    # every schema, used by a channel or not
+                schema_ids[sid] = w.register_schema(name=name, encoding=senc, data=data)
             for cid, (sid, topic, enc, meta) in sorted(sal.channels.items()):
-                if sid and sid in sal.schemas and sid not in schema_ids:
-                    name, senc, data = sal.schemas[sid]
-                    schema_ids[sid] = w.register_schema(name=name, encoding=senc, data=data)
                 channel_ids[cid] = w.register_channel(topic=topic, message_encoding=enc,
                                                       schema_id=schema_ids.get(sid, 0), metadata=meta)
             def write(msgs):
@@ -483,8 +551,13 @@ def _write(sal: _Salvager, report: RecoveryReport, dst: str, staged: bool = True
             for start, end, _, _, _ in sal.chunks:   # one chunk in memory at a time
                 write(sal.parse_chunk(start + 9, end)[0])
             write(sal.loose)
-            for name, meta in sal.metadata:
-                w.add_metadata(name, meta)
+            for op, start, end in sal.extra:        # one record in memory at a time, in file order
+                if op == OP_METADATA:
+                    r = _decode(Metadata, sal.b, start, end)
+                    w.add_metadata(r.name, r.metadata)
+                else:
+                    a = _attachment(sal.b, start, end)
+                    w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
             w.finish()
             fo.flush()
             os.fsync(fo.fileno())
