@@ -16,11 +16,16 @@ from pathlib import Path
 from typing import NamedTuple, TypeVar
 
 import pytest
+from hypothesis import settings
 
 from phonepose import waiting
 from phonepose.waiting import POLL_S
 
 T = TypeVar("T")
+
+# hypothesis's per-example deadline measures the machine's load, not the code: no deadline
+settings.register_profile("phonepose", deadline=None)
+settings.load_profile("phonepose")
 
 DEADLINE_S = 120.0   # normally well under a second; generous, because a timeout only costs time when broken
 
