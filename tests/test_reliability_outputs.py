@@ -86,7 +86,7 @@ def _fail_recover(monkeypatch, d, argv):
 def _fail_batch(monkeypatch, d, argv):
     import phonepose.batch.driver as driver
 
-    def interrupted(futures):
+    def interrupted(futures, timeout=None):
         raise KeyboardInterrupt
         yield   # pragma: no cover
     monkeypatch.setattr(driver, "as_completed", interrupted)
