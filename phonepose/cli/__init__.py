@@ -194,8 +194,6 @@ def _run(argv: list[str] | None) -> int:
         process.check_before_any_work(sys.argv[1:] if argv is None else argv)
         rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
-        if _stops:            # a stop that a library turned into another error (an OSError: EINTR)
-            return _stopped(*_stop_of())
         error(str(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
@@ -204,7 +202,7 @@ def _run(argv: list[str] | None) -> int:
     except (KeyboardInterrupt, typer.Abort) as exc:
         return _stopped(*_stop_of(exc if isinstance(exc, KeyboardInterrupt) else None))
     except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
-        if _stops:
+        if _stops:            # a stop that a library turned into its own error (an import: "initialization failed")
             return _stopped(*_stop_of())
         if os.environ.get("PHONEPOSE_TRACEBACK"):
             raise
