@@ -23,8 +23,9 @@ The rule, the same in every command:
    (``.<name>.<pid>-<random>.phonepose-tmp``), locked while written (``flock``), and renamed into
    place only when complete. A failed, interrupted or killed command never leaves a partial
    output under the user's name, and an earlier output stays as it was until the new one
-   replaces it whole. A killed command's temporary is removed by the next command that writes
-   the same output; while one command writes an output, a second one stops with one line. An
+   replaces it whole (outputs are put in place with Ctrl-C and SIGTERM held). A killed command's
+   temporaries are removed by the next command that writes in the same folder
+   (:func:`clear_killed_temporaries`); while one command writes an output, a second one stops with one line. An
    output rewritten while the command runs (a batch's table) puts each complete version in place
    the same way (:meth:`OutputFile.checkpoint`). An error from inside names the user's paths, never
    a temporary's.
@@ -56,8 +57,11 @@ import os
 import re
 import secrets
 import shutil
+import signal
 import stat
-from collections.abc import Iterable, Sequence
+import threading
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,6 +70,55 @@ from phonepose.errors import RECOVER_HINT, ConfigError, InputFileError, OutputEr
 TMP_SUFFIX = ".phonepose-tmp"
 MANIFEST = ".phonepose-output"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"     # (session.index.MCAP_MAGIC: this module imports nothing of the session's)
+
+
+# What this process's plans did: a stop that finds no plan open and outputs committed lost no work (the CLI
+# then exits 0); a stop that cannot unwind (a tracker step that never returns) removes the open plans' temporaries.
+_open_plans: list[OutputPlan] = []
+_committed: list[Path] = []
+
+
+def outputs_committed() -> tuple[Path, ...]:
+    """The outputs this process has put in place (as the user named them), when no plan is open; else ()."""
+    return () if _open_plans else tuple(_committed)
+
+
+def forget_outputs() -> None:
+    """Start the record of :func:`outputs_committed` afresh (a command run in the same process as others)."""
+    _committed.clear()
+
+
+def abort_open_plans() -> None:
+    """Remove the temporaries of every open plan: for a stop that ends the process without unwinding."""
+    for plan in list(_open_plans):
+        plan.abort()
+
+
+_HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM") if hasattr(signal, name))
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """Ctrl-C and SIGTERM wait while outputs are renamed into place or their temporaries removed: a stop lands
+    before the first rename or after the last, so the outputs are all earlier ones or all new ones, none left
+    half removed. The signal is delivered to the handler it was for when the block ends. (Python's handlers run in
+    the main thread only; elsewhere nothing is held.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    old = {sig: signal.signal(sig, lambda signum, _frame: pending.append(signum)) for sig in _HELD_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+        if pending:
+            handler = old[pending[0]]
+            if callable(handler):
+                handler(pending[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(pending[0])
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -158,6 +211,70 @@ def being_written(path: str | os.PathLike) -> bool:
     return False
 
 
+# Any output's temporary or set-aside earlier output: "." STEM "." PID "-" 8 hex digits SUFFIX
+_LEFT_BY_A_RUN = re.compile(rf"\.(?P<stem>.+)\.(?P<pid>\d+)-[0-9a-f]{{8}}(?P<kind>{re.escape(TMP_SUFFIX)}|\.phonepose-old)")
+
+
+def _pid_alive(pid: int) -> bool:
+    """Is a process ``pid`` running (another user's counts; where it cannot be asked, every pid is)?"""
+    if os.name == "nt":      # os.kill there ends the process: never asked
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def killed_runs_left(folder: str | os.PathLike) -> list[Path]:
+    """What killed commands left in ``folder``: temporaries (and earlier outputs set aside while one was put in
+    place) whose command is gone (its pid runs no process and nothing holds the lock)."""
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError:
+        return []
+    left = []
+    for name in names:
+        found = _LEFT_BY_A_RUN.fullmatch(name)
+        if found is None or _pid_alive(int(found["pid"])):
+            continue
+        path = Path(folder) / name
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            continue           # held: a live command's (its pid seen through another namespace)
+        finally:
+            os.close(fd)
+        left.append(path)
+    return left
+
+
+def clear_killed_temporaries(folder: Path, inputs: Sequence[Path] = ()) -> None:
+    """Remove what :func:`killed_runs_left` finds: every command that writes in a folder clears what killed ones
+    left there, whichever output it was for. An earlier output set aside (killed between the two renames where the
+    system has no atomic exchange) goes back under its name if nothing took that name, else it is removed."""
+    for path in killed_runs_left(folder):
+        if any(_same_file(path, inp) for inp in inputs):
+            continue   # never delete an input, whatever its name
+        found = _LEFT_BY_A_RUN.fullmatch(path.name)
+        assert found is not None
+        if found["kind"] != TMP_SUFFIX and not os.path.lexists(folder / found["stem"]):
+            if not _SHORTENED.fullmatch(found["stem"]):    # (a shortened name's output cannot be named: kept)
+                with suppress(OSError):
+                    os.rename(path, folder / found["stem"])
+            continue
+        _remove(path)
+
+
+_SHORTENED = re.compile(r".*~[0-9a-f]{16}")    # a name _tmp_stem shortened
+
+
 def _same_file(a: Path, b: Path) -> bool:
     """Same path after resolving symlinks, or the same inode (a hard link)."""
     try:
@@ -217,8 +334,10 @@ class _Output:
         return _beside(self.target, TMP_SUFFIX)
 
     def _clear_stale(self, inputs: Sequence[Path]) -> None:
-        """Remove the temporaries a killed command left for this output; refuse if a live one holds one."""
+        """Remove the temporaries a killed command left in this output's folder (any output's); refuse if a live
+        command holds one of this output's."""
         t = self.target
+        clear_killed_temporaries(t.parent, inputs)
         ours = re.compile(rf"\.{re.escape(_tmp_stem(t))}\.(\d+)-[0-9a-f]{{8}}{re.escape(TMP_SUFFIX)}")
         try:
             names = sorted(os.listdir(t.parent))
@@ -303,7 +422,9 @@ class OutputFile(_Output):
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._direct = self.in_place and not os.path.lexists(self.target)
-        if not self._direct:
+        if self._direct:
+            clear_killed_temporaries(self.target.parent, inputs)
+        else:
             self._clear_stale(inputs)
         tmp = self.target if self._direct else self._tmp_name()
         try:
@@ -330,6 +451,10 @@ class OutputFile(_Output):
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         fcntl.flock(new_fd, fcntl.LOCK_EX)
+        with _signals_held():    # the version goes in and the temporaries are swapped, or neither
+            return self._put_in_place(tmp, fd, target, new, new_fd)
+
+    def _put_in_place(self, tmp: Path, fd: int, target: Path, new: Path, new_fd: int) -> Path:
         try:
             os.fsync(fd)
             if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
@@ -535,16 +660,27 @@ class OutputPlan:
 
     def __enter__(self) -> OutputPlan:
         self.check()
+        _open_plans.append(self)
         try:
             for out in self.outputs:
                 out.begin(self.inputs)
         except BaseException:
-            self.abort()
+            with _signals_held():
+                self.abort()
+                _open_plans.remove(self)
             raise
         self._open = True
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
+        with _signals_held():
+            try:
+                self._finish(exc_type, exc)
+            finally:
+                if self in _open_plans:
+                    _open_plans.remove(self)
+
+    def _finish(self, exc_type, exc) -> None:
         self._open = False
         if exc_type is not None:
             temporaries = [(o.tmp, o.path) for o in self.outputs if o.tmp is not None]
@@ -558,6 +694,7 @@ class OutputPlan:
         try:
             for out in self.outputs:
                 out.commit()
+                _committed.append(out.path)
         except BaseException:
             self.abort()
             raise

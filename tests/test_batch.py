@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -545,3 +546,60 @@ def test_resuming_a_table_with_wrong_column_types_is_one_line(sessions, tmp_path
     assert err == (f"phonepose: error: --out {out} is not a phonepose batch table (column session is "
                    "int64, not string); move it away or choose another --out\n")
     assert out.read_bytes() == before
+
+
+LEFT_WITHOUT_WORKERS = [(int(w), int(a)) for w, a in zip(np.random.default_rng(5).integers(1, 3, 3),
+                                                        np.random.default_rng(6).integers(0, 4, 3), strict=True)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("keep_waiting", [False, True], ids=["stops", "keeps-waiting"])
+@pytest.mark.parametrize(("workers", "after"), LEFT_WITHOUT_WORKERS)
+def test_a_dask_cluster_left_without_workers_is_said_and_waited_for_a_bound(sessions, tmp_path, workers, after,
+                                                                           keep_waiting):
+    """Every worker of the cluster gone after a generated number of finished units: the batch hears the count
+    drop to 0 (it waited silently for ever); it stops after the bound with one line naming what is left and the
+    finished rows it wrote, or, asked to keep waiting, goes on when a worker comes back."""
+    import re
+
+    import distributed
+
+    from phonepose.batch.driver import execute_batch, prepare_batch
+    from phonepose.errors import PhoneposeError
+
+    out = tmp_path / "r.parquet"
+    with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        batch = prepare_batch(sessions, out, trackers=["T1"], params=["rate_hz=10,20"] + WINDOW,
+                              scheduler=cluster.scheduler_address)
+        assert len(batch.plan.units) == 6      # more than the finished units and the ones in flight together
+        counts: list[int] = []
+
+        def leave() -> None:
+            cluster.scale(0)
+
+        def on_workers(n: int) -> None:
+            counts.append(n)
+            if n == 0 and keep_waiting:
+                cluster.scale(workers)          # one comes back: the batch goes on
+
+        def progress(done, total, rows):
+            if done == after:
+                leave()
+
+        on_start = (lambda plan, executor: leave()) if after == 0 else None
+        if keep_waiting:
+            result = execute_batch(batch, progress, on_start, on_workers=on_workers, no_worker_timeout_s=None)
+            assert result.units_run == 6 and result.errors == 0 and pq.read_table(out).num_rows == 6
+            assert 0 in counts                          # said, then waited for (the return may not be seen before
+            return                                      # the last unit ends)
+        with pytest.raises(PhoneposeError) as e:
+            execute_batch(batch, progress, on_start, on_workers=on_workers, no_worker_timeout_s=1.0)
+    rows = pq.read_table(out).num_rows
+    assert rows >= after and counts[-1] == 0       # (2 workers may be seen leaving one at a time)
+    left = re.fullmatch(rf"--scheduler {re.escape(cluster.scheduler_address)}: the cluster has had no worker for 1 s, "
+                        rf"so (\d+) playbacks cannot run; {rows} finished rows? (are|is) in {re.escape(str(out))} "
+                        rf"\(start a `dask worker {re.escape(cluster.scheduler_address)}` and run the same command "
+                        rf"again, or add --keep-waiting\)", str(e.value))
+    assert left is not None, str(e.value)
+    assert int(left[1]) == 6 - rows

@@ -270,6 +270,8 @@ HOSTILE_NUMBERS = [
      "100000", r"an integer in \[1, 256\]"),
     ("unit-timeout-nan", "batch", lambda g, d: ["batch", str(g), "--out", str(d / "r.parquet")], "--unit-timeout",
      "nan", "nan", r"a finite number in \(0, 1000000\] s"),
+    ("tick-timeout-zero", "playback", lambda g, d: ["playback", str(g), "--out", str(d / "o")], "--tick-timeout",
+     "0", "0", r"a finite number in \(0, 1000000\] s"),
     ("delta-inf", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")], "--delta", "inf",
      "inf", r"a finite number in \(0, 1000000000\]"),
     ("max-diff-nan", "evaluate", lambda g, d: ["evaluate", "--gt", _gt(d), "--est", str(d / "gt.txt")], "--max-diff",

@@ -15,12 +15,17 @@ import contextlib
 import os
 import signal
 import stat
+import subprocess
+import sys
+import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DEADLINE_S, wait_until
 from test_reliability_data import mounted_tmpfs
 
 from phonepose.files import MANIFEST, TMP_SUFFIX
@@ -81,7 +86,7 @@ def _fail_recover(monkeypatch, d, argv):
 def _fail_batch(monkeypatch, d, argv):
     import phonepose.batch.driver as driver
 
-    def interrupted(futures):
+    def interrupted(futures, timeout=None):
         raise KeyboardInterrupt
         yield   # pragma: no cover
     monkeypatch.setattr(driver, "as_completed", interrupted)
@@ -445,6 +450,104 @@ def test_every_writing_command_is_in_the_table():
     walk(command(), "")
     covered = {" ".join(w.argv[:2]) if w.argv[0] in ("record", "experiment") else w.argv[0] for w in WRITERS}
     assert writes - covered == {"record live"}
+
+
+# ----------------------------------------------------------------------------- killed runs
+KILLED = [w for w in WRITERS if w.id != "record-rehearse"]   # (it needs a browser: tests/test_rehearse.py)
+KILLS_PER_WRITER = 4
+FAIL_ON_THEIR_OWN = ("calibrate-camera", "calibrate-hand-eye")   # their stand-in inputs: exit 2 and 4 after the checks
+
+
+def kill_moments(w: Writer) -> list[tuple[signal.Signals, str, float]]:
+    """Generated moments to kill ``w`` at: SIGTERM and SIGKILL in turn, each after its start or once a
+    temporary of it exists, and then after a delay drawn from the writer's own generator."""
+    rng = np.random.default_rng(zlib.crc32(w.id.encode()))
+    return [((signal.SIGTERM, signal.SIGKILL)[i % 2], ("temporary", "start")[int(rng.integers(2))],
+             round(float(rng.uniform(0.0, 1.5)), 3)) for i in range(KILLS_PER_WRITER)]
+
+
+def _complete(path: Path) -> bool:
+    """Is ``path`` a whole output: a folder its manifest lists exactly, or a file of its format ending as one does."""
+    from phonepose import files
+
+    if path.is_dir():
+        listed = files._listed_in_manifest(path / MANIFEST)
+        return listed is not None and listed == files._tree_entries(path) - {MANIFEST}
+    data = path.read_bytes()
+    if path.suffix == ".png":
+        return data.endswith(b"IEND\xaeB`\x82")
+    if path.suffix == ".rrd":
+        from phonepose.viewer.sink import _ends_with_footer
+        return _ends_with_footer(path)
+    if path.suffix == ".mcap":
+        from phonepose.session import SessionReader
+        with SessionReader(path) as reader:
+            return reader.summary().message_count > 0
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+        return pq.read_table(path).num_rows > 0
+    return len(data) > 0 and data.endswith(b"\n")      # a YAML calibration
+
+
+def _earlier_outputs(w: Writer, d: Path) -> list[str]:
+    """The earlier outputs a run replaces (its own and the folders it also writes), written now: their names."""
+    _earlier_output(w, d)
+    names = [w.name]
+    for other in also_named(w):
+        if not Path(other).suffix:                       # a folder (playback's --out beside --rerun)
+            (d / other).mkdir()
+            (d / other / MANIFEST).write_text('{"written_by": "phonepose", "files": ["stale.txt"]}\n')
+            (d / other / "stale.txt").write_text("an earlier run's file")
+            names.append(other)
+    return names                                         # (a new recording beside them is not an earlier output)
+
+
+@pytest.mark.parametrize("w,moment", [
+    pytest.param(w, m, id=f"{w.id}-{m[0].name}-{m[1]}+{m[2]}s",
+                 marks=[] if w.ok and i < 2 else [pytest.mark.slow])
+    for w in KILLED for i, m in enumerate(kill_moments(w))])
+def test_a_killed_run_leaves_the_earlier_output_as_it_was(w: Writer, moment, good_session, tmp_path, cli):
+    """SIGTERM or SIGKILL at a generated moment: the earlier outputs stay byte for byte as they were, unless the
+    run put its new ones in place (exit 0; after SIGKILL: whole new outputs), never a mix of the two nor a part.
+    SIGTERM leaves no temporary; what SIGKILL leaves, the next command writing in that folder removes."""
+    sig, after, extra_s = moment
+    d = tmp_path / "d"
+    d.mkdir()
+    inp = make_input(w, d, good_session)
+    names = _earlier_outputs(w, d)
+    before = snapshot(d)
+    child = subprocess.Popen([sys.executable, "-m", "phonepose", *argv_for(w, d, d / w.name, inp)], cwd=tmp_path,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        if after == "temporary":
+            wait_until(lambda: child.poll() is not None or temporaries(d), what=f"a temporary of {w.id}")
+        time.sleep(extra_s)                        # the generated moment itself, not a wait for a condition
+        child.send_signal(sig)
+        _, err = child.communicate(timeout=DEADLINE_S)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    now = snapshot(d)
+    for name in names:
+        old = {k: v[:2] for k, v in before.items() if k == name or k.startswith(name + "/")}
+        new = {k: v[:2] for k, v in now.items() if k == name or k.startswith(name + "/")}
+        if child.returncode == 0 or (sig == signal.SIGKILL and new != old):
+            assert new != old and _complete(d / name), (name, child.returncode, err)   # the run's own, whole
+            assert "phonepose: error:" not in err, err
+        else:
+            assert new == old, (name, child.returncode, err)            # byte for byte the earlier one
+    if sig == signal.SIGTERM and child.returncode not in (0, -signal.SIGTERM):   # (-15: before the command began)
+        if w.id in FAIL_ON_THEIR_OWN and child.returncode != 143:
+            one_line(err)                          # its own error line, the signal after it
+        else:
+            assert child.returncode == 143 and err.strip().splitlines()[-1].startswith(
+                "phonepose: error: terminated (SIGTERM)"), err
+    if sig == signal.SIGTERM:
+        assert not temporaries(d), temporaries(d)
+    code, _, err = cli("marker", "--out", d / "next.png")   # another command writing in the folder
+    assert code == 0, err
+    assert not temporaries(d), temporaries(d)
 
 
 # ----------------------------------------------------------------------------- the docs' matrix

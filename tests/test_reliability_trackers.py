@@ -9,10 +9,13 @@ from __future__ import annotations
 import importlib
 import os
 import re
+import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from conftest import DEADLINE_S
 
 from phonepose.batch.run import UnitTimeout
 from phonepose.batch.table import read_rows
@@ -37,7 +40,7 @@ BAD_NAMES = {   # class -> its name: each refused before any work
 CONFIG = "[camera]\nrate_hz = 5.0\n"   # experiments: a 5 Hz camera, ~5x cheaper (what they output does not matter)
 
 SOURCE = '''
-import math, sys
+import math, os, signal, sys, threading, time
 
 from phonepose.geometry import Pose
 
@@ -146,6 +149,43 @@ class CtrlCInStep(Base):
 class WithSetting(Base):
     name = "W"
     weight = 0.3
+
+
+class Hangs(Base):
+    """Its step number HANG_AT (from 0) never returns."""
+    name = "H"
+
+    def reset(self):
+        self.steps = 0
+
+    def step(self, obs):
+        self.steps += 1
+        if self.steps > int(os.environ["HANG_AT"]):
+            self.hang()
+        return None
+
+
+class Sleeps(Hangs):
+    def hang(self):
+        time.sleep(1e9)
+
+
+class Spins(Hangs):
+    def hang(self):
+        while True:
+            pass
+
+
+class Waits(Hangs):
+    def hang(self):
+        threading.Event().wait()
+
+
+class BlocksTheStop(Hangs):
+    """Blocks every signal it can (the watchdog's too), then sleeps: only ending the process stops it."""
+    def hang(self):
+        signal.pthread_sigmask(signal.SIG_BLOCK, set(signal.Signals) - {signal.SIGKILL, signal.SIGSTOP})
+        time.sleep(1e9)
 '''
 
 
@@ -308,6 +348,27 @@ def test_a_tracker_that_exits_or_fails_is_one_line_and_leaves_the_earlier_output
     code, _, err = cli(*commands(session, ref(cls))["playback"])
     assert code == 5
     assert one_line(err) == f"phonepose: error: tracker '{ref(cls)}' {words}"
+    assert snapshot(here) == before
+
+
+HANGS = ["Sleeps", "Spins", "Waits", "BlocksTheStop"]
+
+
+@pytest.mark.parametrize(("cls", "at"), [(c, int(t)) for c, t in zip(
+    HANGS, np.random.default_rng(4).integers(0, 40, len(HANGS)), strict=True)])
+def test_a_step_that_never_returns_is_stopped_by_the_tick_timeout(session, here, cls, at):
+    """A step that sleeps, spins, waits or blocks every signal for ever (from a generated tick on): one line naming
+    the tracker and the tick, exit 5 as for any failing tracker, the earlier output kept, no temporary. A real
+    process: the last one is ended by the watchdog itself."""
+    assert subprocess.run([sys.executable, "-m", "phonepose", "playback", "-q", session, "-o", "pt", "-t", "T1",
+                           "--rerun", "pt.rrd"], capture_output=True, timeout=DEADLINE_S).returncode == 0
+    before = snapshot(here)
+    r = subprocess.run([sys.executable, "-m", "phonepose", *map(str, commands(session, ref(cls))["playback"]),
+                        "--rerun", "pt.rrd", "--tick-timeout", "0.5"], capture_output=True, text=True,
+                       timeout=DEADLINE_S, env={**os.environ, "HANG_AT": str(at)})
+    assert r.returncode == 5, r.stderr
+    assert one_line(r.stderr) == (f"phonepose: error: tracker '{ref(cls)}' (H) did not return from step() at tick "
+                                  f"{at} within --tick-timeout 0.5 s: stopped")
     assert snapshot(here) == before
 
 

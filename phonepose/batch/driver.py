@@ -8,12 +8,13 @@ import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import TimeoutError as FuturesTimeout
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from phonepose.batch.executor import open_executor
+from phonepose.batch.executor import NO_WORKER_TIMEOUT_S, WATCH_INTERVAL_S, NoWorkers, open_executor
 from phonepose.batch.plan import (
     PARAMS,
     Plan,
@@ -27,7 +28,7 @@ from phonepose.batch.plan import (
 )
 from phonepose.batch.run import error_rows, one_line, run_unit
 from phonepose.batch.table import ResultTable, sort_key
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, PhoneposeError
 from phonepose.files import OutputFile, OutputPlan, check_input
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX, check_number
 
@@ -119,10 +120,14 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
 
 
 def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]], None] | None = None,
-                  on_start: Callable[[Plan, str], None] | None = None) -> BatchResult:
+                  on_start: Callable[[Plan, str], None] | None = None,
+                  on_workers: Callable[[int], None] | None = None,
+                  no_worker_timeout_s: float | None = NO_WORKER_TIMEOUT_S) -> BatchResult:
     """Run the plan's units on the executor; merge and write the table as they finish (at most once per
     ``WRITE_INTERVAL_S``, and at the end, also when interrupted: Ctrl-C, SIGTERM). A unit running longer
-    than ``unit_timeout_s`` becomes error rows."""
+    than ``unit_timeout_s`` becomes error rows. On a Dask cluster, ``on_workers(n)`` hears each change of its
+    worker count; one left without a worker for ``no_worker_timeout_s`` stops the batch with one line
+    (PhoneposeError, its finished rows written); None: it waits for one for ever (``--keep-waiting``)."""
     plan, table = batch.plan, batch.table
     units_run = rows_run = 0
     failures: list[tuple[str, str]] = []
@@ -134,22 +139,37 @@ def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]
                 if on_start is not None:
                     on_start(plan, description)
                 futures = {executor.submit(run_unit, unit, batch.unit_timeout_s): unit for unit in plan.units}
+                # a Dask cluster's workers are not the batch's: one left without any is said, and waited for a bound
+                watch = NoWorkers(executor, on_workers, no_worker_timeout_s) if batch.scheduler is not None else None
+                remaining = set(futures)
                 try:
-                    for fut in as_completed(futures):
-                        unit: Unit = futures[fut]
+                    while remaining:
                         try:
-                            rows = fut.result()
-                        except (Exception, SystemExit, GeneratorExit) as exc:   # noqa: BLE001 - the worker died
-                            # (crash, lost Dask worker), or its task ended with what run_unit does not catch
-                            rows = error_rows(unit, f"worker failed: {one_line(exc)}")
-                        table.update(rows)
-                        table.write(WRITE_INTERVAL_S)
-                        units_run += 1
-                        rows_run += len(rows)
-                        if rows and rows[0]["status"] != "ok":
-                            failures.append((unit.session, rows[0]["error"]))
-                        if progress is not None:
-                            progress(units_run, len(plan.units), rows)
+                            for fut in as_completed(remaining, timeout=WATCH_INTERVAL_S if watch else None):
+                                remaining.discard(fut)
+                                unit: Unit = futures[fut]
+                                try:
+                                    rows = fut.result()
+                                except (Exception, SystemExit, GeneratorExit) as exc:   # noqa: BLE001 - the worker
+                                    # died (crash, lost Dask worker), or its task ended with what run_unit does not catch
+                                    rows = error_rows(unit, f"worker failed: {one_line(exc)}")
+                                table.update(rows)
+                                table.write(WRITE_INTERVAL_S)
+                                units_run += 1
+                                rows_run += len(rows)
+                                if rows and rows[0]["status"] != "ok":
+                                    failures.append((unit.session, rows[0]["error"]))
+                                if progress is not None:
+                                    progress(units_run, len(plan.units), rows)
+                        except FuturesTimeout:
+                            pass
+                        if watch is not None and remaining and watch.check():
+                            n = len(table.rows)
+                            raise PhoneposeError(
+                                f"--scheduler {batch.scheduler}: the cluster has had no worker for "
+                                f"{no_worker_timeout_s:g} s, so {len(remaining)} playbacks cannot run; {n} finished "
+                                f"row{'s are' if n != 1 else ' is'} in {batch.out} (start a `dask worker "
+                                f"{batch.scheduler}` and run the same command again, or add --keep-waiting)")
                 finally:
                     for fut in futures:
                         fut.cancel()

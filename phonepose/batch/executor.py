@@ -10,7 +10,9 @@ does the scheduling, and its workers belong to the cluster, not to this command)
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+import time
+import weakref
+from collections.abc import Callable, Iterator
 from concurrent.futures import Executor
 from contextlib import contextmanager
 
@@ -19,6 +21,49 @@ from phonepose.errors import ConfigError
 from phonepose.workers import worker_pool
 
 CONNECT_TIMEOUT_S = 10
+NO_WORKER_TIMEOUT_S = 30.0   # how long a Dask batch waits for a worker when its cluster has none (--keep-waiting: for ever)
+WATCH_INTERVAL_S = 2.0       # how often a Dask batch asks its scheduler how many workers it has
+
+_clients: weakref.WeakKeyDictionary[Executor, object] = weakref.WeakKeyDictionary()   # a Dask executor's Client
+
+
+def workers_now(executor: Executor) -> int | None:
+    """How many workers a Dask executor's cluster has now (asked of its scheduler); None for a local pool (its
+    workers are the batch's own) or when the scheduler does not answer."""
+    client = _clients.get(executor)
+    if client is None:
+        return None
+    try:
+        return len(client.scheduler_info().get("workers", {}))   # type: ignore[attr-defined]
+    except (OSError, TimeoutError, RuntimeError, ValueError):
+        return None
+
+
+class NoWorkers:
+    """The worker count of a Dask batch, watched while it waits for its units: each change is reported
+    (``on_count(n)``), and a cluster left without a worker for ``timeout_s`` (None: for ever) is
+    :meth:`overdue`: its tasks would wait for ever, with nothing said."""
+
+    def __init__(self, executor: Executor, on_count: Callable[[int], None] | None, timeout_s: float | None,
+                 count: Callable[[Executor], int | None] = workers_now):
+        self.executor, self.on_count, self.timeout_s, self.count = executor, on_count, timeout_s, count
+        self.last: int | None = None
+        self.none_since: float | None = None
+
+    def check(self) -> bool:
+        """Ask the count now; True when the cluster has had no worker for longer than ``timeout_s``."""
+        n = self.count(self.executor)
+        if n is None:
+            return False
+        if n != self.last and (self.last is not None or n == 0) and self.on_count is not None:
+            self.on_count(n)       # (the count at the start is in the batch's first line)
+        self.last = n
+        if n > 0:
+            self.none_since = None
+            return False
+        if self.none_since is None:
+            self.none_since = time.monotonic()
+        return self.timeout_s is not None and time.monotonic() - self.none_since >= self.timeout_s
 
 
 def default_workers() -> int:
@@ -67,7 +112,9 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
         try:
             n = len(client.scheduler_info().get("workers", {}))
             # pure=False: a rerun of the same unit is a new task, never a cached result
-            yield client.get_executor(pure=False), f"Dask cluster {scheduler} ({n} workers now)"
+            executor = client.get_executor(pure=False)
+            _clients[executor] = client
+            yield executor, f"Dask cluster {scheduler} ({n} workers now)"
         finally:
             client.close()
         return

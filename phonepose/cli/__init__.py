@@ -21,6 +21,7 @@ from phonepose import __version__, logs
 from phonepose.cli import process
 from phonepose.cli.output import ReportStream
 from phonepose.errors import OutputError, PhoneposeError
+from phonepose.files import forget_outputs, outputs_committed
 from phonepose.text import printable
 
 app = typer.Typer(
@@ -95,8 +96,37 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where Ctrl-C's KeyboardInterrupt would be: the same clean stop."""
 
 
+# The stops received while the command runs: an exception they cause inside a library (a C extension's import
+# raises ImportError when one lands in it; typer returns a bare 130 for one outside the command) is the stop.
+_stops: list[int] = []
+
+
 def _terminate(signum, frame) -> None:
+    _stops.append(signum)
     raise Terminated
+
+
+def _interrupt(signum, frame) -> None:
+    _stops.append(signum)
+    raise KeyboardInterrupt
+
+
+def _stopped(message: str, code: int) -> int:
+    """The line of a stop, and its exit code: a stop that finds the command's outputs all in place (no output
+    open, one or more committed) lost no work, so it says that and exits 0; otherwise the error line."""
+    done = outputs_committed()
+    if not done:
+        error(message, code)
+    what = message.split(":")[0]
+    typer.echo(f"phonepose: warning: {what} after the outputs were complete: "
+               f"{printable(', '.join(map(str, done)))}", err=True)
+    return 0
+
+
+def _stop_of(exc: KeyboardInterrupt | None = None) -> tuple[str, int]:
+    """The line and code of a stop: the exception's kind, or without one the last signal received."""
+    terminated = isinstance(exc, Terminated) if exc is not None else bool(_stops) and _stops[-1] == signal.SIGTERM
+    return ("terminated (SIGTERM)", 143) if terminated else ("interrupted", 130)
 
 
 class Interrupted(BaseException):
@@ -168,12 +198,12 @@ def _run(argv: list[str] | None) -> int:
     except ClickException as exc:
         _usage_error(exc)
     except Interrupted as exc:
-        error(str(exc), exc.code)
-    except Terminated:
-        error("terminated (SIGTERM)", 143)
-    except (KeyboardInterrupt, typer.Abort):
-        error("interrupted", 130)
+        return _stopped(str(exc), exc.code)
+    except (KeyboardInterrupt, typer.Abort) as exc:
+        return _stopped(*_stop_of(exc if isinstance(exc, KeyboardInterrupt) else None))
     except Exception as exc:   # noqa: BLE001 - the last net: a bug is one line too, the traceback on request
+        if _stops:            # a stop that a library turned into its own error (an import: "initialization failed")
+            return _stopped(*_stop_of())
         if os.environ.get("PHONEPOSE_TRACEBACK"):
             raise
         line = process.failure_line(exc)   # out of memory or open files, an OS failure: still one line
@@ -181,7 +211,12 @@ def _run(argv: list[str] | None) -> int:
             error(line, 1)
         error(f"unexpected {type(exc).__name__}: {' '.join(str(exc).split())[:300]} (a bug in phonepose: please "
               f"report it with the command; PHONEPOSE_TRACEBACK=1 shows where it happened)", 1)
+    if rv == INTERRUPTED_BY_TYPER:      # a stop outside the command's own code (typer returns 130, silent)
+        return _stopped(*_stop_of())
     return rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+
+
+INTERRUPTED_BY_TYPER = 130
 
 
 def _exit_code(exc: SystemExit) -> int:
@@ -203,6 +238,12 @@ def main(argv: list[str] | None = None) -> None:
     logs.to_terminal()
     in_main = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _terminate) if in_main else None
+    # Ctrl-C recorded like SIGTERM; left alone when ignored (a background job) or set by the caller
+    old_int = signal.signal(signal.SIGINT, _interrupt) \
+        if in_main and signal.getsignal(signal.SIGINT) is signal.default_int_handler else None
+    _stops.clear()
+    forget_outputs()
+    code = 1
     saved = sys.stdout, sys.stderr
     out = sys.stdout = ReportStream(sys.stdout) if sys.stdout is not None else None
     sys.stderr = ReportStream(sys.stderr) if sys.stderr is not None else None
@@ -222,7 +263,21 @@ def main(argv: list[str] | None = None) -> None:
                            f"{out.failure.strerror or out.failure} (the report is incomplete; the command's own "
                            f"outputs, if any, are written)", err=True)
     finally:
-        if old_term is not None:
-            signal.signal(signal.SIGTERM, old_term)
         sys.stdout, sys.stderr = saved
+        if argv is None and in_main:
+            _exit_on_stops(code)
+        else:         # called from other code (tests): its handlers back
+            if old_term is not None:
+                signal.signal(signal.SIGTERM, old_term)
+            if old_int is not None:
+                signal.signal(signal.SIGINT, old_int)
     sys.exit(code)
+
+
+def _exit_on_stops(code: int) -> None:
+    """The process's command is done and its code decided: a Ctrl-C or SIGTERM while the interpreter shuts down
+    (atexit handlers, the libraries' threads: rerun's closes its sink) is ignored, so the process ends with that
+    code, never killed by the signal with no line. (A Python handler would not do: the interpreter resets those
+    to the default while it shuts down; an ignored signal stays ignored.)"""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)

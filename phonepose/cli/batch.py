@@ -97,6 +97,8 @@ def batch(
                                        callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
                                        help="Seconds one playback may take; a longer one becomes error rows."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    keep_waiting: bool = typer.Option(False, "--keep-waiting", help="With --scheduler: when the cluster has no "
+                                      "worker, wait for one for ever instead of stopping after 30 s."),
     calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from "
                                       "itself first (`phonepose calibrate-gt`); its rows have param_gt_calibration."),
 ) -> None:
@@ -108,6 +110,7 @@ def batch(
     """
     from phonepose.batch import summarize
     from phonepose.batch.driver import execute_batch, prepare_batch
+    from phonepose.batch.executor import NO_WORKER_TIMEOUT_S
     from phonepose.batch.plan import params_label
 
     prepared = prepare_batch([str(s) for s in sessions], out, trackers=tracker, params=param, workers=workers,
@@ -132,6 +135,16 @@ def batch(
                               f"{redo}; {where}", highlight=False, soft_wrap=True)
             bar.update(task, total=len(plan.units))
 
+        def on_workers(n: int) -> None:
+            if n == 0:
+                wait = "for ever (--keep-waiting)" if keep_waiting else f"up to {NO_WORKER_TIMEOUT_S:g} s"
+                bar.console.print(f"phonepose: warning: --scheduler {scheduler}: the cluster has no worker now; "
+                                  f"waiting {wait} for one (start `dask worker {scheduler}`)", highlight=False,
+                                  soft_wrap=True, markup=False)
+            else:
+                bar.console.print(f"Dask cluster {scheduler} ({n} worker{'s' if n != 1 else ''} now)", highlight=False,
+                                  soft_wrap=True)
+
         failures = FailureLines(lambda line: bar.console.print(line, highlight=False, soft_wrap=True))
 
         def progress(done: int, total: int, rows: list[dict]) -> None:
@@ -143,7 +156,8 @@ def batch(
 
         try:
             try:
-                result = execute_batch(prepared, progress=progress, on_start=on_start)
+                result = execute_batch(prepared, progress=progress, on_start=on_start, on_workers=on_workers,
+                                       no_worker_timeout_s=None if keep_waiting else NO_WORKER_TIMEOUT_S)
             finally:
                 for line in failures.more_lines():
                     bar.console.print(line, highlight=False, soft_wrap=True, markup=False)

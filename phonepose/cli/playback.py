@@ -15,8 +15,11 @@ from phonepose.cli import app
 from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
 from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.errors import ConfigError
-from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
+from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ, SECONDS_MAX
 from phonepose.schemas.topics import Topic
+
+# A tracker step that takes longer is stopped: a real step takes milliseconds, a heavy one on a loaded machine seconds
+TICK_TIMEOUT_S = 60.0
 
 
 def _fmt(v, scale: float = 1.0, digits: int = 2) -> str:
@@ -143,6 +146,9 @@ def playback(
     gt: Path | None = typer.Option(None, "--gt", help="Ground truth from a trajectory file (TUM, or EuRoC .csv) "
                                       "instead of the session's; use with --gt-calibration from `calibrate-gt --gt`."),
     gt_format: str | None = typer.Option(None, "--gt-format", help="tum or euroc (default: euroc for .csv, else tum)."),
+    tick_timeout: float = typer.Option(TICK_TIMEOUT_S, "--tick-timeout", callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
+                                       help="Stop a tracker whose step takes longer than this (seconds): one line "
+                                            "naming it and the tick, exit 5, no output."),
 ) -> None:
     """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
     from phonepose.files import OutputPlan, check_input
@@ -178,7 +184,8 @@ def playback(
         result = run_playback(session, trackers=tracker, out_dir=folder.tmp, rate_hz=rate,
                               correction_math=correction_math, rerun_path=rrd.tmp if rrd is not None else None,
                               spawn=spawn, start_s=start, end_s=end, realtime=realtime, progress=progress,
-                              gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format)
+                              gt_calibration=gt_calibration, gt_file=gt, gt_format=gt_format,
+                              tick_timeout_s=tick_timeout)
     print_table(stdout_console(), metrics_table(result.metrics))
     if gt is not None and not result.has_gt:   # asked for, and unusable: a problem, not a fact about the session
         logging.getLogger("phonepose").warning(

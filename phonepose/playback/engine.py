@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from phonepose.calibration.gt_calibration import GroundTruthSetup, ground_truth_setup
-from phonepose.errors import ConfigError, OutputError, SessionContentError
+from phonepose.errors import ConfigError, OutputError, SessionContentError, TrackerError
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
@@ -45,6 +45,7 @@ from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, 
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
 from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
+from phonepose.playback.watchdog import StepTimeout, StepWatchdog
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.codec import pose_in_frame
@@ -127,6 +128,7 @@ class PlaybackEngine:
         self.trackers = trackers
         self.writer = writer
         self.rerun_logger = rerun_logger
+        self.watchdog: StepWatchdog | None = None      # bounds each tracker step (playback --tick-timeout)
         self.collectors = {t.name: TrajectoryCollector() for t in trackers}
         self._topics = {t.name: tracker_pose_topic(t.name) for t in trackers}
         self.gt = TrajectoryCollector()
@@ -138,7 +140,10 @@ class PlaybackEngine:
     def step(self, tick: Tick, gt: Pose | None = None) -> tuple[Observation, dict[str, Pose | None]]:
         """One tick through the stages and every tracker; ``gt`` (beside the tick) goes to the metrics only."""
         obs = self.stages.process(tick)
-        poses = {tr.name: tr.step(obs) for tr in self.trackers}
+        if self.watchdog is None:
+            poses = {tr.name: tr.step(obs) for tr in self.trackers}
+        else:
+            poses = {tr.name: self._watched_step(tr, obs, tick.index) for tr in self.trackers}
         self.n_ticks += 1
         if tick.in_task:
             self.n_task_ticks += 1
@@ -151,6 +156,19 @@ class PlaybackEngine:
         if self.rerun_logger is not None:
             self.rerun_logger.log_tick(tick, obs, poses, gt)
         return obs, poses
+
+    def _watched_step(self, tracker: Tracker, obs: Observation, tick: int) -> Pose | None:
+        """A step under the watchdog's bound: one past it is the tracker's error (exit 5), naming it and the tick."""
+        assert self.watchdog is not None
+        ref = getattr(tracker, "ref", None)     # a user's tracker: how it was given (-t module:Class)
+        who = f"tracker {ref!r} ({tracker.name})" if ref is not None else f"tracker {tracker.name}"
+        self.watchdog.arm(who, tick)
+        try:
+            return tracker.step(obs)
+        except StepTimeout as exc:
+            raise TrackerError(str(exc), tracker.name) from None
+        finally:
+            self.watchdog.disarm()
 
     def _write(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
         assert self.writer is not None
@@ -232,6 +250,7 @@ class PlaybackOptions:
     gt_format: str | None = None
     hand_eye: str | os.PathLike | None = None
     hand_eye_name: str | None = None
+    tick_timeout_s: float | None = None    # each tracker step at most this long (phonepose.playback.watchdog)
 
 
 def _ground_truth(options: PlaybackOptions) -> GroundTruthSetup:
@@ -346,6 +365,9 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         if hasattr(stages, "close"):
             stack.callback(stages.close)   # the look-ahead's worker thread
         engine = PlaybackEngine(context, stages, tracker_objs)   # refuses a tracker named twice
+        if options.tick_timeout_s is not None:
+            engine.watchdog = StepWatchdog(options.tick_timeout_s)
+            stack.callback(engine.watchdog.close)
         # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
         # before any file is opened), then the output folder and trackers.mcap
         engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math, gt_setup)
