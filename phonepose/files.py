@@ -50,7 +50,11 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import errno
-import fcntl
+
+try:
+    import fcntl
+except ImportError:   # Windows: no advisory locks; a temporary whose process may live is never cleared
+    fcntl = None  # type: ignore[assignment]
 import hashlib
 import json
 import os
@@ -76,6 +80,26 @@ _MCAP_MAGIC = b"\x89MCAP0\r\n"     # (session.index.MCAP_MAGIC: this module impo
 # then exits 0); a stop that cannot unwind (a tracker step that never returns) removes the open plans' temporaries.
 _open_plans: list[OutputPlan] = []
 _committed: list[Path] = []
+
+
+# open() flags that only some systems have: without them the call opens the same file, less strictly
+_CLOEXEC = getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOINHERIT", 0)
+_NONBLOCK = getattr(os, "O_NONBLOCK", 0)
+_DIRECTORY = getattr(os, "O_DIRECTORY", 0)
+
+
+def _lock(fd: int, *, shared: bool = False, wait: bool = True) -> bool:
+    """``flock`` ``fd``: True when held, False when another process holds it (only with ``wait=False``). Where
+    the system has no ``flock`` nothing is locked and True is returned: liveness then comes from the pid in a
+    temporary's name (:func:`_pid_alive`)."""
+    if fcntl is None:
+        return True
+    op = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | (0 if wait else fcntl.LOCK_NB)
+    try:
+        fcntl.flock(fd, op)
+    except BlockingIOError:
+        return False
+    return True
 
 
 def outputs_committed() -> tuple[Path, ...]:
@@ -197,18 +221,15 @@ def being_written(path: str | os.PathLike) -> bool:
     """Does another phonepose hold ``path`` open to write it (a recording in progress: the output rule's
     ``flock``)? Asked without blocking; a file that cannot be opened is not."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
+        fd = os.open(path, os.O_RDONLY | _CLOEXEC | _NONBLOCK)
     except OSError:
         return False
     try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
+        return not _lock(fd, shared=True, wait=False)
     except OSError:
         return False
     finally:
         os.close(fd)    # (closing our descriptor releases our lock only, never the writer's)
-    return False
 
 
 # Any output's temporary or set-aside earlier output: "." STEM "." PID "-" 8 hex digits SUFFIX
@@ -217,8 +238,8 @@ _LEFT_BY_A_RUN = re.compile(rf"\.(?P<stem>.+)\.(?P<pid>\d+)-[0-9a-f]{{8}}(?P<kin
 
 def _pid_alive(pid: int) -> bool:
     """Is a process ``pid`` running (another user's counts; where it cannot be asked, every pid is)?"""
-    if os.name == "nt":      # os.kill there ends the process: never asked
-        return True
+    if os.name == "nt":      # os.kill there ends the process: the process's exit code is asked instead
+        return _windows_pid_alive(pid)
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -226,6 +247,18 @@ def _pid_alive(pid: int) -> bool:
     except OSError:
         return True
     return True
+
+
+def _windows_pid_alive(pid: int) -> bool:
+    kernel32 = ctypes.WinDLL("kernel32", use_last_error=True)  # type: ignore[attr-defined]
+    handle = kernel32.OpenProcess(0x1000, False, pid)   # PROCESS_QUERY_LIMITED_INFORMATION
+    if not handle:
+        return ctypes.get_last_error() == 5  # type: ignore[attr-defined]  # ERROR_ACCESS_DENIED: running
+    try:
+        code = ctypes.c_ulong()
+        return bool(kernel32.GetExitCodeProcess(handle, ctypes.byref(code))) and code.value == 259   # STILL_ACTIVE
+    finally:
+        kernel32.CloseHandle(handle)
 
 
 def killed_runs_left(folder: str | os.PathLike) -> list[Path]:
@@ -242,13 +275,14 @@ def killed_runs_left(folder: str | os.PathLike) -> list[Path]:
             continue
         path = Path(folder) / name
         try:
-            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+            fd = os.open(path, os.O_RDONLY | _NONBLOCK)
         except OSError:
             continue
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if not _lock(fd, wait=False):
+                continue       # held: a live command's (its pid seen through another namespace)
         except OSError:
-            continue           # held: a live command's (its pid seen through another namespace)
+            continue
         finally:
             os.close(fd)
         left.append(path)
@@ -317,7 +351,7 @@ class _Output:
             raise OutputError(f"{self.option} {self.path}: {why}")
         if not os.access(parent, os.W_OK | os.X_OK):
             try:
-                read_only = bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
+                read_only = hasattr(os, "statvfs") and bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
             except OSError:
                 read_only = False
             raise OutputError(f"{self.option} {self.path}: directory {shown} is "
@@ -355,9 +389,7 @@ class _Output:
             except OSError:
                 continue
             try:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
+                if not _lock(fd, wait=False) or (fcntl is None and _pid_alive(int(found.group(1)))):
                     pid = found.group(1)
                     raise OutputError(f"{self.option} {self.path}: another phonepose (pid {pid}) is writing it; "
                                       f"wait for it to finish or choose another {self.option}") from None
@@ -428,13 +460,13 @@ class OutputFile(_Output):
             self._clear_stale(inputs)
         tmp = self.target if self._direct else self._tmp_name()
         try:
-            self._fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+            self._fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_RDWR | _CLOEXEC, 0o666)
         except FileExistsError:
             raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
                               f"replace it") from None
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
-        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        _lock(self._fd)
         self.tmp = tmp
         return tmp
 
@@ -447,10 +479,10 @@ class OutputFile(_Output):
         assert tmp is not None and fd is not None and not self._direct and not self.session
         new = self._tmp_name()
         try:
-            new_fd = os.open(new, os.O_CREAT | os.O_EXCL | os.O_RDWR | os.O_CLOEXEC, 0o666)
+            new_fd = os.open(new, os.O_CREAT | os.O_EXCL | os.O_RDWR | _CLOEXEC, 0o666)
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
-        fcntl.flock(new_fd, fcntl.LOCK_EX)
+        _lock(new_fd)
         with _signals_held():    # the version goes in and the temporaries are swapped, or neither
             return self._put_in_place(tmp, fd, target, new, new_fd)
 
@@ -577,10 +609,12 @@ class OutputDir(_Output):
         tmp = self._tmp_name()
         try:
             os.mkdir(tmp)
-            self._fd = os.open(tmp, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+            if fcntl is not None:   # a folder is opened only to lock it (Windows cannot open one)
+                self._fd = os.open(tmp, os.O_RDONLY | _DIRECTORY | _CLOEXEC)
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
-        fcntl.flock(self._fd, fcntl.LOCK_EX)
+        if self._fd is not None:
+            _lock(self._fd)
         self.tmp = self._written_in = tmp
         return tmp
 
@@ -841,7 +875,7 @@ def _remove(p: Path) -> None:
 
 def _fsync_dir(d: Path) -> None:
     try:
-        fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY)
+        fd = os.open(d, os.O_RDONLY | _DIRECTORY)
     except OSError:
         return
     try:
