@@ -82,9 +82,10 @@ def test_every_module_imports_without_posix(tmp_path):
 
 @pytest.mark.long
 def test_record_playback_evaluate_without_posix(tmp_path):
-    """The demo's path through the CLI's own entry point: a session, its playback folder and an evaluation."""
+    """The demo's path through the CLI's own entry point: a session, its playback folder, an evaluation, and a
+    cut copy of the session recovered."""
     r = _run("""
-        import sys
+        import os
         from phonepose.cli import main
         def run(*args):
             try:
@@ -95,6 +96,12 @@ def test_record_playback_evaluate_without_posix(tmp_path):
         run("record", "sim", "-q", "--scenario", "exp2", "--path", "TRI2", "--out", "s.mcap")
         run("playback", "-q", "s.mcap", "-t", "T4", "-t", "T8", "--out", "pb")
         run("evaluate", "--gt", "pb/groundtruth.tum", "--est", "pb/trajectories/T8.tum")
+        with open("s.mcap", "rb") as f:
+            head = f.read(os.path.getsize("s.mcap") * 2 // 3)
+        with open("cut.mcap", "wb") as f:
+            f.write(head)
+        run("recover", "cut.mcap", "--out", "fixed.mcap")
+        run("info", "fixed.mcap")
         print("ALL DONE")
     """, tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]

@@ -415,13 +415,21 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
         sal.run()
         unchanged()
         if report.user_records:     # every other record kind is kept (or rebuilt: the index records)
-            log.warning("phonepose: warning: %s: %d record(s) of another tool's own kinds (opcodes 0x80-0xff) not "
+            log.warning("%s: %d record(s) of another tool's own kinds (opcodes 0x80-0xff) not "
                         "copied: their meaning is that tool's", src, report.user_records)
         try:
             _write(sal, report, dst, staged)
         finally:
             unchanged()   # its chunks were read again to be written
     return report
+
+
+def _pread(fd: int, n: int, offset: int) -> bytes:
+    """``os.pread``, or a seek and a read where the system has none (Windows): the salvager reads from one thread."""
+    if hasattr(os, "pread"):
+        return os.pread(fd, n, offset)
+    os.lseek(fd, offset, os.SEEK_SET)
+    return os.read(fd, n)
 
 
 class _FileBytes:
@@ -446,8 +454,8 @@ class _FileBytes:
         if self._at <= start and stop <= self._at + len(self._window):
             return self._window[start - self._at:stop - self._at]
         if stop - start > self.WINDOW:          # a chunk's data: read once, not through the window
-            return os.pread(self.fd, stop - start, start)
-        self._at, self._window = start, os.pread(self.fd, self.WINDOW, start)
+            return _pread(self.fd, stop - start, start)
+        self._at, self._window = start, _pread(self.fd, self.WINDOW, start)
         return self._window[:stop - start]
 
     def __getitem__(self, key):
@@ -465,7 +473,7 @@ class _FileBytes:
         step a byte."""
         pos = max(start, 0)
         while pos < self.n:
-            block = np.frombuffer(os.pread(self.fd, self.WINDOW + 8, pos), dtype=np.uint8)
+            block = np.frombuffer(_pread(self.fd, self.WINDOW + 8, pos), dtype=np.uint8)
             if block.size == 0:
                 return
             head = block[:self.WINDOW]
@@ -487,7 +495,7 @@ class _FileBytes:
         pos = max(start, 0)
         while pos < self.n:
             if not self._at <= pos < self._at + len(self._window):
-                self._at, self._window = pos, os.pread(self.fd, self.WINDOW, pos)
+                self._at, self._window = pos, _pread(self.fd, self.WINDOW, pos)
             found = self._window.find(sub, pos - self._at)
             if found >= 0:
                 return self._at + found
@@ -495,7 +503,7 @@ class _FileBytes:
             if end >= self.n or not self._window:
                 return -1
             pos = end - len(sub) + 1        # a match across the window's end: read a window from there
-            self._at, self._window = pos, os.pread(self.fd, self.WINDOW, pos)
+            self._at, self._window = pos, _pread(self.fd, self.WINDOW, pos)
         return -1
 
 
