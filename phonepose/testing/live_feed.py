@@ -37,16 +37,18 @@ def arrival_order(records: list[Record], max_delay_ns: dict[str, int], seed: int
     return [r for _, _, r in keyed]
 
 
-def replay_live(source: str | os.PathLike, out: str | os.PathLike, trackers: list[str], *, seed: int = 0,
+def replay_live(source: str | os.PathLike, out: str | os.PathLike, trackers: list, *, seed: int = 0,
                 max_delay_ns: dict[str, int] | None = None, rate_hz: float = 20.0, **kwargs) -> LiveTracker:
-    """Feed ``source`` to live ``trackers`` in a generated arrival order; write it with their estimates to ``out``."""
+    """Feed ``source`` to live ``trackers`` (names or tracker objects) in a generated arrival order; write it with
+    their estimates to ``out``."""
     with SessionReader(source) as reader:
         msgs = [Record(m.topic, m.msg, m.log_time_ns, m.publish_time_ns) for m in reader.messages()]
     static = [r for r in msgs if r.topic in STATIC_TOPICS]
     data = [r for r in msgs if r.topic not in STATIC_TOPICS]
     published: list[Record] = []
     warnings: list[str] = []
-    tracker = LiveTracker(make_trackers(trackers), publish=published.append, now_ns=lambda: 0,
+    objs = make_trackers(trackers) if all(isinstance(t, str) for t in trackers) else trackers
+    tracker = LiveTracker(objs, publish=published.append, now_ns=lambda: 0,
                           warn=warnings.append, rate_hz=rate_hz, **kwargs)
     tracker.warnings = warnings   # type: ignore[attr-defined]
     for r in static:

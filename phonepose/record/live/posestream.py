@@ -10,6 +10,7 @@ bounded queue, and what does not fit is dropped and counted.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ipaddress
 import secrets
 import threading
@@ -19,6 +20,7 @@ from aiohttp import WSMsgType, web
 
 CLIENT_QUEUE_MAX = 256     # lines waiting for one client (~2.5 s of 5 trackers at 20 Hz)
 PATH = "/poses"
+CLOSE_WAIT_S = 2.0         # at the end, how long queued lines may take to go out before the stream closes
 
 
 def is_loopback(host: str) -> bool:
@@ -81,9 +83,9 @@ class PoseStreamServer:
     async def _start(self) -> int:
         app = web.Application()
         app.router.add_get(PATH, self._handle)
-        self._runner = web.AppRunner(app, access_log=None)
+        self._runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context, shutdown_timeout=2.0)
+        site = web.TCPSite(self._runner, self.host, self.port, ssl_context=self.ssl_context)
         await site.start()
         return int(self._runner.addresses[0][1])
 
@@ -102,6 +104,7 @@ class PoseStreamServer:
             while True:
                 line = await q.get()
                 await ws.send_str(line)
+                q.task_done()
 
         sender = asyncio.ensure_future(pump())
         try:
@@ -143,6 +146,9 @@ class PoseStreamServer:
         self._stop_loop()
 
     async def _close(self) -> None:
+        # what is queued goes out first (a client keeping up gets every line), for at most CLOSE_WAIT_S
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.gather(*(q.join() for q in list(self.clients))), CLOSE_WAIT_S)
         for ws in list(self._sockets):   # the clients see the stream end (close code 1001: going away)
             await ws.close(code=1001, message=b"recording stopped")
         assert self._runner is not None

@@ -257,7 +257,7 @@ class LiveTracker:
         for topic, msg, t, _ in self.merger.flush():
             self._take(topic, msg, t)
         if self.feed is None:
-            self._try_start()
+            self._try_start(ended=True)
         if self.feed is not None and self._last_data_ns is not None:
             for tick, _gt in self.feed.finish(self._last_data_ns):
                 self._step(tick)
@@ -288,9 +288,14 @@ class LiveTracker:
             return
         self._try_start()
 
-    def _try_start(self) -> None:
+    def _try_start(self, ended: bool = False) -> None:
+        """Start forming ticks once the grid's origin and the context are known and the streams have run a
+        hold-back past the origin (a stream that starts a little later is still put in order), or at the end."""
         if self._t0 is None or (self.has_camera and (Topic.CONTROLLER_MARKER not in self.static
                                                      or Topic.CAMERA_CALIBRATION not in self.static)):
+            return
+        newest = self._last_data_ns
+        if not ended and (newest is None or newest - self._t0 <= self.merger.hold_ns):
             return
         try:
             context = context_from_static("live", self.has_camera, self.static)
@@ -308,6 +313,7 @@ class LiveTracker:
         self.feed = sched.feed()
         backlog = sorted(self._backlog, key=lambda m: m[2])   # stable: arrival order among equal log times
         self._backlog = []
+        self.merger.late.clear()   # the backlog is put in order here: nothing in it came too late
         for topic, msg, t in backlog:
             for tick, _gt in self.feed.feed(topic, msg, t):
                 self._step(tick)

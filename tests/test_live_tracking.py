@@ -1,0 +1,215 @@
+"""Live tracking (``record live -t``): the hold-back's order, live estimates equal to playback's bit for bit,
+the pose stream and its example client, a failing tracker, ``playback --check-live``."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import aiohttp
+import numpy as np
+import pytest
+from conftest import DEADLINE_S, wait_until
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from phonepose.pipeline.trackers import make_trackers
+from phonepose.playback.livecheck import check_live, live_report
+from phonepose.record.live.posestream import PoseStreamServer
+from phonepose.record.live.tracking import HOLD_BACK_NS, LiveTracker, StreamMerger
+from phonepose.record.source import Record
+from phonepose.schemas.topics import Topic
+from phonepose.session import SessionReader
+from phonepose.testing.live_feed import arrival_order, replay_live
+from phonepose.testing.playback_session import write_test_session
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pose_client.py"
+STREAMS = (Topic.CAMERA_IMAGE, Topic.DISPLAY_VIO_POSE, Topic.CONTROLLER_VIO_POSE, Topic.CONTROLLER_IMU,
+           Topic.GT_CONTROLLER_POSE)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    p = tmp_path_factory.mktemp("live") / "s.mcap"
+    write_test_session(p, duration_s=3.0)
+    return p
+
+
+@pytest.fixture(scope="module")
+def n_ticks(session) -> int:
+    """The ticks playback forms on the session."""
+    from phonepose.pipeline.context import read_context
+    from phonepose.playback.scheduler import TickScheduler
+    with SessionReader(session) as reader:
+        return len(TickScheduler(reader, read_context(reader)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(1_000_000, HOLD_BACK_NS // 4), st.integers(0, 10**9), st.integers(1, 40),
+                          st.integers(0, HOLD_BACK_NS // 2), st.integers(0, 2**32)), min_size=1, max_size=4))
+def test_merger_passes_interleaved_streams_on_in_log_time_order(streams):
+    """Streams each in order (a sample at least every hold-back / 4), each arriving up to hold-back / 2 late,
+    once each has said hello (a stream not heard of yet is not waited for): passed on whole, in log-time order,
+    none late."""
+    arrivals = [(0, k, 0) for k in range(len(streams))]
+    for k, (period, start, n, max_delay, seed) in enumerate(streams):
+        rng = np.random.default_rng(seed)
+        last = 0
+        for i in range(n):
+            t = 1 + start % period + i * period
+            last = max(last, t + int(rng.integers(0, max_delay + 1)))
+            arrivals.append((last, k, t))
+    arrivals.sort()
+    merger = StreamMerger()
+    out = []
+    for _, k, t in arrivals:
+        out += [m[2] for m in merger.push(f"/s{k}", None, t)]
+    out += [m[2] for m in merger.flush()]
+    assert out == sorted(t for _, _, t in arrivals)
+    assert not merger.late
+
+
+def _delays(seed: int) -> dict[str, int]:
+    rng = np.random.default_rng(seed)
+    return {topic: int(rng.integers(0, HOLD_BACK_NS * 4 // 5)) for topic in STREAMS}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_live_estimates_equal_playback_for_every_tracker(session, n_ticks, tmp_path, seed, cli):
+    """Every tracker, streams interleaved by generated delays within the hold-back: every tick identical."""
+    out = tmp_path / "live.mcap"
+    tracker = replay_live(session, out, ["all"], seed=seed, max_delay_ns=_delays(seed))
+    assert not tracker.merger.late and not tracker.stopped
+    checks = check_live(out)
+    assert [c.tracker for c in checks] == [t.name for t in make_trackers(["all"])]
+    for c in checks:
+        assert (c.compared, c.identical, c.different) == (tracker.ticks, tracker.ticks, 0), c
+    assert tracker.ticks == n_ticks == 61   # 3 s at 20 Hz from the first frame, both ends
+    r = cli("playback", out, "--check-live")
+    assert r.returncode == 0, r.stderr
+    assert f"T8: {tracker.ticks} ticks compared, {tracker.ticks} identical, 0 different" in r.stdout.splitlines()
+
+
+def test_a_stream_later_than_the_hold_back_is_counted_and_check_live_fails(session, tmp_path, cli):
+    out = tmp_path / "late.mcap"
+    late = {Topic.CAMERA_IMAGE: 3 * HOLD_BACK_NS, Topic.DISPLAY_VIO_POSE: 3 * HOLD_BACK_NS}
+    tracker = replay_live(session, out, ["T4"], seed=0, max_delay_ns=late)
+    assert tracker.merger.late[Topic.CAMERA_IMAGE] > 0
+    assert any("late messages" in line for line in tracker.summary())
+    r = cli("playback", out, "--check-live")
+    assert r.returncode == 1
+    [line] = r.stderr.strip().splitlines()
+    assert line.startswith("phonepose: error: live estimates differ from playback's: T4 at ")
+
+
+def test_check_live_on_a_session_without_live_tracking_is_one_line(session, cli):
+    r = cli("playback", session, "--check-live")
+    assert r.returncode == 4
+    assert r.stderr.strip() == (f"phonepose: error: {session}: no live tracking in this session (record it with "
+                             "`record live -t TRACKER`)")
+
+
+class _Boom:
+    """A tracker that raises at its ``k``-th step."""
+    needs_camera = False
+    uses_vio_samples = False
+
+    def __init__(self, k: int):
+        self.name, self.k, self.n = "Boom", k, 0
+
+    def reset(self) -> None:
+        self.n = 0
+
+    def step(self, obs):
+        self.n += 1
+        if self.n == self.k:
+            raise ValueError("broken on purpose")
+        return None
+
+
+@pytest.mark.parametrize("k", [1, 7, 33])
+def test_a_tracker_that_raises_is_one_warning_and_the_rest_goes_on(session, n_ticks, tmp_path, k):
+    tracker = replay_live(session, tmp_path / "boom.mcap", [*make_trackers(["T1"]), _Boom(k)], seed=k)
+    boom = [w for w in tracker.warnings if "Boom" in w]
+    assert boom == [f"tracker Boom raised at tick {k - 1} (ValueError: broken on purpose); it is stepped no more, "
+                    "the recording and the other trackers go on"]
+    assert tracker.ticks == n_ticks and tracker.report()["per_tracker"]["T1"]["estimates"] > 0
+    assert tracker.report()["per_tracker"]["Boom"]["failed"] == "ValueError: broken on purpose"
+
+
+def _records(path) -> tuple[list[Record], list[Record]]:
+    from phonepose.pipeline.context import STATIC_TOPICS
+    with SessionReader(path) as reader:
+        msgs = [Record(m.topic, m.msg, m.log_time_ns, m.publish_time_ns) for m in reader.messages()]
+    return [r for r in msgs if r.topic in STATIC_TOPICS], [r for r in msgs if r.topic not in STATIC_TOPICS]
+
+
+def test_pose_stream_example_client_reads_a_live_run(session, n_ticks, tmp_path):
+    """The tracking thread fed through offer() as the recorder feeds it; the example client prints every estimate."""
+    server = PoseStreamServer("127.0.0.1", 0)
+    server.start()
+    published: list[Record] = []
+    sent: list[str] = []
+
+    def lines(batch: list[str]) -> None:
+        sent.extend(batch)
+        server.send(batch)
+
+    tracker = LiveTracker(make_trackers(["T4", "T8"]), publish=published.append, now_ns=time.time_ns,
+                          warn=lambda text: None, lines=lines)
+    client = subprocess.Popen([sys.executable, str(EXAMPLE), server.url], stdout=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: server.clients or client.poll() is not None, what="the example client to connect")
+        assert client.poll() is None
+        tracker.start()
+        static, data = _records(session)
+        for r in static + arrival_order(data, _delays(9), 9):
+            tracker.offer(r)
+        tracker.finish(DEADLINE_S)
+    finally:
+        server.stop()
+        out, _ = client.communicate(timeout=DEADLINE_S)
+    assert tracker.dropped == 0 and server.dropped == 0
+    docs = [json.loads(line) for line in sent]
+    assert len(docs) == 2 * tracker.ticks == 2 * n_ticks
+    expect = [f"{d['t_ns']} {d['tracker']} "
+              + ("no pose" if d["position"] is None else " ".join(f"{v:+.3f}" for v in d["position"]))
+              + f" in_view={d['in_view']}" for d in docs]
+    assert out.splitlines() == expect
+    assert sum(d["position"] is not None for d in docs) == len(published) > 0
+
+
+def test_pose_stream_opened_to_the_network_wants_the_token():
+    server = PoseStreamServer("0.0.0.0", 0, token="s3cret")
+    port = server.start()
+    try:
+        async def attempt(query: str) -> int:
+            async with aiohttp.ClientSession() as s:
+                try:
+                    async with s.ws_connect(f"ws://127.0.0.1:{port}/poses{query}"):
+                        return 101
+                except aiohttp.WSServerHandshakeError as exc:
+                    return exc.status
+        assert asyncio.run(attempt("")) == 403
+        assert asyncio.run(attempt("?token=wrong")) == 403
+        assert asyncio.run(attempt("?token=s3cret")) == 101
+        assert server.refused == 2
+    finally:
+        server.stop()
+    assert server.url == f"wss://localhost:{port}/poses?token=s3cret"
+
+
+def test_report_is_stored_and_read_back(session, n_ticks, tmp_path):
+    out = tmp_path / "live.mcap"
+    tracker = replay_live(session, out, ["T1", "T8"], seed=3)
+    rep = live_report(out)
+    assert rep == json.loads(json.dumps(tracker.report()))
+    assert rep["trackers"] == ["T1", "T8"] and rep["ticks"] == n_ticks
+    for name in ("T1", "T8"):
+        for key in ("compute_ms", "input_to_publish_ms"):
+            p = rep["per_tracker"][name][key]
+            assert p["n"] == n_ticks and 0 <= p["p50"] <= p["p99"] <= p["max"]
