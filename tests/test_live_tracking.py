@@ -18,7 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from phonepose.pipeline.trackers import make_trackers
-from phonepose.playback.livecheck import check_live, live_report
+from phonepose.playback.livecheck import check_live
+from phonepose.playback.livereport import live_report
 from phonepose.record.live.posestream import PoseStreamServer
 from phonepose.record.live.tracking import HOLD_BACK_NS, LiveTracker, StreamMerger
 from phonepose.record.source import Record
@@ -213,3 +214,68 @@ def test_report_is_stored_and_read_back(session, n_ticks, tmp_path):
         for key in ("compute_ms", "input_to_publish_ms"):
             p = rep["per_tracker"][name][key]
             assert p["n"] == n_ticks and 0 <= p["p50"] <= p["p99"] <= p["max"]
+
+
+@pytest.mark.slow
+def test_rehearsed_recording_tracks_live_as_playback_does(tmp_path):
+    """``record rehearse -t T8 -t T4``: the real live path (pages in Chromium, the video as the camera); every
+    live estimate in the session equals playback's."""
+    from conftest import require_browser
+
+    from phonepose.errors import ConfigError
+    from phonepose.record.live.session import LiveTracking
+    from phonepose.record.rehearse import rehearse
+    from phonepose.record.rehearse.browser import find_iwer
+
+    try:
+        find_iwer()
+    except ConfigError as exc:   # no node: tools/install-test-browser.sh could not run npm ci
+        pytest.skip(str(exc))
+    require_browser()
+    tracking = LiveTracking(make_trackers(["T8", "T4"]), pose_port=0)
+    lines: list[str] = []
+    result = rehearse(tmp_path / "r", lead_in_s=30.0, timeout_s=DEADLINE_S, echo=lines.append, headset=False,
+                      tracking=tracking)
+    live = result.files["live.mcap"]
+    report = live_report(live)
+    assert report is not None and report["dropped"] == 0 and not report["stopped"]
+    assert report["ticks"] > 20 * 30   # the lead-in and the motion at 20 Hz
+    for c in check_live(live):
+        assert c.compared == report["ticks"] and c.identical == c.compared, c
+    assert any(line.startswith("live T8: ") for line in result.tracking)
+
+
+def _damaged_reports(good: dict) -> list[str]:
+    """The good report with each key removed, each value of the wrong type, and text that is not JSON."""
+    out = ["", "{", "null", "[]", json.dumps("report")]
+    for key in good:
+        out.append(json.dumps({k: v for k, v in good.items() if k != key}))
+        out.append(json.dumps({**good, key: {"not": "this"} if not isinstance(good[key], dict) else "x"}))
+    return out
+
+
+def test_damaged_live_figures_are_one_line(session, tmp_path, cli):
+    from phonepose.playback.livereport import METADATA_NAME
+    from phonepose.session import SessionWriter
+
+    src = tmp_path / "live.mcap"
+    good = replay_live(session, src, ["T1"], seed=0).report()
+    with SessionReader(src) as reader:
+        msgs = list(reader.messages())
+    required = ("trackers", "rate_hz", "correction_math", "first_tick_ns", "last_tick_ns", "ticks", "per_tracker")
+    cases = [c for c in _damaged_reports(good)
+             if not (c.startswith("{\"") and all(k in json.loads(c) and json.loads(c)[k] == good[k] for k in required))]
+    assert len(cases) > 10
+    for i, text in enumerate(cases):
+        bad = tmp_path / f"bad{i}.mcap"
+        with SessionWriter(bad) as w:
+            for m in msgs:
+                w.write(m.topic, m.msg, m.log_time_ns, m.publish_time_ns)
+            w.add_metadata(METADATA_NAME, {"report": text})
+        r = cli("playback", bad, "--check-live")
+        assert r.returncode == 4, (text, r)
+        assert r.stderr.strip() == (f"phonepose: error: {bad}: its live tracking figures (MCAP metadata "
+                                    f"{METADATA_NAME}) are damaged"), text
+        r = cli("info", bad)
+        assert r.returncode == 0 and "live tracking" not in r.stdout
+        assert r.stderr.strip().startswith("phonepose: warning: ")

@@ -9,7 +9,6 @@ must be the very same message: both absent, or the same serialized PoseInFrame.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 from dataclasses import dataclass
 
@@ -17,12 +16,11 @@ from phonepose.errors import SessionContentError
 from phonepose.pipeline.context import read_context
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.playback.engine import _check_camera_trackers, _ticks_ahead
+from phonepose.playback.livereport import live_report
 from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Frame, tracker_pose_topic
 from phonepose.session import SessionReader
 from phonepose.session.codec import pose_in_frame
-
-METADATA_NAME = "phonepose.live_tracking"   # phonepose.record.live.tracking writes it
 
 
 @dataclass
@@ -32,20 +30,6 @@ class LiveCheck:
     identical: int
     different: int
     first_difference_ns: int | None = None
-
-
-def live_report(path: str | os.PathLike) -> dict | None:
-    """The live trackers' figures stored in a session (None if it has none or they cannot be read)."""
-    from mcap.reader import make_reader
-
-    try:
-        with open(path, "rb") as f:
-            for meta in make_reader(f).iter_metadata():
-                if meta.name == METADATA_NAME:
-                    return json.loads(meta.metadata["report"])
-    except Exception:  # noqa: BLE001 - a damaged or foreign file: no figures, said by the caller
-        return None
-    return None
 
 
 def check_live(session: str | os.PathLike) -> list[LiveCheck]:

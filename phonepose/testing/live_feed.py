@@ -16,7 +16,8 @@ import numpy as np
 
 from phonepose.pipeline.context import STATIC_TOPICS
 from phonepose.pipeline.trackers import make_trackers
-from phonepose.record.live.tracking import METADATA_NAME, LiveTracker
+from phonepose.playback.livereport import METADATA_NAME
+from phonepose.record.live.tracking import LiveTracker
 from phonepose.record.source import Record
 from phonepose.session import SessionReader, SessionWriter
 

@@ -68,13 +68,13 @@ from phonepose.calibration.camera_file import CameraCalibrationFile, load_calibr
 from phonepose.errors import ConfigError
 from phonepose.pipeline.markers import aruco_dictionary
 from phonepose.pipeline.types import CameraModel
+from phonepose.playback.livereport import METADATA_NAME as TRACKING_METADATA
 from phonepose.record.live.camera import Camera
 from phonepose.record.live.clock import RecorderClock
 from phonepose.record.live.posestream import PoseStreamServer
 from phonepose.record.live.recording import T_BODY_MARKER, T_DISPLAY_CAMERA, LiveRecording
 from phonepose.record.live.server import STATIC_DIR, LiveServer
 from phonepose.record.live.tracking import LIVE_STREAMS, LiveTracker
-from phonepose.record.live.tracking import METADATA_NAME as TRACKING_METADATA
 from phonepose.record.recorder import Recorder, RecordResult
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb

@@ -33,6 +33,7 @@ from phonepose.errors import PhoneposeError
 from phonepose.geometry import Pose
 from phonepose.pipeline.context import STATIC_TOPICS, context_from_static
 from phonepose.pipeline.types import Stages, Tracker
+from phonepose.playback.livereport import summary_lines
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, SCHEDULED_TOPICS, TickFeed, TickScheduler
 from phonepose.record.source import Record
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
@@ -42,7 +43,6 @@ HOLD_BACK_NS = 500_000_000         # a stream that delivered nothing for this lo
 QUEUE_MAX = 4096                   # messages waiting for the tracking thread (~20 s of a live session's streams)
 BACKLOG_MAX_BYTES = 256 << 20      # data kept before the first tick can be formed (waiting for the marker size)
 SAMPLES_MAX = 1_000_000            # latency samples kept per figure (a day at 20 Hz is 1.7 M: the first are kept)
-METADATA_NAME = "phonepose.live_tracking"
 
 _SCHEDULED = frozenset(SCHEDULED_TOPICS)
 _STATIC = frozenset(STATIC_TOPICS)
@@ -110,10 +110,6 @@ def percentiles_ms(samples: Iterable[float]) -> dict[str, float] | None:
         return None
     return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)) * 1e3, 3),
             "p99": round(float(np.percentile(a, 99)) * 1e3, 3), "max": round(float(a.max()) * 1e3, 3)}
-
-
-def _fmt(p: dict | None) -> str:
-    return "n/a" if p is None else f"{p['p50']:.1f} / {p['p99']:.1f} / {p['max']:.1f}"
 
 
 @dataclass
@@ -380,26 +376,3 @@ class LiveTracker:
 
     def summary(self) -> list[str]:
         return summary_lines(self.report())
-
-
-def summary_lines(r: dict) -> list[str]:
-    """The closing summary's lines for a report (:meth:`LiveTracker.report`)."""
-    out = [f"live tracking: {r['ticks']} ticks at {r['rate_hz']:g} Hz, shared stages p50/p99/max "
-           f"{_fmt(r['stages_ms'])} ms"]
-    for name, t in r["per_tracker"].items():
-        line = (f"live {name}: {t['estimates']} estimates; compute {_fmt(t['compute_ms'])} ms, input to publication "
-                f"{_fmt(t['input_to_publish_ms'])} ms, tick to publication {_fmt(t['tick_to_publish_ms'])} ms "
-                "(p50 / p99 / max)")
-        if t["overruns"]:
-            line += f"; {t['overruns']} tick(s) over the period"
-        if t["failed"]:
-            line += f"; stopped: {t['failed']}"
-        out.append(line)
-    if r["dropped"]:
-        out.append(f"live tracking dropped {r['dropped']} input message(s): estimates may differ from playback's")
-    if r["late"]:
-        out.append("live tracking took late messages (after the hold-back): "
-                   + ", ".join(f"{k} {n}" for k, n in sorted(r["late"].items())))
-    if r["stopped"]:
-        out.append(f"live tracking stopped: {r['stopped']}")
-    return out
