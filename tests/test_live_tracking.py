@@ -279,3 +279,70 @@ def test_damaged_live_figures_are_one_line(session, tmp_path, cli):
         r = cli("info", bad)
         assert r.returncode == 0 and "live tracking" not in r.stdout
         assert r.stderr.strip().startswith("phonepose: warning: ")
+
+
+class _Slow:
+    """A tracker whose every step lasts at least ``at_least_s`` (busy: no sleep's granularity)."""
+    needs_camera = False
+    uses_vio_samples = False
+    name = "Slow"
+
+    def __init__(self, at_least_s: float):
+        self.at_least_s = at_least_s
+
+    def reset(self) -> None:
+        pass
+
+    def step(self, obs):
+        end = time.perf_counter() + self.at_least_s
+        while time.perf_counter() < end:
+            pass
+        return None
+
+
+@pytest.mark.parametrize("rate_hz", [500.0, 1000.0])
+def test_a_tracker_longer_than_the_tick_period_is_one_warning_and_counted(tmp_path, rate_hz):
+    short = tmp_path / "short.mcap"
+    write_test_session(short, duration_s=0.4)
+    tracker = replay_live(short, tmp_path / "slow.mcap", [_Slow(2.0 / rate_hz)], rate_hz=rate_hz)
+    slow = [w for w in tracker.warnings if "Slow" in w]
+    assert len(slow) == 1 and slow[0].startswith("tracker Slow took ")
+    assert tracker.report()["per_tracker"]["Slow"]["overruns"] == tracker.ticks > 0
+    assert f"{tracker.ticks} tick(s) over the period" in tracker.summary()[1]
+
+
+@pytest.mark.parametrize("n", [7, 100])
+def test_input_beyond_the_queue_is_dropped_counted_and_said_once(session, n):
+    warnings: list[str] = []
+    tracker = LiveTracker(make_trackers(["T1"]), publish=lambda r: None, now_ns=time.time_ns, warn=warnings.append,
+                          queue_max=5)
+    _static, data = _records(session)
+    for r in data[:n]:
+        tracker.offer(r)       # the thread is not started: nothing is taken out
+    assert tracker.dropped == n - 5
+    assert len(warnings) == 1 and warnings[0].startswith("live tracking falls behind the streams: input dropped")
+    assert tracker.report()["dropped"] == n - 5
+
+
+@pytest.mark.parametrize("n", [2, 50])
+def test_a_client_that_does_not_read_loses_lines_and_delays_nothing(n):
+    server = PoseStreamServer("127.0.0.1", 0, queue_max=1)
+    server.start()
+    try:
+        async def idle_client(ready, done) -> None:
+            async with aiohttp.ClientSession() as s, s.ws_connect(server.url):
+                ready.set()
+                await asyncio.get_running_loop().run_in_executor(None, done.wait)
+
+        import threading
+        ready, done = threading.Event(), threading.Event()
+        t = threading.Thread(target=asyncio.run, args=(idle_client(ready, done),), daemon=True)
+        t.start()
+        wait_until(lambda: ready.is_set() and server.clients, what="the idle client to connect")
+        server.send([f"line {i}" for i in range(n)])   # one call: the queue takes 1, the rest is dropped at once
+        wait_until(lambda: server.dropped == n - 1, what="the lines beyond the client's queue to be dropped")
+        done.set()
+        t.join(DEADLINE_S)
+    finally:
+        server.stop()
+    assert f"{n - 1} line(s) dropped for slow clients" in server.summary()[0]
