@@ -46,11 +46,18 @@ def info(
             gt_source = ground_truth_source(reader)
         except SessionContentError:     # a broken info message: info still shows the rest
             gt_source = ""
+    from phonepose.playback.livereport import live_report, summary_lines
+    try:
+        live = live_report(file)        # the live trackers' figures (record live -t)
+    except SessionContentError as exc:  # damaged figures: info still shows the rest
+        typer.echo(f"phonepose: warning: {exc}", err=True)
+        live = None
     start = dt.datetime.fromtimestamp(s.start_ns / 1e9, tz=dt.UTC).isoformat() if s.message_count else None
     if as_json:
         typer.echo(json.dumps({
             "path": str(file), "messages": s.message_count, "start_ns": s.start_ns, "end_ns": s.end_ns,
             "start_time": start, "duration_s": s.duration_s, "task_window_s": task, "ground_truth_source": gt_source,
+            "live_tracking": live,
             "channels": [{"topic": c.topic, "schema": c.schema, "encoding": c.encoding, "messages": c.count}
                          for c in s.channels],
         }, indent=2))
@@ -65,5 +72,7 @@ def info(
     for c in s.channels:
         table.add_row(shown(c.topic), shown(c.schema), shown(c.encoding), str(c.count))
     print_table(console, table)
+    for line in summary_lines(live) if live is not None else []:
+        typer.echo(shown(line))
     if verify:
         typer.echo(f"verified: {chunks} chunks intact (CRC checked)")

@@ -8,9 +8,30 @@ from pathlib import Path
 
 import typer
 
+from phonepose.cli.options import CorrectionMath, number
 from phonepose.cli.output import takes_unicode
 from phonepose.cli.record import record_app
 from phonepose.errors import ConfigError
+from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
+
+LIVE_TRACKER_HELP = ("Run this tracker live (repeatable; as playback's --tracker: a name, module:Class, an entry "
+                     "point, all): its estimates go into the session (/trackers/<name>/pose) and to the pose stream.")
+POSE_HOST_HELP = ("Address the pose stream listens on (default loopback; another address opens it to the network: "
+                  "wss:// and the phone page's token).")
+POSE_PORT_HELP = "Port of the pose stream (ws://HOST:PORT/poses; 0: any free port)."
+
+
+def live_tracking(tracker: list[str], rate: float, correction_math: str, pose_host: str, pose_port: int):
+    """The live trackers asked for (None without -t); unknown names fail here, before anything starts."""
+    if not tracker:
+        return None
+    from phonepose.pipeline.trackers import make_trackers
+    from phonepose.record.live.session import LiveTracking
+
+    if not 0 <= pose_port <= 65535:
+        raise ConfigError(f"--pose-port {pose_port}: expected 0..65535")
+    return LiveTracking(make_trackers(tracker, correction_math), rate_hz=rate, correction_math=correction_math,
+                        pose_host=pose_host, pose_port=pose_port)
 
 
 @record_app.command("live")
@@ -38,6 +59,13 @@ def live(
     qr: bool = typer.Option(True, "--qr/--no-qr", help="Print the pages' URLs as QR codes too."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing "
                                "recording is an error and stays untouched)."),
+    tracker: list[str] = typer.Option([], "--tracker", "-t", help=LIVE_TRACKER_HELP),
+    rate: float = typer.Option(20.0, "--rate", callback=number(RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz"),
+                               help="Live trackers' ticks per second (as playback's --rate)."),
+    correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
+                                                   help="Live trackers: paper (equations 1-6) or se3."),
+    pose_host: str = typer.Option("127.0.0.1", "--pose-host", help=POSE_HOST_HELP),
+    pose_port: int = typer.Option(8765, "--pose-port", help=POSE_PORT_HELP),
 ) -> None:
     """Record a live session: webcam frames and, from a phone's browser page (WebXR on ARCore
     phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view; and, from a
@@ -53,6 +81,7 @@ def live(
 
     if rerun is not None and spawn:
         raise ConfigError("use either --rerun FILE or --spawn, not both")
+    tracking = live_tracking(tracker, rate, correction_math.value, pose_host, pose_port)
     # the output rule (phonepose.files), as `record sim` follows it: a new recording is written under its own name,
     # created exclusively and locked while it is written, so that no other phonepose (a `recover --force`, a second
     # `record live --force`) can replace it under the running recorder; over an existing file, --force writes a
@@ -66,7 +95,7 @@ def live(
         result, wall = _record(session_out.tmp, out, camera, calibration, host=host, port=port, tls_dir=tls_dir,
                                dictionary=dictionary, marker_id=marker_id, marker_size=marker_size, duration=duration,
                                pace=pace, rerun=rrd.tmp if rrd is not None else None, spawn=spawn, qr=qr,
-                               gt_controller=gt_controller)
+                               gt_controller=gt_controller, tracking=tracking)
     r, c = result.record, result.counts
     from phonepose.schemas.topics import Topic
 
@@ -75,13 +104,15 @@ def live(
                f"{c.get(Topic.CONTROLLER_IMU, 0)} IMU samples, {c.get(Topic.CONTROLLER_ANCHOR, 0)} anchors, "
                f"{c.get(Topic.GT_CONTROLLER_POSE, 0)} ground-truth poses, "
                f"{r.messages} messages in {wall:.1f} s; {status}")
+    for line in result.tracking:
+        typer.echo(line)
     for line in result.summary[1:]:
         typer.echo(f"warning: {line}", err=True)
 
 
 def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str, port: int, tls_dir: Path | None,
             dictionary: str, marker_id: int, marker_size: float | None, duration: float | None, pace: bool,
-            rerun: Path | None, spawn: bool, qr: bool, gt_controller: str):
+            rerun: Path | None, spawn: bool, qr: bool, gt_controller: str, tracking=None):
     """The recording into ``path`` (the output plan's file for ``out``, the name the user reads)."""
     from phonepose.record.live import LiveSession
 
@@ -90,7 +121,7 @@ def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str,
 
     session = LiveSession(path, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
                           marker_id=marker_id, marker_size_m=marker_size, duration_s=duration, pace=pace,
-                          rerun_path=rerun, spawn=spawn, echo=echo, gt_controller=gt_controller)
+                          rerun_path=rerun, spawn=spawn, echo=echo, gt_controller=gt_controller, tracking=tracking)
     url = session.start()
     cert = session.certificate
     if cert.broken:
@@ -107,6 +138,9 @@ def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str,
     typer.echo(f"  {session.headset_url}")
     if qr:
         print_qr(session.headset_url)
+    if session.source.pose_server is not None:
+        typer.echo(f"live trackers {', '.join(t.name for t in tracking.trackers)}: pose stream at "
+                   f"{session.source.pose_server.url}")
     typer.echo("Ctrl-C stops the recording.", err=True)
     sys.stdout.flush()
     t0 = time.perf_counter()

@@ -123,6 +123,22 @@ def _best_cells(trackers: dict) -> dict[tuple[int, str], set[str]]:
     return best
 
 
+def _check_live(session: Path) -> None:
+    from phonepose.errors import PhoneposeError
+    from phonepose.files import check_input
+    from phonepose.playback.livecheck import check_live
+
+    check_input(session, "session")
+    checks = check_live(session)
+    for c in checks:
+        typer.echo(f"{c.tracker}: {c.compared} ticks compared, {c.identical} identical, {c.different} different")
+    bad = [c for c in checks if c.different]
+    if bad:
+        raise PhoneposeError("live estimates differ from playback's: " + ", ".join(
+            f"{c.tracker} at {c.different} of {c.compared} ticks (first at log time {c.first_difference_ns} ns)"
+            for c in bad))
+
+
 @app.command()
 def playback(
     session: Path = typer.Argument(..., help="The session (.mcap) to play back."),
@@ -149,8 +165,14 @@ def playback(
     tick_timeout: float = typer.Option(TICK_TIMEOUT_S, "--tick-timeout", callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
                                        help="Stop a tracker whose step takes longer than this (seconds): one line "
                                             "naming it and the tick, exit 5, no output."),
+    check_live: bool = typer.Option(False, "--check-live", help="Compare the session's live estimates (record live "
+                                    "-t) with playback's, tick by tick, bit for bit; writes nothing (exit 1 if any "
+                                    "tick differs)."),
 ) -> None:
     """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
+    if check_live:
+        _check_live(session)
+        return
     from phonepose.files import OutputPlan, check_input
     from phonepose.pipeline.trackers import make_trackers
     from phonepose.playback.engine import default_out_dir, run_playback

@@ -13,6 +13,7 @@ from phonepose.cli import app
 from phonepose.cli.options import SECONDS, SEED, Scenario, SimPath, number
 from phonepose.cli.output import ProgressBar
 from phonepose.errors import ConfigError
+from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
 
 record_app = typer.Typer(
     help="Record a session to an MCAP file.",
@@ -112,6 +113,12 @@ def rehearse(
     headset: bool = typer.Option(True, "--headset/--no-headset", help="Also open the headset page (the ground truth; "
                                  "without it: no calibrate-gt, p_ATE against the true pose)."),
     iwer: Path | None = typer.Option(None, "--iwer", help="iwer.min.js (default: the repository's tests/js/node_modules)."),
+    tracker: list[str] = typer.Option([], "--tracker", "-t", help="Run this tracker live during the rehearsed "
+                                      "recording (repeatable; as record live -t)."),
+    rate: float = typer.Option(20.0, "--rate", callback=number(RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz"),
+                               help="Live trackers' ticks per second."),
+    pose_port: int = typer.Option(0, "--pose-port", help="Port of the live trackers' pose stream on loopback "
+                                  "(0: any free port)."),
 ) -> None:
     """Rehearse a real recording with no hardware: a simulated session's frames played as a video by
     [bold]record live[/bold], the real phone and headset pages in headless Chromium with emulated WebXR
@@ -121,19 +128,24 @@ def rehearse(
     """
     from rich.table import Table
 
+    from phonepose.cli.live import live_tracking
     from phonepose.cli.output import print_table, stdout_console
     from phonepose.record.rehearse import LEAD_IN_S, rows
     from phonepose.record.rehearse import rehearse as run_rehearsal
 
+    tracking = live_tracking(tracker, rate, "paper", "127.0.0.1", pose_port)
     result = run_rehearsal(out, scenario=scenario.value, path=path.value if scenario == Scenario.exp2 else None,
                            trial=trial, seed=seed, config=config, lead_in_s=LEAD_IN_S if lead_in is None else lead_in,
-                           headset=headset, iwer=iwer, echo=lambda line: typer.echo(line, err=True))
+                           headset=headset, iwer=iwer, echo=lambda line: typer.echo(line, err=True),
+                           tracking=tracking)
     table = Table(title=f"{out}: the rehearsed recording against its source session", title_justify="left")
     for col in ("", "measured", "goal", "met"):
         table.add_column(col)
     for r in rows(result.scores):
         table.add_row(r.what, r.value, r.goal, "" if r.met is None else ("yes" if r.met else "NO"))
     print_table(stdout_console(), table)
+    for line in result.tracking:
+        typer.echo(line)
     missed = [r.what for r in rows(result.scores) if r.met is False]
     if missed:
         typer.echo(f"phonepose: rehearsal: {len(missed)} goal(s) missed: {'; '.join(missed)}", err=True)

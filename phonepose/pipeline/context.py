@@ -102,9 +102,13 @@ def read_context(reader: SessionReader) -> SessionContext:
         raise SessionContentError(f"{path}: all {summary.message_count} messages have the same log time "
                                   f"({summary.start_ns} ns): phonepose plays a session in log-time order (the capture "
                                   "time, docs/format.md), which this file's writer did not set")
-    has_images = summary.has(Topic.CAMERA_IMAGE)
-    first = _first_messages(reader, summary).get
+    return context_from_static(path, summary.has(Topic.CAMERA_IMAGE), _first_messages(reader, summary))
 
+
+def context_from_static(path: str, has_images: bool, static: dict) -> SessionContext:
+    """The SessionContext from the first message of each static topic (``static``: topic -> message), by
+    the same checks as a file's (a live feed builds its context from the records it sees)."""
+    first = static.get
     camera = _NO_CAMERA
     marker = _NO_MARKER
     if has_images:

@@ -50,6 +50,7 @@ MAX_GAP_S = 0.5
 # A stretch this long without any message gets no ticks: every stream's pose is None there and no
 # tracker has input, so planning its ticks would only bound the work by the clock instead of the data.
 IDLE_GAP_S = 10.0
+OPEN_END_NS = 2**62        # the last tick of a live feed's grid: none (finish() names the real end)
 OUTLIER = "log time more than an hour away from the rest of the session"
 
 SCHEDULED_TOPICS = (
@@ -176,29 +177,12 @@ class TickScheduler:
         display_vio by its T_world_display_vio when it has one (else the session's /gt/calibration).
         ``gt_series`` (a calibration.ground_truth.GroundTruthSeries, ``--gt FILE``) replaces the session's
         /gt/controller/pose."""
-        if not rate_hz > 0:
-            raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
-        self.reader = reader
-        self.context = context
-        self.rate_hz = float(rate_hz)
-        self.period_ns = int(round(1e9 / self.rate_hz))
-        self.gt_tol_ns = int(round(gt_tolerance_s * 1e9))
-        self.max_gap_ns = int(round(max_gap_s * 1e9))
+        self.reader: SessionReader | None = reader
         summary = reader.summary()
-        self.has_camera = summary.has(Topic.CAMERA_IMAGE)
-        cal = gt_calibration
-        T_world_dvio = context.T_world_display_vio
-        if cal is not None and cal.T_world_display_vio is not None:
-            T_world_dvio = cal.T_world_display_vio
-        self._gt_series = gt_series
-        self.has_gt = (gt_series is not None or summary.has(Topic.GT_CONTROLLER_POSE)) and T_world_dvio is not None
-        self._T_dvio_world = T_world_dvio.inv().as_raw() if T_world_dvio is not None else None
-        self._T_mocap_controller = cal.T_controller_gt.inv().as_raw() if cal is not None else None
-        self._gt_shift_ns = int(round(cal.time_offset_s * 1e9)) if cal is not None else 0
-        self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
+        self._configure(context, rate_hz=rate_hz, gt_tolerance_s=gt_tolerance_s, max_gap_s=max_gap_s,
+                        gt_calibration=gt_calibration, gt_series=gt_series,
+                        has_camera=summary.has(Topic.CAMERA_IMAGE), gt_topic=summary.has(Topic.GT_CONTROLLER_POSE))
         origin_topic = Topic.CAMERA_IMAGE if self.has_camera else Topic.CONTROLLER_VIO_POSE
-        # (topic, reason) -> samples skipped in the pass; reported as one warning line each
-        self.skipped: Counter = Counter()
         start_ns, end_ns = self._span(reader, summary)
         self.span_ns = (start_ns, end_ns)
         t0 = None
@@ -210,8 +194,51 @@ class TickScheduler:
         first, last = self._grid(t0, start_ns, end_ns, start_s, end_s)
         self.info = ScheduleInfo(t0_ns=t0, first_tick_ns=first, last_tick_ns=last, period_ns=self.period_ns,
                                  session_start_ns=start_ns)
+
+    def _configure(self, context: SessionContext, *, rate_hz: float, gt_tolerance_s: float, max_gap_s: float,
+                   gt_calibration, gt_series, has_camera: bool, gt_topic: bool) -> None:
+        """What a pass needs besides the grid: the same for a file and for a live feed."""
+        if not rate_hz > 0:
+            raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
+        self.context = context
+        self.rate_hz = float(rate_hz)
+        self.period_ns = int(round(1e9 / self.rate_hz))
+        self.gt_tol_ns = int(round(gt_tolerance_s * 1e9))
+        self.max_gap_ns = int(round(max_gap_s * 1e9))
+        self.has_camera = has_camera
+        cal = gt_calibration
+        T_world_dvio = context.T_world_display_vio
+        if cal is not None and cal.T_world_display_vio is not None:
+            T_world_dvio = cal.T_world_display_vio
+        self._gt_series = gt_series
+        self.has_gt = (gt_series is not None or gt_topic) and T_world_dvio is not None
+        self._T_dvio_world = T_world_dvio.inv().as_raw() if T_world_dvio is not None else None
+        self._T_mocap_controller = cal.T_controller_gt.inv().as_raw() if cal is not None else None
+        self._gt_shift_ns = int(round(cal.time_offset_s * 1e9)) if cal is not None else 0
+        self._gt_wait_ns = self.gt_tol_ns + max(self._gt_shift_ns, 0)   # how far past a tick its GT may lie in the file
+        # (topic, reason) -> samples skipped in the pass; reported as one warning line each
+        self.skipped: Counter = Counter()
         self.idle_gap_ns = int(IDLE_GAP_S * 1e9)
         self.ticks_skipped = 0      # grid ticks inside stretches of more than IDLE_GAP_S without data
+
+    @classmethod
+    def streaming(cls, context: SessionContext, t0_ns: int, *, has_camera: bool, gt_topic: bool = False,
+                  rate_hz: float = DEFAULT_RATE_HZ, gt_tolerance_s: float = GT_TOLERANCE_S,
+                  max_gap_s: float = MAX_GAP_S) -> TickScheduler:
+        """A scheduler fed message by message (:meth:`feed`) instead of reading a file: the grid starts at
+        ``t0_ns`` (the first camera frame, or the first controller VIO sample without camera) and is open-ended."""
+        self = cls.__new__(cls)
+        self.reader = None
+        self._configure(context, rate_hz=rate_hz, gt_tolerance_s=gt_tolerance_s, max_gap_s=max_gap_s,
+                        gt_calibration=None, gt_series=None, has_camera=has_camera, gt_topic=gt_topic)
+        self.span_ns = (t0_ns, OPEN_END_NS)
+        self.info = ScheduleInfo(t0_ns=t0_ns, first_tick_ns=t0_ns, last_tick_ns=OPEN_END_NS, period_ns=self.period_ns,
+                                 session_start_ns=t0_ns)
+        return self
+
+    def feed(self) -> TickFeed:
+        """The pass as a push interface: give it the scheduled messages in log-time order."""
+        return TickFeed(self)
 
     def _grid(self, t0: int, start_ns: int, end_ns: int, start_s: float | None,
               end_s: float | None) -> tuple[int, int]:
@@ -259,34 +286,60 @@ class TickScheduler:
         info = self.info
         if info.n_ticks == 0:
             return
-        state = _PassState(self)
+        feed = TickFeed(self)
         # Nothing after this is needed: the last tick plus the look-ahead.
         read_end = info.last_tick_ns + max(self.max_gap_ns, self._gt_wait_ns) + 1
-        last_message_ns = None
+        assert self.reader is not None   # a file's scheduler
         for m in self.reader.messages(SCHEDULED_TOPICS, start_ns=self.span_ns[0],
                                       end_ns=min(read_end, self.span_ns[1] + 1)):
-            now = m.log_time_ns
-            if last_message_ns is not None and now - last_message_ns > self.idle_gap_ns:
-                yield from self._across_idle_gap(state, last_message_ns, now)
-            last_message_ns = now
-            while state.next_t <= info.last_tick_ns and state.next_t < now and state.ready(state.next_t, now):
-                yield state.build()
-            state.ingest(m.topic, m.msg, now)
-        while state.next_t <= info.last_tick_ns:
-            yield state.build()
+            yield from feed.feed(m.topic, m.msg, m.log_time_ns)
+        yield from feed.finish()
         for (topic, reason), n in sorted(self.skipped.items()):
             log.warning("%s: %d sample(s) skipped: %s", topic, n, reason)
 
-    def _across_idle_gap(self, state: _PassState, last_message_ns: int, now: int) -> Iterator[tuple[Tick, Pose | None]]:
+
+class TickFeed:
+    """One pass, fed message by message in log-time order: :meth:`feed` returns the ticks that message
+    completes (the tick rule of the module docstring), :meth:`finish` the rest. A file's pass and a live
+    feed (phonepose.record.live.tracking) both run through it, so both form the very same ticks."""
+
+    def __init__(self, sched: TickScheduler) -> None:
+        self.s = sched
+        self.state = _PassState(sched)
+        self.last_message_ns: int | None = None
+
+    def feed(self, topic: str, msg, now: int) -> list[tuple[Tick, Pose | None]]:
+        """The ticks due before ``msg`` (log time ``now``) is taken in, then takes it in."""
+        s, state, info = self.s, self.state, self.s.info
+        out: list[tuple[Tick, Pose | None]] = []
+        if self.last_message_ns is not None and now - self.last_message_ns > s.idle_gap_ns:
+            out.extend(self._across_idle_gap(self.last_message_ns, now))
+        self.last_message_ns = now
+        while state.next_t <= info.last_tick_ns and state.next_t < now and state.ready(state.next_t, now):
+            out.append(state.build())
+        state.ingest(topic, msg, now)
+        return out
+
+    def finish(self, last_tick_ns: int | None = None) -> list[tuple[Tick, Pose | None]]:
+        """Every tick left up to the grid's last (``last_tick_ns`` for an open-ended grid)."""
+        end = self.s.info.last_tick_ns if last_tick_ns is None else min(last_tick_ns, self.s.info.last_tick_ns)
+        out = []
+        while self.state.next_t <= end:
+            out.append(self.state.build())
+        return out
+
+    def _across_idle_gap(self, last_message_ns: int, now: int) -> list[tuple[Tick, Pose | None]]:
         """The ticks the data before a gap of more than IDLE_GAP_S supports, then none until the data resumes."""
-        info = self.info
-        hold = last_message_ns + max(self.max_gap_ns, self._gt_wait_ns)
+        s, state, info = self.s, self.state, self.s.info
+        out = []
+        hold = last_message_ns + max(s.max_gap_ns, s._gt_wait_ns)
         while state.next_t <= info.last_tick_ns and state.next_t <= hold:
-            yield state.build()
-        resume = info.t0_ns + -(-(now - info.t0_ns) // self.period_ns) * self.period_ns
+            out.append(state.build())
+        resume = info.t0_ns + -(-(now - info.t0_ns) // s.period_ns) * s.period_ns
         if resume > state.next_t:
-            self.ticks_skipped += (min(resume, info.last_tick_ns + self.period_ns) - state.next_t) // self.period_ns
+            s.ticks_skipped += (min(resume, info.last_tick_ns + s.period_ns) - state.next_t) // s.period_ns
             state.next_t = resume
+        return out
 
 
 def _take(queue: list, t_ns: int) -> list:

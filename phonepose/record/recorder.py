@@ -126,6 +126,9 @@ class Recorder:
                     self.progress(rec.log_time_ns - start, duration)
                     next_progress = rec.log_time_ns + self.progress_every_ns
             interrupted = self._stop
+            metadata = getattr(self.source, "metadata", None)   # a source's figures known only at the end
+            for name, data in (metadata() if callable(metadata) else {}).items():
+                writer.add_metadata(name, data)
             count = writer.message_count
         if self.progress is not None and not interrupted and duration is not None:
             self.progress(duration, duration)

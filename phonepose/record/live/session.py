@@ -68,10 +68,13 @@ from phonepose.calibration.camera_file import CameraCalibrationFile, load_calibr
 from phonepose.errors import ConfigError
 from phonepose.pipeline.markers import aruco_dictionary
 from phonepose.pipeline.types import CameraModel
+from phonepose.playback.livereport import METADATA_NAME as TRACKING_METADATA
 from phonepose.record.live.camera import Camera
 from phonepose.record.live.clock import RecorderClock
+from phonepose.record.live.posestream import PoseStreamServer
 from phonepose.record.live.recording import T_BODY_MARKER, T_DISPLAY_CAMERA, LiveRecording
 from phonepose.record.live.server import STATIC_DIR, LiveServer
+from phonepose.record.live.tracking import LIVE_STREAMS, LiveTracker
 from phonepose.record.recorder import Recorder, RecordResult
 from phonepose.record.source import Record
 from phonepose.schemas import phonepose_pb2 as pb
@@ -118,7 +121,7 @@ class LiveSource:
     def __init__(self, clock: RecorderClock, camera: Camera, calibration: CameraCalibrationFile, calibration_path: str,
                  *, host: str, port: int, ssl_context, token: str, dictionary: str, marker_id: int,
                  marker_size_m: float | None, duration_s: float | None, echo: Callable[[str], None],
-                 static_dir: Path | None = None, gt_hand: str = "right"):
+                 static_dir: Path | None = None, gt_hand: str = "right", tracking: LiveTracking | None = None):
         self.clock = clock
         self.camera = camera
         self.calibration = calibration
@@ -135,7 +138,21 @@ class LiveSource:
         K, D = calibration.K, calibration.D
         cam_model = CameraModel(K=np.asarray(K, float), D=np.asarray(D, float), width=calibration.width,
                                 height=calibration.height, T_display_camera=T_DISPLAY_CAMERA)
-        self.recording = LiveRecording(clock, self._queue.put, cam_model, dictionary, marker_id, marker_size_m, echo,
+        self.tracker: LiveTracker | None = None
+        self.pose_server: PoseStreamServer | None = None
+        self.tracking_summary: list[str] = []
+        self._tracking_done = False
+        if tracking is not None:
+            self.tracker = LiveTracker(tracking.trackers, publish=self._queue.put, now_ns=clock.now_ns,
+                                       warn=lambda text: self.recording.log(text, level="warning"),
+                                       rate_hz=tracking.rate_hz, correction_math=tracking.correction_math,
+                                       stream_of=lambda topic: LIVE_STREAMS.get(topic, topic))
+            if tracking.pose_port is not None:
+                self.pose_server = PoseStreamServer(tracking.pose_host, tracking.pose_port, token=token,
+                                                    ssl_context=ssl_context,
+                                                    warn=lambda text: self.recording.log(text, level="warning"))
+                self.tracker.lines = self.pose_server.send
+        self.recording = LiveRecording(clock, self._put, cam_model, dictionary, marker_id, marker_size_m, echo,
                                        gt_hand=gt_hand)
         self.recording.ground_truth_source_changed = self._info_again
         self.server = LiveServer(self.recording, token, host=host, port=port, ssl_context=ssl_context,
@@ -150,9 +167,26 @@ class LiveSource:
         self.late = 0
         self.summary: list[str] = []
 
+    def _put(self, rec: Record) -> None:
+        """A received record: to the file, and to the live trackers."""
+        self._queue.put(rec)
+        if self.tracker is not None:
+            self.tracker.offer(rec)
+
     # ------------------------------------------------------------------ start
     def start(self) -> int:
-        """Bind the server (its own thread and asyncio loop); returns the port."""
+        """Bind the server (its own thread and asyncio loop) and the pose stream; returns the server's port."""
+        port = self._start_server()
+        if self.pose_server is not None:
+            try:
+                self.pose_server.start()
+            except OSError as exc:
+                self._stop_loop()
+                raise ConfigError(f"cannot listen on {self.pose_server.host}:{self.pose_server.port} for the pose "
+                                  f"stream: {exc.strerror or exc} (choose another --pose-port)") from None
+        return port
+
+    def _start_server(self) -> int:
         loop = self._loop = asyncio.new_event_loop()
         ready = threading.Event()
         self._server_thread = threading.Thread(target=self._run_loop, args=(ready,), name="phonepose-live-server",
@@ -216,6 +250,9 @@ class LiveSource:
             spec.timestamp.FromNanoseconds(t0)
             encode_pose(T_BODY_MARKER, spec.pose_in_body)
             out.append(Record(Topic.CONTROLLER_MARKER, spec, t0, t0))
+        if self.tracker is not None:
+            for r in out:
+                self.tracker.offer(r)
         return out
 
     def _info(self, t_ns: int, ground_truth_source: str) -> pb.SessionInfo:
@@ -231,7 +268,7 @@ class LiveSource:
     def _info_again(self, ground_truth_source: str) -> None:
         """The session info once more, now naming the ground truth's source (a headset said hello)."""
         t = self.clock.now_ns()
-        self._queue.put(Record(Topic.SESSION_INFO, self._info(t, ground_truth_source), t, t))
+        self._put(Record(Topic.SESSION_INFO, self._info(t, ground_truth_source), t, t))
 
     def _config_toml(self) -> str:
         c, rec = self.calibration, self.recording
@@ -256,6 +293,8 @@ class LiveSource:
     def __iter__(self) -> Iterator[Record]:
         self.camera.restart_clock()
         t_begin = self.clock.now_ns()
+        if self.tracker is not None:
+            self.tracker.start()
         self._camera_thread = threading.Thread(target=self._camera_loop, name="phonepose-live-camera", daemon=True)
         self._camera_thread.start()
         heap: list = []
@@ -289,6 +328,7 @@ class LiveSource:
             while heap and heap[0][0] <= watermark:
                 yield out(heapq.heappop(heap)[2])
         self._shutdown()
+        self._finish_tracking()
         for rec in self._closing_logs():
             self._queue.put(rec)
         while True:
@@ -299,6 +339,21 @@ class LiveSource:
             heapq.heappush(heap, (r.log_time_ns, next(seq), r))
         while heap:
             yield out(heapq.heappop(heap)[2])
+
+    def _finish_tracking(self) -> None:
+        """The last ticks (their estimates into the queue, drained below), then the pose stream ends."""
+        if self._tracking_done:
+            return
+        self._tracking_done = True
+        if self.tracker is not None:
+            self.tracking_summary = self.tracker.finish()
+        if self.pose_server is not None:
+            self.pose_server.stop()
+            self.tracking_summary += self.pose_server.summary()
+
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """MCAP metadata records the recorder writes at the end: the live trackers' figures."""
+        return {} if self.tracker is None else {TRACKING_METADATA: self.tracker.metadata()}
 
     def _shutdown(self) -> None:
         """Stop the camera and the server; afterwards no producer is left."""
@@ -347,8 +402,8 @@ class LiveSource:
         self.summary = lines
         t = self.clock.now_ns()
         out = []
-        for i, text in enumerate(lines):
-            level = Log.INFO if i == 0 else Log.WARNING
+        for i, text in enumerate(lines + self.tracking_summary):
+            level = Log.INFO if i == 0 or i >= len(lines) else Log.WARNING
             msg = Log(level=level, message=text, name="phonepose.live")
             msg.timestamp.FromNanoseconds(t)
             out.append(Record(Topic.LOG, msg, t, t))
@@ -360,6 +415,7 @@ class LiveSource:
         self._closed = True
         self.request_stop(self.stop_reason or "closed")
         self._shutdown()
+        self._finish_tracking()
 
 
 class LiveRecorder(Recorder):
@@ -379,6 +435,17 @@ class LiveResult:
     summary: list[str]
     stop_reason: str
     offsets_ms: list = field(default_factory=list)
+    tracking: list[str] = field(default_factory=list)     # the live trackers' closing summary
+
+
+@dataclass
+class LiveTracking:
+    """What ``record live -t`` asks: trackers run live, and the pose stream (``pose_port`` None: none)."""
+    trackers: list
+    rate_hz: float = 20.0
+    correction_math: str = "paper"
+    pose_host: str = "127.0.0.1"
+    pose_port: int | None = 8765
 
 
 class LiveSession:
@@ -388,7 +455,8 @@ class LiveSession:
                  host: str = "0.0.0.0", port: int = 8443, tls_dir: str | os.PathLike | None = None,
                  dictionary: str = "DICT_4X4_50", marker_id: int = 7, marker_size_m: float | None = None,
                  duration_s: float | None = None, pace: bool = True, rerun_path=None, spawn: bool = False,
-                 echo: Callable[[str], None] = print, static_dir: Path | None = None, gt_controller: str = "right"):
+                 echo: Callable[[str], None] = print, static_dir: Path | None = None, gt_controller: str = "right",
+                 tracking: LiveTracking | None = None):
         from phonepose.record.live.headset import GT_HANDS
         from phonepose.record.live.tls import ensure_certificate
 
@@ -422,7 +490,8 @@ class LiveSession:
             self.source = LiveSource(clock, cam, calib, os.fspath(calibration), host=host, port=port,
                                      ssl_context=self.certificate.ssl_context(), token=self.token,
                                      dictionary=dictionary, marker_id=marker_id, marker_size_m=marker_size_m,
-                                     duration_s=duration_s, echo=echo, static_dir=static_dir, gt_hand=gt_controller)
+                                     duration_s=duration_s, echo=echo, static_dir=static_dir, gt_hand=gt_controller,
+                                     tracking=tracking)
         except BaseException:
             cam.close()
             raise
@@ -463,7 +532,8 @@ class LiveSession:
         self.source.start_ns = self.source.clock.now_ns()   # the session starts now (static part's stamp)
         result = recorder.run()
         result.interrupted = self.source.interrupted
-        return LiveResult(result, dict(self.source.counts), self.source.summary, self.source.stop_reason)
+        return LiveResult(result, dict(self.source.counts), self.source.summary, self.source.stop_reason,
+                          tracking=self.source.tracking_summary)
 
     def stop(self, reason: str = "stopped") -> None:
         self.source.request_stop(reason)

@@ -39,6 +39,7 @@ class RehearsalResult:
     out_dir: Path
     scores: Scores
     files: dict[str, str]
+    tracking: list[str]          # the live trackers' closing summary (empty without them)
 
     @property
     def met(self) -> bool:
@@ -48,10 +49,11 @@ class RehearsalResult:
 def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | None = "REC1", trial: int = 1,
              seed: int = 0, config: str | os.PathLike | None = None, lead_in_s: float = LEAD_IN_S,
              headset: bool = True, iwer: str | os.PathLike | None = None, timeout_s: float = DEFAULT_TIMEOUT_S,
-             echo: Callable[[str], None] = print) -> RehearsalResult:
+             echo: Callable[[str], None] = print, tracking=None) -> RehearsalResult:
     """Rehearse one recording into the folder ``out_dir`` (phonepose.files' rule: written under a temporary
     name, in place when complete): source.mcap, camera.avi, camera.yaml, live.mcap, gt-calibration.yaml
-    (with the headset), rehearsal.json (the scores)."""
+    (with the headset), rehearsal.json (the scores). ``tracking`` (a record.live.session.LiveTracking) runs
+    trackers live during the recording (``record live -t``)."""
     from phonepose.calibration.calibrate import opencv_path
     from phonepose.errors import OutputError
     from phonepose.files import OutputPlan, check_input
@@ -81,7 +83,7 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
         echo(f"record live --camera camera.avi ({scene.frames} frames at {scene.fps:g} Hz, {scene.lead_in_s:g} s still "
              f"lead-in), the phone{' and headset' if headset else ''} page in headless Chromium ...")
         run = record_rehearsal(scene, folder / "live.mcap", iwer=iwer_js, headset=headset, timeout_s=timeout_s,
-                               echo=echo)
+                               echo=echo, tracking=tracking)
         scores = score(scene, run, calibration_out=folder / "gt-calibration.yaml" if headset else None, echo=echo)
         doc = {"scenario": scenario, "path": path, "trial": trial, "seed": seed, "lead_in_s": scene.lead_in_s,
                "headset": headset, "sim0_ns": run.sim0_ns,
@@ -91,4 +93,4 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
         (folder / "rehearsal.json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
         names = sorted(n for n in os.listdir(folder) if not n.startswith("."))
     files = {n: os.fspath(Path(out_dir) / n) for n in names}
-    return RehearsalResult(Path(out_dir), scores, files)
+    return RehearsalResult(Path(out_dir), scores, files, run.tracking)

@@ -38,34 +38,38 @@ class RecordedRun:
     page_states: dict = field(default_factory=dict)
     headset: bool = False
     setup_s: float = float("nan")                 # recording start -> both pages playing
+    tracking: list = field(default_factory=list)  # the live trackers' closing summary (record live -t)
 
 
 def record_rehearsal(scene: Scene, out: Path, *, iwer: Path, headset: bool, timeout_s: float,
-                     echo: Callable[[str], None]) -> RecordedRun:
+                     echo: Callable[[str], None], tracking=None) -> RecordedRun:
     from playwright.sync_api import Error as PlaywrightError
 
     try:
         with tempfile.TemporaryDirectory(prefix="phonepose-rehearsal-tls-") as tls, \
                 RehearsalBrowser(iwer, timeout_s) as browser:    # a certificate for this run only; Chromium first
-            return _record(scene, out, Path(tls), browser, headset=headset, timeout_s=timeout_s, echo=echo)
+            return _record(scene, out, Path(tls), browser, headset=headset, timeout_s=timeout_s, echo=echo,
+                           tracking=tracking)
     except PlaywrightError as exc:
         raise browser_failure(exc) from None
 
 
 def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, headset: bool, timeout_s: float,
-            echo: Callable[[str], None]) -> RecordedRun:
+            echo: Callable[[str], None], tracking=None) -> RecordedRun:
     from phonepose.record.live import LiveSession
 
     marker = scene.config.marker
     live = LiveSession(out, str(scene.video_path), scene.calibration_path, host="127.0.0.1", port=0, tls_dir=tls,
                        dictionary=marker.dictionary, marker_id=marker.id, marker_size_m=marker.size_m, pace=True,
-                       echo=lambda line: echo(f"  record live: {line}"))
+                       echo=lambda line: echo(f"  record live: {line}"), tracking=tracking)
     try:
         url = live.start()
     except BaseException:
         live.source.close()
         raise
     headset_url = live.headset_url
+    if live.source.pose_server is not None:
+        echo(f"  live trackers: pose stream at {live.source.pose_server.url}")
     result: dict = {}
 
     def run() -> None:
@@ -145,4 +149,5 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         raise result["error"]
     res = result["live"]
     run_info.summary, run_info.counts, run_info.stop_reason = res.summary, res.counts, res.stop_reason
+    run_info.tracking = res.tracking
     return run_info
