@@ -456,8 +456,7 @@ def test_another_tools_own_records_are_counted_in_one_warning_line(session, tmp_
     src = tmp_path / "u.mcap"
     src.write_bytes(bytes(out + data[prev:]))
     code, _, err = cli("recover", src, "-o", tmp_path / "r.mcap")
-    assert code == 0 and err == "", err
-    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [
-        f"phonepose: warning: {src}: 3 record(s) of another tool's own kinds (opcodes 0x80-0xff) not copied: their "
-        f"meaning is that tool's"]
+    line = f"{src}: 3 record(s) of another tool's own kinds (opcodes 0x80-0xff) not copied: their meaning is that tool's"
+    assert code == 0 and err == f"phonepose: warning: {line}\n", err
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [line]
     assert read_keys(tmp_path / "r.mcap") == keys
