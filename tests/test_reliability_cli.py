@@ -133,9 +133,9 @@ def _gt_q5(m):
     m.rotation.w = 5.0
 
 
-def _k_zero(m):
-    m.K[0] = 0.0
-    m.K[4] = 0.0
+def _k_tiny(m):
+    m.K[0] = 1e-30
+    m.K[4] = 1e-30
 
 
 def _size0(m):
@@ -394,10 +394,11 @@ CASES = [
                        "-q", "--out", str(d / "o")],
          4, r"gc\.mcap: ground-truth calibration \(/gt/calibration\) quaternion is not unit length "
             r"\(\|q\| = 5\.0\d*\)$"),
-    Case("static-focal-zero", "camera calibration with fx = fy = 0",
-         lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_zero))),
+    Case("static-focal-tiny", "camera calibration with fx = fy = 1e-30 px (\"Found zero norm quaternions\" before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_tiny))),
                        "-q", "--out", str(d / "o")],
-         4, r"k\.mcap: camera calibration focal lengths fx=0, fy=0: expected > 0$"),
+         4, r"k\.mcap: camera calibration: focal lengths fx=1e-30, fy=1e-30 px: expected 1 to 1000000 px \(a camera "
+            r"matrix in pixels\)$"),
     Case("static-fisheye", "camera calibration of a fisheye lens (Foxglove's kannala_brandt; read as plumb_bob before)",
          lambda g, d: ["playback", str(rewrite(g, d / "fe.mcap", _static(Topic.CAMERA_CALIBRATION, _fisheye))),
                        "-q", "--out", str(d / "o")],

@@ -32,6 +32,7 @@ from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
 from phonepose.errors import ConfigError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.files import check_input
+from phonepose.pipeline.types import camera_problem
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MIN_VIEWS = 4            # 9 unknowns + 6 per view; OpenCV's own ChArUco tutorial calibrates from 4 photos
@@ -319,7 +320,7 @@ def calibrate_views(views: list[View], image_size: tuple[int, int], board: Board
         raise SessionContentError(f"calibration failed: {' '.join(str(exc).split())[-200:]}") from None
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
-    if not (np.isfinite(rms) and np.isfinite(K).all() and np.isfinite(D5).all() and K[0, 0] > 0 and K[1, 1] > 0):
+    if not np.isfinite(rms) or camera_problem(K, D5, *image_size) is not None:   # the one check a calibration file gets
         raise SessionContentError("calibration failed: the fit did not converge (take views from more angles)")
     return CalibrationResult(K=K, D=D5, width=int(image_size[0]), height=int(image_size[1]), rms_px=float(rms),
                              per_view_rms_px=per_view.ravel().astype(float), views=[v.name for v in views],
