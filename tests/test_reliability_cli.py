@@ -193,6 +193,18 @@ def _garbage_image(m):
     m.data = b"this is not a jpeg"
 
 
+def _claiming(width: int, height: int):
+    """Camera frames whose JPEG header (SOF0) claims ``width`` x ``height`` px."""
+    def fn(m):
+        i = m.data.index(b"\xff\xc0")
+        m.data = m.data[:i + 5] + height.to_bytes(2, "big") + width.to_bytes(2, "big") + m.data[i + 9:]
+    return fn
+
+
+def _cut_image(m):
+    m.data = m.data[:len(m.data) // 2] + b"\xff\xd9"
+
+
 def _half_size_image(m):
     gray = cv2.imdecode(np.frombuffer(m.data, np.uint8), cv2.IMREAD_GRAYSCALE)
     m.data = cv2.imencode(".jpg", cv2.resize(gray, (gray.shape[1] // 2, gray.shape[0] // 2)))[1].tobytes()
@@ -787,6 +799,17 @@ WARNING_CASES = [
      _static(Topic.CAMERA_IMAGE, _half_size_image),
      r"/display/camera/image: 41 camera frame\(s\) are 160x120 px, not the calibration's 320x240; they count as "
      r"showing no marker"),
+    *((f"images-claiming-{w}x{h}", f"camera frames whose JPEG header claims {w}x{h} px (" + why + ")",
+       _static(Topic.CAMERA_IMAGE, _claiming(w, h)),
+       rf"/display/camera/image: 41 camera frame\(s\) are {shown}, not the calibration's 320x240; they count as "
+       r"showing no marker")
+      for w, h, shown, why in ((65500, 65500, "more than 178 Mpx", "OpenCV's validateInputImageSize failed"),
+                               (20000, 20000, "more than 178 Mpx", "decoded at ~870 MB a frame"),
+                               (640, 480, "640x480 px", "read from the header, never decoded"))),
+    ("images-cut", "camera frames cut in half (libjpeg printed \"Corrupt JPEG data\" once a frame)",
+     _static(Topic.CAMERA_IMAGE, _cut_image),
+     r"/display/camera/image: 41 camera frame\(s\) hold damaged image data \(Corrupt JPEG data: premature end of "
+     r"data segment\); decoded as far as it goes"),
 ]
 
 

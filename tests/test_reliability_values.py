@@ -157,8 +157,8 @@ def _phonepose(*args, cwd: Path):
 
 
 def test_images_opencv_cannot_decode_and_names_that_are_not_utf8(tmp_path):
-    """--images: a header claiming 60000x60000 px (an OpenCV assertion) is skipped with a warning like an empty
-    file; an image whose name is not UTF-8 (cv2.imread: SIGSEGV) is read; a --video of such a name is one line."""
+    """--images: a header claiming 60000x60000 px (an OpenCV assertion) is skipped with a warning, never decoded, and
+    so is an empty file; an image whose name is not UTF-8 (cv2.imread: SIGSEGV) is read; a --video of such a name is one line."""
     import cv2
     from test_calibration import synth_images
 
@@ -169,11 +169,17 @@ def test_images_opencv_cannot_decode_and_names_that_are_not_utf8(tmp_path):
         (folder / name).write_bytes(cv2.imencode(".png", image)[1].tobytes())
     (folder / "huge.png").write_bytes(_png_claiming(60000, 60000))
     (folder / "zero.png").write_bytes(b"")
+    cut = cv2.imencode(".jpg", synth_images(1, seed=2)[0][0])[1].tobytes()
+    (folder / "cut.jpg").write_bytes(cut[:len(cut) // 2] + b"\xff\xd9")
     r = _phonepose("calibrate-camera", "-q", "--images", "imgs", "--out", "c.yaml", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "phonepose: warning: huge.png: not an image OpenCV can read" in r.stderr.splitlines()
-    assert "phonepose: warning: zero.png: not an image OpenCV can read" in r.stderr.splitlines()
-    assert "6 with board / 6 read" in r.stdout
+    assert "phonepose: warning: huge.png: more than 178 Mpx by its header, more than the 80 Mpx phonepose decodes" \
+        in r.stderr.splitlines()
+    assert "phonepose: warning: zero.png: not an image phonepose can read" in r.stderr.splitlines()
+    assert ("phonepose: warning: cut.jpg: damaged image data (Corrupt JPEG data: premature end of data segment); read "
+            "as far as it goes") in r.stderr.splitlines()
+    assert "Corrupt JPEG data" not in r.stderr.replace("(Corrupt JPEG data", "")    # libjpeg's own line is gone
+    assert "6 with board / 7 read" in r.stdout
     (tmp_path / os.fsdecode(b"v\xfe.avi")).write_bytes(b"not a video")
     # named as an argument, the CLI refuses it before any work (cli/__init__.py); from Python, the reader does
     from phonepose.calibration.calibrate import opencv_path
@@ -351,3 +357,55 @@ def test_a_quaternion_too_small_to_normalise_names_its_line(tmp_path):
     with pytest.raises(InputFileError, match=r"tiny\.tum:4: pose 1 has a zero quaternion \(\|q\| 0\): check the "
                                              r"file's columns$"):
         load_tum(p)
+
+
+# ----------------------------------------------------------------------------- image headers
+def _jpeg_claiming(width: int, height: int) -> bytes:
+    """A real 32x24 JPEG whose SOF0 header claims ``width`` x ``height`` px."""
+    import struct
+
+    import cv2
+
+    data = cv2.imencode(".jpg", np.full((24, 32), 128, np.uint8))[1].tobytes()
+    i = data.index(b"\xff\xc0")
+    return data[:i + 5] + struct.pack(">HH", height, width) + data[i + 9:]
+
+
+@settings(deadline=None, max_examples=80)
+@given(kind=st.sampled_from(["png", "jpeg"]), width=st.integers(1, 65500), height=st.integers(1, 65500))
+def test_an_image_larger_than_the_limit_is_refused_from_its_header_never_decoded(kind, width, height):
+    """Sizes come from the header (Pillow); a frame of another size than expected, or above MAX_DECODE_PIXELS, is
+    never handed to OpenCV (65500x65500 failed its validateInputImageSize; 20000x20000 decoded 400 Mpx a frame)."""
+    from phonepose.pipeline import shared
+
+    data = _png_claiming(width, height) if kind == "png" else _jpeg_claiming(width, height)
+    huge = width * height > 2 * 89_478_485       # beyond twice Pillow's limit it keeps the size to itself
+    assert shared.image_size(data) == (shared.HUGE if huge else (width, height))
+    shown = "more than 178 Mpx" if huge else f"{width}x{height} px"
+    if (width, height) != (32, 24):
+        assert shared.decode_gray(data, (32, 24)) == shared.Decoded(None, f"{shown}, not the calibration's 32x24", True)
+    if width * height > shared.MAX_DECODE_PIXELS:
+        assert shared.decode_gray(data) == shared.Decoded(
+            None, f"{shown} by its header, more than the 80 Mpx phonepose decodes")
+
+
+def test_the_decoders_own_diagnostics_are_counted_not_printed(capfd):
+    """libjpeg prints "Corrupt JPEG data" to the process's stderr whatever OpenCV's log level; decode_gray returns it
+    instead, and what another writer put on stderr meanwhile still arrives."""
+    import cv2
+
+    from phonepose.pipeline.shared import c_stderr_captured, decode_gray
+
+    rng = np.random.default_rng(3)
+    for cut in rng.integers(700, 1500, size=5):
+        data = cv2.imencode(".jpg", rng.integers(0, 255, (64, 80), dtype=np.uint8))[1].tobytes()
+        damaged = decode_gray(data[:int(cut)] + b"\xff\xd9")
+        assert damaged.gray is not None and damaged.gray.shape == (64, 80)
+        assert damaged.damaged.startswith("Corrupt JPEG data") or damaged.damaged.startswith("Premature end")
+        whole = decode_gray(data)
+        assert whole.damaged == "" and np.array_equal(whole.gray, cv2.imdecode(np.frombuffer(data, np.uint8), 0))
+    with c_stderr_captured() as said:
+        os.write(2, b"someone else's line\n")
+    assert said == []
+    out, err = capfd.readouterr()
+    assert err == "someone else's line\n"

@@ -32,6 +32,7 @@ from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
 from phonepose.errors import ConfigError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.files import check_input
+from phonepose.pipeline.shared import UNDECODABLE, Decoded, decode_gray
 from phonepose.pipeline.types import camera_problem
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -138,10 +139,14 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
         check_input(path, "image")    # a FIFO or device among the images: refused before reading any
     views, skipped, size, examined = [], [], None, 0
     for path in files:
-        image = _decode_image(path)
+        decoded = _decode_image(path)
+        image = decoded.gray
         if image is None:
-            skipped.append(f"{path.name}: not an image OpenCV can read")
+            skipped.append(f"{path.name}: not an image phonepose can read" if decoded.problem == UNDECODABLE
+                           else f"{path.name}: {decoded.problem}")
             continue
+        if decoded.damaged:     # used, and said (the list is what the command warns of)
+            skipped.append(f"{path.name}: damaged image data ({decoded.damaged}); read as far as it goes")
         examined += 1
         here = (image.shape[1], image.shape[0])
         if size is None:
@@ -159,20 +164,14 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
     return _Collected(views, size, examined, len(views), skipped)
 
 
-def _decode_image(path: Path) -> np.ndarray | None:
-    """The grayscale image in ``path``, or None when OpenCV cannot decode it (an empty or damaged file, a header
-    claiming more than its ``CV_IO_MAX_IMAGE_PIXELS``). The bytes are read here and decoded from memory: a path
-    that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
+def _decode_image(path: Path) -> Decoded:
+    """The grayscale image in ``path`` (pipeline.shared.decode_gray: the size from its header first). The bytes are
+    read here and decoded from memory: a path that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
     try:
-        data = np.fromfile(path, dtype=np.uint8)
+        data = path.read_bytes()
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if data.size == 0:
-        return None
-    try:
-        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)   # the pixels as stored
-    except cv2.error:           # e.g. 60000x60000 px: "CV_IO_MAX_IMAGE_PIXELS" asserted
-        return None
+    return decode_gray(data)
 
 
 def opencv_path(path: Path, what: str, fix: str = "rename it", error: type[PhoneposeError] = InputFileError) -> str:

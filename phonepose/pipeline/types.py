@@ -233,6 +233,8 @@ class Stages(Protocol):
     frames_undecodable: int    # of which could not be decoded (reported once by the engine)
     frames_wrong_size: int     # of which are not of the calibration's size (reported once by the engine)
     wrong_size: str            # what the first of those is ("1280x960 px, not the calibration's 640x480")
+    frames_damaged: int        # decoded as far as they go; the decoder called them damaged (reported once)
+    damaged: str               # what it said of the first ("Corrupt JPEG data: premature end of data segment")
 
     def process(self, tick: Tick) -> Observation: ...
 
