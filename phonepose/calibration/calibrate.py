@@ -96,15 +96,18 @@ class BoardFinder:
                     img.reshape(-1, 2).astype(np.float32))
 
 
-def _moved(view: View, last: View | None, diagonal: float) -> bool:
-    """Whether the board moved enough since ``last`` to make ``view`` a new view."""
-    if last is None:
-        return True
-    common, a, b = np.intersect1d(view.ids, last.ids, return_indices=True)
-    if len(common) < 4:
-        return True
-    shift = np.linalg.norm(view.image_points[a] - last.image_points[b], axis=1).mean()
-    return shift >= MIN_MOTION * diagonal
+def same_view(view: View, kept: list[View], diagonal: float) -> View | None:
+    """The view of ``kept`` that ``view`` repeats (its common corners moved less than MIN_MOTION of the image
+    diagonal on average), or None: a new view. Every source keeps only new views (a still video, a photo copied twice),
+    since a repeated view adds no information and weighs its pose twice."""
+    for last in reversed(kept):     # the latest first: a stream's next frame is most like its last view
+        common, a, b = np.intersect1d(view.ids, last.ids, return_indices=True)
+        if len(common) < 4:
+            continue
+        shift = np.linalg.norm(view.image_points[a] - last.image_points[b], axis=1).mean()
+        if shift < MIN_MOTION * diagonal:
+            return last
+    return None
 
 
 def spread(views: list[View], max_views: int) -> list[View]:
@@ -137,7 +140,9 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
         raise InputFileError(f"{directory}: no images ({', '.join(IMAGE_SUFFIXES)})")
     for path in files:
         check_input(path, "image")    # a FIFO or device among the images: refused before reading any
-    views, skipped, size, examined = [], [], None, 0
+    views: list[View] = []
+    skipped: list[str] = []
+    size, examined, with_board = None, 0, 0
     for path in files:
         decoded = _decode_image(path)
         image = decoded.gray
@@ -156,12 +161,18 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
                                       f"{size[0]}x{size[1]}; calibrate one camera resolution at a time")
         view = finder.find(image, path.name)
         if view is not None:
+            with_board += 1
+            seen = same_view(view, views, float(np.hypot(*size)))
+            if seen is not None:
+                skipped.append(f"{path.name}: the same view as {seen.name} (the board moved less than "
+                               f"{MIN_MOTION:.0%} of the image diagonal); not used")
+                continue
             views.append(view)
             if progress:
                 progress(f"{path.name}: {len(view.ids)} corners")
     if examined == 0:
         raise InputFileError(f"{directory}: none of its {len(files)} image files can be read")
-    return _Collected(views, size, examined, len(views), skipped)
+    return _Collected(views, size, examined, with_board, skipped)
 
 
 def _decode_image(path: Path) -> Decoded:
@@ -254,7 +265,7 @@ def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, ev
             if view is None:
                 continue
             with_board += 1
-            if _moved(view, views[-1] if views else None, float(np.hypot(*size))):
+            if same_view(view, views, float(np.hypot(*size))) is None:
                 views.append(view)
                 if progress:
                     progress(f"{name} frame {index}: view {len(views)}, {len(view.ids)} corners")
