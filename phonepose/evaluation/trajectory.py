@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,33 +82,79 @@ def _check_bounds(path, m: np.ndarray, lines: list[int], bounds) -> None:
             raise InputFileError(f"{path}:{lines[bad[0]]}: {text.format(v=v)}: check the file's columns and units")
 
 
-def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) -> tuple[np.ndarray, list[int]]:
+# Lines parsed at a time: the text's lines as Python strings cost ~6x the text, so a 1 GiB file is parsed in blocks
+# of about this many characters, each block's rows going into one float64 array.
+PARSE_BLOCK_CHARS = 1 << 22
+
+
+def _text_blocks(text: str) -> Iterator[tuple[int, str]]:
+    """(number of the block's first line, the block): ``text`` cut after a ``\n`` every PARSE_BLOCK_CHARS characters or
+    so, so that no line is cut (``\n`` ends a line for ``str.splitlines`` whatever came before it)."""
+    start, lineno = 0, 1
+    while start < len(text):
+        end = text.find("\n", start + PARSE_BLOCK_CHARS) + 1 or len(text)
+        block = text[start:end]
+        yield lineno, block
+        lineno += len(block.splitlines())
+        start = end
+
+
+def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) -> tuple[np.ndarray, np.ndarray]:
     """All numeric rows of a text file (``#`` comments and blank lines skipped), ``ncols`` or more each,
-    each value within ``bounds`` (:data:`TUM_BOUNDS`), and the line number of each row."""
+    each value within ``bounds`` (:data:`TUM_BOUNDS`), and the line number of each row.
+
+    Parsed block by block (:data:`PARSE_BLOCK_CHARS`), each row by the same ``np.loadtxt`` as a whole file, so the
+    numbers are the same and the memory is the text, the array and one block's strings."""
     from phonepose.files import read_text_input
 
     text = read_text_input(path, "trajectory file",
                            note="1 GiB of TUM lines is ~13 million poses, 37 hours at 100 Hz")
-    rows = []
-    lines = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.split("#", 1)[0].strip()
-        if s:
-            rows.append(s)
-            lines.append(lineno)
-    if len(rows) > 1 and _is_header(rows[0]):     # a file of one such line is no trajectory: an error below
-        del rows[0], lines[0]
-    if not rows:
+    parts: list[np.ndarray] = []
+    numbers: list[np.ndarray] = []
+    width = None
+    first = True
+    for first_line, block in _text_blocks(text):
+        rows = []
+        lines = []
+        for lineno, line in enumerate(block.splitlines(), start=first_line):
+            s = line.split("#", 1)[0].strip()
+            if s:
+                rows.append(s)
+                lines.append(lineno)
+        if first and rows:
+            # a file of one such line is no trajectory: an error below
+            if _is_header(rows[0]) and (len(rows) > 1 or _more_rows(text, block)):
+                del rows[0], lines[0]
+            first = False
+        if not rows:
+            continue
+        m = _parse_rows(path, delimiter, ncols, what, bounds, rows, lines, width)
+        width = m.shape[1]
+        parts.append(m)
+        numbers.append(np.asarray(lines, dtype=np.int64))
+    del text
+    if not parts:
         raise InputFileError(f"{path}: no poses (expected {what})")
+    m = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    return m, (numbers[0] if len(numbers) == 1 else np.concatenate(numbers))
+
+
+def _more_rows(text: str, block: str) -> bool:
+    """Whether ``text`` holds a row after ``block`` (its first, whose only row is a header)."""
+    return any(line.split("#", 1)[0].strip() for line in text[len(block):].splitlines())
+
+
+def _parse_rows(path, delimiter: str | None, ncols: int, what: str, bounds, rows: list[str], lines: list[int],
+                width: int | None) -> np.ndarray:
+    """``rows`` (at ``lines``) as one array; ``width``: the columns of the rows before, if any."""
     try:
         m = np.loadtxt(rows, delimiter=delimiter, ndmin=2, dtype=float)
     except ValueError:
         m = None
-    if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])):
+    if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])) and width in (None, m.shape[1]):
         _check_bounds(path, m, lines, bounds)
-        return m, lines
+        return m
     # slow path: find the first bad line and name it
-    width = None
     for s, lineno in zip(rows, lines, strict=True):
         parts = [x for x in (s.split(delimiter) if delimiter else s.split())]
         try:
@@ -162,7 +208,7 @@ def _quat_norms(quat_xyzw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q, norms
 
 
-def _poses_from_xyzw(path, lines: list[int], xyz, quat_xyzw) -> Pose:
+def _poses_from_xyzw(path, lines: np.ndarray, xyz, quat_xyzw) -> Pose:
     q, norms = _quat_norms(quat_xyzw)
     bad = np.flatnonzero(~(norms > 1e-12))
     if bad.size:
