@@ -123,6 +123,7 @@ _C_DIAGNOSTICS = (b"Corrupt JPEG data", b"Premature end of JPEG file", b"Invalid
                   b"progression", b"Unsupported marker", b"Bogus ", b"Warning: ", b"libpng ", b"[ WARN:", b"[ INFO:",
                   b"[ERROR:", b"[DEBUG:")
 _stderr_lock = threading.Lock()
+_capture: dict = {}      # process id: the temporary file descriptor 2 points at during a decode, emptied after each
 
 
 @contextlib.contextmanager
@@ -133,7 +134,10 @@ def c_stderr_captured() -> Iterator[list[str]]:
     a temporary file for the block (os.dup2: POSIX and Windows alike). Whatever else reached it meanwhile (another
     thread's output) is written on to the real stderr afterwards, in order; one block at a time."""
     said: list[str] = []
-    with _stderr_lock, tempfile.TemporaryFile() as capture:
+    with _stderr_lock:
+        if os.getpid() not in _capture:     # one a process (a forked worker's own: a shared one shares its offset)
+            _capture[os.getpid()] = tempfile.TemporaryFile()
+        capture = _capture[os.getpid()]
         try:
             sys.stderr.flush()
             saved = os.dup(2)
@@ -152,12 +156,15 @@ def c_stderr_captured() -> Iterator[list[str]]:
 
 
 def _sort_captured(capture, said: list[str]) -> None:
-    """The decoders' lines of ``capture`` into ``said``; every other byte on to the real stderr."""
+    """The decoders' lines of ``capture`` into ``said``; every other byte on to the real stderr; ``capture`` emptied."""
     if not os.lseek(capture.fileno(), 0, os.SEEK_END):
         return
     capture.seek(0)
+    text = capture.read()
+    capture.seek(0)
+    capture.truncate()
     others = []
-    for line in capture.read().splitlines(keepends=True):
+    for line in text.splitlines(keepends=True):
         if line.startswith(_C_DIAGNOSTICS):
             said.append(line.decode("utf-8", "replace").strip())
         else:
