@@ -88,7 +88,7 @@ def _floor(frames, ctx) -> tuple[float, float]:
     rec = MarkerRecognizer(ctx.camera, ctx.marker)
     t0, c0 = time.perf_counter(), time.process_time()
     for image, t_ns, T in frames:
-        gray = decode_gray(image)
+        gray = decode_gray(image.data).gray
         rec.recognize(gray, T, t_ns)
     return time.perf_counter() - t0, time.process_time() - c0
 

@@ -23,7 +23,7 @@ from phonepose.calibration import load_calibration, save_calibration
 from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_png, board_spec, parse_board_spec, render_board
 from phonepose.calibration.calibrate import BoardFinder, calibrate_camera, calibrate_views
 from phonepose.calibration.marker_image import marker_image, marker_png
-from phonepose.errors import ConfigError, InputFileError
+from phonepose.errors import ConfigError, InputFileError, SessionContentError
 
 DATA = pathlib.Path(__file__).parent / "data" / "opencv_contrib"
 
@@ -289,7 +289,7 @@ def test_unreadable_image_is_a_warning_and_few_views_are_flagged(synthetic, tmp_
     code, stdout, err = cli("calibrate-camera", "-q", "--images", str(folder), "--out", str(tmp_path / "c.yaml"))
     assert code == 0, err
     lines = err.strip().splitlines()
-    assert "phonepose: warning: broken.png: not an image OpenCV can read" in lines
+    assert "phonepose: warning: broken.png: not an image phonepose can read" in lines
     assert any("only 5 views" in line for line in lines)
     assert all(line.startswith("phonepose: warning: ") for line in lines)
     assert load_calibration(tmp_path / "c.yaml").width == SIZE[0]
@@ -671,3 +671,33 @@ if __name__ == "__main__":
     import sys
 
     print(error_table() if "--errors" in sys.argv else measure())
+
+
+@pytest.mark.parametrize("copies,shift_px", [(12, 0), (8, 1), (6, 2)])
+def test_copies_of_one_view_are_one_view_for_every_source(synthetic, tmp_path, copies, shift_px):
+    """Copies of one photo, or near-copies (moved by ``shift_px``, re-encoded as JPEG), are one view whether given as
+    photos or as a video's frames: --images took twelve copies as twelve views and calibrated from them."""
+    images, _, _ = synthetic
+    base = images[0]
+    frames = [np.roll(base, k * shift_px, axis=1) if k % 2 else base for k in range(copies)]
+    folder = tmp_path / "copies"
+    folder.mkdir()
+    for k, frame in enumerate(frames):
+        (folder / f"c{k:02d}.jpg").write_bytes(cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 90 + k % 5])[1])
+    video = tmp_path / "copies.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (base.shape[1], base.shape[0]))
+    for frame in frames:
+        writer.write(frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    for source, what in (({"images": folder}, f"of {copies} images"), ({"video": video}, f"of {copies} frames")):
+        with pytest.raises(SessionContentError, match=rf"{what}[a-z ]*, {copies} show the board with >= 8 corners "
+                                                      r"\(1 distinct views\); need at least 4"):
+            calibrate_camera(**source)
+    # the same copies beside enough real views: used once, and each other copy named in a warning
+    for i in range(1, 6):
+        (folder / f"v{i}.png").write_bytes(cv2.imencode(".png", images[i])[1])
+    result = calibrate_camera(images=folder)
+    assert sorted(result.views) == ["c00.jpg"] + [f"v{i}.png" for i in range(1, 6)]
+    assert [line.split(":")[0] for line in result.skipped] == [f"c{k:02d}.jpg" for k in range(1, copies)]
+    assert all(line.endswith("the same view as c00.jpg (the board moved less than 2% of the image diagonal); not "
+                             "used") for line in result.skipped)

@@ -499,3 +499,62 @@ def test_errors_in_blocks_are_the_whole_arrays_bits(monkeypatch):
         for x, y in zip(b, w, strict=True):
             assert x.dtype.kind == y.dtype.kind and np.array_equal(x, y)
     assert blocked[3] == whole[3]
+
+
+@settings(deadline=None, max_examples=40)
+@given(seed=st.integers(0, 2**32 - 1), block=st.integers(1, 400), bad_at=st.one_of(st.none(), st.integers(0, 59)))
+def test_a_trajectory_parsed_in_blocks_is_the_whole_files_numbers(tmp_path_factory, seed, block, bad_at):
+    """Blocks of any size (cut after a newline) give the same array, line numbers and first error as one block:
+    the blocks keep the parse's memory to the text and the array."""
+    from phonepose.evaluation import trajectory
+
+    rng = np.random.default_rng(seed)
+    lines = ["# timestamp tx ty tz qx qy qz qw"] if rng.random() < 0.5 else []
+    for k in range(60):
+        q = rng.normal(size=4)
+        row = f"{k / 10:.1f} {rng.normal():.6f} {rng.normal():.6f} {rng.normal():.6f} " + " ".join(f"{v:.6f}" for v in q)
+        if k == bad_at:
+            row = row.replace(" ", " x", 1) if rng.random() < 0.5 else row + " 7"
+        lines.append(row)
+        if rng.random() < 0.2:
+            lines.append(rng.choice(["", "# a comment", "   "]))
+    text = (rng.choice(["\n", "\r\n", "\r"])).join(lines) + "\n"
+    p = tmp_path_factory.mktemp("blocks") / "t.tum"
+    p.write_text(text, newline="")
+
+    def load():
+        try:
+            traj = load_tum(p)
+            return traj.stamps.tolist(), traj.poses.translation.tolist(), traj.poses.rotation.as_quat().tolist()
+        except InputFileError as exc:
+            return str(exc)
+
+    whole = load()
+    saved = trajectory.PARSE_BLOCK_CHARS
+    trajectory.PARSE_BLOCK_CHARS = block
+    try:
+        assert load() == whole
+    finally:
+        trajectory.PARSE_BLOCK_CHARS = saved
+    if bad_at is None:
+        assert len(whole[0]) == 60
+
+
+def test_relative_errors_in_blocks_are_the_whole_arrays_bits():
+    """RE pairs are computed BLOCK_ROWS at a time; each value equals the one computed over all pairs at once."""
+    from phonepose.evaluation.relative import accumulated_distances, euler_zyx, find_pairs, pair_errors, relative_errors_at
+    from phonepose.evaluation.stats import BLOCK_ROWS
+
+    gt, est = random_traj(3 * BLOCK_ROWS + 77, 5), random_traj(3 * BLOCK_ROWS + 77, 6)
+    d = accumulated_distances(gt.translation)
+    L = float(d[-1] / 7)
+    starts, ends = find_pairs(d, L)
+    assert ends.size > 2 * BLOCK_ROWS
+    r_w, t_w, r_e = pair_errors(gt, est, starts, ends, 1.03)
+    got = relative_errors_at(gt, est, L, 1.03)
+    assert np.array_equal(got.trans, np.sqrt(np.sum(t_w * t_w, axis=1)))
+    rot = np.degrees(np.arccos(np.clip((np.trace(r_e, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    assert np.array_equal(got.rot_deg, rot)
+    yaw, pitch, roll = euler_zyx(r_w)
+    assert np.array_equal(got.yaw_deg, np.abs(yaw) * 180.0 / np.pi)
+    assert np.array_equal(got.gravity_deg, np.sqrt(pitch ** 2 + roll ** 2) * 180.0 / np.pi)

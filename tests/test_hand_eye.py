@@ -77,7 +77,8 @@ def test_file_round_trip_and_bad_files(tmp_path):
     with pytest.raises(InputFileError, match="not an OpenCV YAML/XML hand-eye file"):
         load_hand_eye(tmp_path / "garbage.yaml")
     (tmp_path / "other.yaml").write_text("%YAML:1.0\nfoo: 1\n")
-    with pytest.raises(InputFileError, match="expected a 4x4 matrix T_controller_mocap"):
+    with pytest.raises(InputFileError, match=r"expected a 4x4 matrix T_controller_gt, or an older hand-eye file's "
+                                             r"T_controller_mocap\)$"):
         load_hand_eye(tmp_path / "other.yaml")
     with pytest.raises(InputFileError, match="no such hand-eye file"):
         load_hand_eye(tmp_path / "none.yaml")

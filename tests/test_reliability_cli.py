@@ -133,9 +133,9 @@ def _gt_q5(m):
     m.rotation.w = 5.0
 
 
-def _k_zero(m):
-    m.K[0] = 0.0
-    m.K[4] = 0.0
+def _k_tiny(m):
+    m.K[0] = 1e-30
+    m.K[4] = 1e-30
 
 
 def _size0(m):
@@ -191,6 +191,18 @@ def _extreme_imu():
 
 def _garbage_image(m):
     m.data = b"this is not a jpeg"
+
+
+def _claiming(width: int, height: int):
+    """Camera frames whose JPEG header (SOF0) claims ``width`` x ``height`` px."""
+    def fn(m):
+        i = m.data.index(b"\xff\xc0")
+        m.data = m.data[:i + 5] + height.to_bytes(2, "big") + width.to_bytes(2, "big") + m.data[i + 9:]
+    return fn
+
+
+def _cut_image(m):
+    m.data = m.data[:len(m.data) // 2] + b"\xff\xd9"
 
 
 def _half_size_image(m):
@@ -396,10 +408,11 @@ CASES = [
                        "-q", "--out", str(d / "o")],
          4, r"gc\.mcap: ground-truth calibration \(/gt/calibration\) quaternion is not unit length "
             r"\(\|q\| = 5\.0\d*\)$"),
-    Case("static-focal-zero", "camera calibration with fx = fy = 0",
-         lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_zero))),
+    Case("static-focal-tiny", "camera calibration with fx = fy = 1e-30 px (\"Found zero norm quaternions\" before)",
+         lambda g, d: ["playback", str(rewrite(g, d / "k.mcap", _static(Topic.CAMERA_CALIBRATION, _k_tiny))),
                        "-q", "--out", str(d / "o")],
-         4, r"k\.mcap: camera calibration focal lengths fx=0, fy=0: expected > 0$"),
+         4, r"k\.mcap: camera calibration: focal lengths fx=1e-30, fy=1e-30 px: expected 1 to 1000000 px \(a camera "
+            r"matrix in pixels\)$"),
     Case("static-fisheye", "camera calibration of a fisheye lens (Foxglove's kannala_brandt; read as plumb_bob before)",
          lambda g, d: ["playback", str(rewrite(g, d / "fe.mcap", _static(Topic.CAMERA_CALIBRATION, _fisheye))),
                        "-q", "--out", str(d / "o")],
@@ -788,6 +801,17 @@ WARNING_CASES = [
      _static(Topic.CAMERA_IMAGE, _half_size_image),
      r"/display/camera/image: 41 camera frame\(s\) are 160x120 px, not the calibration's 320x240; they count as "
      r"showing no marker"),
+    *((f"images-claiming-{w}x{h}", f"camera frames whose JPEG header claims {w}x{h} px (" + why + ")",
+       _static(Topic.CAMERA_IMAGE, _claiming(w, h)),
+       rf"/display/camera/image: 41 camera frame\(s\) are {shown}, not the calibration's 320x240; they count as "
+       r"showing no marker")
+      for w, h, shown, why in ((65500, 65500, "more than 178 Mpx", "OpenCV's validateInputImageSize failed"),
+                               (20000, 20000, "more than 178 Mpx", "decoded at ~870 MB a frame"),
+                               (640, 480, "640x480 px", "read from the header, never decoded"))),
+    ("images-cut", "camera frames cut in half (libjpeg printed \"Corrupt JPEG data\" once a frame)",
+     _static(Topic.CAMERA_IMAGE, _cut_image),
+     r"/display/camera/image: 41 camera frame\(s\) hold damaged image data \(Corrupt JPEG data: premature end of "
+     r"data segment\); decoded as far as it goes"),
 ]
 
 

@@ -32,6 +32,8 @@ from phonepose.calibration.board import DEFAULT_BOARD, BoardSpec, board_spec
 from phonepose.calibration.camera_file import CameraCalibrationFile
 from phonepose.errors import ConfigError, InputFileError, PhoneposeError, SessionContentError
 from phonepose.files import check_input
+from phonepose.pipeline.shared import UNDECODABLE, Decoded, decode_gray
+from phonepose.pipeline.types import camera_problem
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 MIN_VIEWS = 4            # 9 unknowns + 6 per view; OpenCV's own ChArUco tutorial calibrates from 4 photos
@@ -94,15 +96,18 @@ class BoardFinder:
                     img.reshape(-1, 2).astype(np.float32))
 
 
-def _moved(view: View, last: View | None, diagonal: float) -> bool:
-    """Whether the board moved enough since ``last`` to make ``view`` a new view."""
-    if last is None:
-        return True
-    common, a, b = np.intersect1d(view.ids, last.ids, return_indices=True)
-    if len(common) < 4:
-        return True
-    shift = np.linalg.norm(view.image_points[a] - last.image_points[b], axis=1).mean()
-    return shift >= MIN_MOTION * diagonal
+def same_view(view: View, kept: list[View], diagonal: float) -> View | None:
+    """The view of ``kept`` that ``view`` repeats (its common corners moved less than MIN_MOTION of the image
+    diagonal on average), or None: a new view. Every source keeps only new views (a still video, a photo copied twice),
+    since a repeated view adds no information and weighs its pose twice."""
+    for last in reversed(kept):     # the latest first: a stream's next frame is most like its last view
+        common, a, b = np.intersect1d(view.ids, last.ids, return_indices=True)
+        if len(common) < 4:
+            continue
+        shift = np.linalg.norm(view.image_points[a] - last.image_points[b], axis=1).mean()
+        if shift < MIN_MOTION * diagonal:
+            return last
+    return None
 
 
 def spread(views: list[View], max_views: int) -> list[View]:
@@ -135,12 +140,18 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
         raise InputFileError(f"{directory}: no images ({', '.join(IMAGE_SUFFIXES)})")
     for path in files:
         check_input(path, "image")    # a FIFO or device among the images: refused before reading any
-    views, skipped, size, examined = [], [], None, 0
+    views: list[View] = []
+    skipped: list[str] = []
+    size, examined, with_board = None, 0, 0
     for path in files:
-        image = _decode_image(path)
+        decoded = _decode_image(path)
+        image = decoded.gray
         if image is None:
-            skipped.append(f"{path.name}: not an image OpenCV can read")
+            skipped.append(f"{path.name}: not an image phonepose can read" if decoded.problem == UNDECODABLE
+                           else f"{path.name}: {decoded.problem}")
             continue
+        if decoded.damaged:     # used, and said (the list is what the command warns of)
+            skipped.append(f"{path.name}: damaged image data ({decoded.damaged}); read as far as it goes")
         examined += 1
         here = (image.shape[1], image.shape[0])
         if size is None:
@@ -150,28 +161,28 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
                                       f"{size[0]}x{size[1]}; calibrate one camera resolution at a time")
         view = finder.find(image, path.name)
         if view is not None:
+            with_board += 1
+            seen = same_view(view, views, float(np.hypot(*size)))
+            if seen is not None:
+                skipped.append(f"{path.name}: the same view as {seen.name} (the board moved less than "
+                               f"{MIN_MOTION:.0%} of the image diagonal); not used")
+                continue
             views.append(view)
             if progress:
                 progress(f"{path.name}: {len(view.ids)} corners")
     if examined == 0:
         raise InputFileError(f"{directory}: none of its {len(files)} image files can be read")
-    return _Collected(views, size, examined, len(views), skipped)
+    return _Collected(views, size, examined, with_board, skipped)
 
 
-def _decode_image(path: Path) -> np.ndarray | None:
-    """The grayscale image in ``path``, or None when OpenCV cannot decode it (an empty or damaged file, a header
-    claiming more than its ``CV_IO_MAX_IMAGE_PIXELS``). The bytes are read here and decoded from memory: a path
-    that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
+def _decode_image(path: Path) -> Decoded:
+    """The grayscale image in ``path`` (pipeline.shared.decode_gray: the size from its header first). The bytes are
+    read here and decoded from memory: a path that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
     try:
-        data = np.fromfile(path, dtype=np.uint8)
+        data = path.read_bytes()
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if data.size == 0:
-        return None
-    try:
-        return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)   # the pixels as stored
-    except cv2.error:           # e.g. 60000x60000 px: "CV_IO_MAX_IMAGE_PIXELS" asserted
-        return None
+    return decode_gray(data)
 
 
 def opencv_path(path: Path, what: str, fix: str = "rename it", error: type[PhoneposeError] = InputFileError) -> str:
@@ -254,7 +265,7 @@ def _collect_stream(cap: cv2.VideoCapture, finder: BoardFinder, name: str, *, ev
             if view is None:
                 continue
             with_board += 1
-            if _moved(view, views[-1] if views else None, float(np.hypot(*size))):
+            if same_view(view, views, float(np.hypot(*size))) is None:
                 views.append(view)
                 if progress:
                     progress(f"{name} frame {index}: view {len(views)}, {len(view.ids)} corners")
@@ -319,7 +330,7 @@ def calibrate_views(views: list[View], image_size: tuple[int, int], board: Board
         raise SessionContentError(f"calibration failed: {' '.join(str(exc).split())[-200:]}") from None
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]
-    if not (np.isfinite(rms) and np.isfinite(K).all() and np.isfinite(D5).all() and K[0, 0] > 0 and K[1, 1] > 0):
+    if not np.isfinite(rms) or camera_problem(K, D5, *image_size) is not None:   # the one check a calibration file gets
         raise SessionContentError("calibration failed: the fit did not converge (take views from more angles)")
     return CalibrationResult(K=K, D=D5, width=int(image_size[0]), height=int(image_size[1]), rms_px=float(rms),
                              per_view_rms_px=per_view.ravel().astype(float), views=[v.name for v in views],

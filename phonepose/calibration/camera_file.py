@@ -21,8 +21,7 @@ import cv2
 import numpy as np
 
 from phonepose.errors import InputFileError, OutputError
-from phonepose.numbers import show_number
-from phonepose.pipeline.types import check_plumb_bob
+from phonepose.pipeline.types import check_camera, check_plumb_bob
 
 
 @dataclass(frozen=True)
@@ -74,7 +73,6 @@ def save_calibration(path: str | Path, calib: CameraCalibrationFile, option: str
 # A calibration file is a few KiB (a 4x4 matrix and a dozen numbers); one beyond this is the wrong file.
 MAX_CALIBRATION_BYTES = 1 << 20
 MAX_MATRIX_ELEMENTS = 64      # the largest matrix a calibration file holds is 4x4 (distortion: at most 1x14)
-MAX_IMAGE_SIDE_PX = 100_000
 
 
 def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
@@ -113,11 +111,12 @@ def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
 
 
 def yaml_number(path: Path, fs: cv2.FileStorage, key: str, default: float | None = None) -> float | None:
-    """``key``'s number (``default`` when it is absent); a node of another type is one line naming it
-    (``node.real()`` reads a string or a list as 1.8e308)."""
+    """``key``'s number as a float (``default``, as a float, when it is absent); a node of another type is one line
+    naming it (``node.real()`` reads a string or a list as 1.8e308). Always a float: callers use float-only methods
+    (``int.is_integer`` is Python 3.12's)."""
     node = fs.getNode(key)
     if node.empty():
-        return default
+        return None if default is None else float(default)
     if not (node.isReal() or node.isInt()):
         raise InputFileError(f"{path}: {key} is not a number (found {_node_kind(node)})")
     return float(node.real())
@@ -221,11 +220,7 @@ def load_calibration(path: str | os.PathLike) -> CameraCalibrationFile:
     assert width is not None and height is not None and rms is not None      # given defaults
     if K is None or K.shape != (3, 3) or D is None or D.size not in (4, 5, 8, 12, 14) or width <= 0 or height <= 0:
         raise InputFileError(f"{path}: needs camera_matrix (3x3), distortion_coefficients, image_width, image_height")
-    if not (np.isfinite(K).all() and np.isfinite(D).all()):
-        raise InputFileError(f"{path}: camera_matrix or distortion_coefficients are not finite")
-    if not (width <= MAX_IMAGE_SIDE_PX and height <= MAX_IMAGE_SIDE_PX and width.is_integer() and height.is_integer()):
-        raise InputFileError(f"{path}: image_width {show_number(width)}, image_height {show_number(height)}: expected "
-                             f"whole pixels in [1, {MAX_IMAGE_SIDE_PX}]")
+    check_camera(str(path), K, D, width, height, InputFileError)
     check_plumb_bob(str(path), model, D.ravel(), InputFileError)
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D.ravel()[:5]

@@ -170,7 +170,13 @@ def load_gt_calibration(path: str | os.PathLike, what: str = "calibration") -> G
             raise InputFileError(f"{path}: version {show_number(version)} is not a version of this file ({VERSION})")
         if version > VERSION:
             raise InputFileError(f"{path}: version {show_number(version)} is newer than this phonepose reads ({VERSION})")
-        X = _pose(path, fs, "T_controller_gt" if version else "T_controller_mocap", required=True)
+        # version 0 (no format key): an older hand-eye file's T_controller_mocap, or a hand-written T_controller_gt
+        keys = ["T_controller_gt"] if version else [k for k in ("T_controller_gt", "T_controller_mocap")
+                                                    if not fs.getNode(k).empty()]
+        if not keys:
+            raise InputFileError(f"{path}: not a ground-truth calibration file (expected a 4x4 matrix T_controller_gt, "
+                                 "or an older hand-eye file's T_controller_mocap)")
+        X = _pose(path, fs, keys[0], required=True)
         offset = real("time_offset_s", 0.0)
         assert X is not None   # required=True: a missing matrix raised above
         cal = GtCalibration(

@@ -73,7 +73,7 @@ def read_sightings(path: str | os.PathLike) -> Sightings:
     """Every marker sighting of the session; SessionContentError when it has no camera or no display VIO."""
     from phonepose.pipeline.context import has_camera, read_context
     from phonepose.pipeline.markers import MarkerRecognizer
-    from phonepose.pipeline.shared import decode_gray, frame_size_problem, warn_wrong_size
+    from phonepose.pipeline.shared import decode_gray, warn_damaged, warn_wrong_size
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader
 
@@ -88,23 +88,24 @@ def read_sightings(path: str | os.PathLike) -> Sightings:
         recognizer = MarkerRecognizer(context.camera, context.marker)
         T_marker_body = context.marker.T_body_marker.inv()
         stamps, cam_body, rms = [], [], []
-        frames = wrong_size = 0
-        first_wrong = ""
+        frames = wrong_size = damaged = 0
+        first_wrong = first_damaged = ""
         last_ns = None
         for m in reader.messages([Topic.CAMERA_IMAGE]):
             if last_ns is not None and m.log_time_ns <= last_ns:
                 continue        # a duplicated frame: the same sighting twice would weigh it double
             last_ns = m.log_time_ns
             frames += 1
-            gray = decode_gray(m.msg)
-            if gray is None:
-                continue
-            problem = frame_size_problem(gray, context.camera)
-            if problem is not None:
+            image = decode_gray(m.msg.data, (context.camera.width, context.camera.height))
+            if image.damaged:
+                damaged += 1
+                first_damaged = first_damaged or image.damaged
+            if image.wrong_size:
                 wrong_size += 1
-                first_wrong = first_wrong or problem
+                first_wrong = first_wrong or image.problem
+            if image.gray is None:
                 continue
-            seen = recognizer.recognize(gray, None, m.log_time_ns)
+            seen = recognizer.recognize(image.gray, None, m.log_time_ns)
             if seen is None:
                 continue
             stamps.append(m.log_time_ns / 1e9)
@@ -112,6 +113,7 @@ def read_sightings(path: str | os.PathLike) -> Sightings:
             rms.append(seen.reprojection_error_px)
         t_d, display = _display_vio(reader)
     warn_wrong_size(wrong_size, first_wrong)
+    warn_damaged(damaged, first_damaged)
     t = np.asarray(stamps, dtype=float)
     if len(t) == 0 or len(t_d) < 2:
         return _none(frames)

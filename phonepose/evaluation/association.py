@@ -41,16 +41,28 @@ def associate_rpg(est_stamps: np.ndarray, ref_stamps: np.ndarray, max_diff: floa
     # widen by one each side so that rounding of te +- max_diff cannot drop a candidate
     lo = np.maximum(lo - 1, 0)
     hi = np.minimum(hi + 1, tr_sorted.size)
-    counts = hi - lo
-    ci = np.repeat(np.arange(te.size), counts)
-    offs = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    cj_sorted = np.repeat(lo, counts) + offs
-    cj = order[cj_sorted]
-    dt = np.abs(te[ci] - (tr_sorted[cj_sorted] + 0.0))
+    # the candidates' indices in the smallest integer type that holds them, each temporary dropped when used: a few
+    # candidates a pose made this the evaluation's peak memory (the order and values are the same in any type)
+    itype: type[np.signedinteger] = np.int32 if max(te.size, tr_sorted.size) < 2**31 - 1 else np.int64
+    counts: np.ndarray = (hi - lo).astype(itype)
+    del hi
+    ci = np.repeat(np.arange(te.size, dtype=itype), counts)
+    cj_sorted: np.ndarray = np.arange(ci.size, dtype=np.int64 if ci.size >= 2**31 - 1 else itype)
+    cj_sorted -= np.repeat(np.cumsum(counts, dtype=cj_sorted.dtype) - counts, counts)
+    cj_sorted += np.repeat(lo.astype(itype), counts)
+    del lo, counts
+    dt = te[ci]
+    dt -= tr_sorted[cj_sorted] + 0.0
+    np.abs(dt, out=dt)
     keep = dt < max_diff
-    ci, cj, dt = ci[keep], cj[keep], dt[keep]
+    ci, cj_sorted, dt = ci[keep], cj_sorted[keep], dt[keep]
+    del keep
+    cj = order[cj_sorted].astype(itype)
+    del cj_sorted
     rank = np.lexsort((cj, ci, dt))
+    del dt
     ci, cj = ci[rank], cj[rank]
+    del rank
     acc_i, acc_j = [], []
     used_i = np.zeros(te.size, bool)
     used_j = np.zeros(np.asarray(ref_stamps).size, bool)

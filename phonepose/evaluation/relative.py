@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from phonepose.evaluation.stats import BLOCK_ROWS, row_blocks
 from phonepose.geometry import Pose
@@ -146,14 +147,30 @@ def relative_errors_at(gt: Pose, est: Pose, length: float, scale: float = 1.0,
     if ends.size == 0:
         z = np.zeros(0)
         return RelativeErrors(length, starts, ends, z, z, z, z, z, z)
-    r_w, t_w, r_e = pair_errors(gt, est, starts, ends, scale)
+    quats = gt.rotation.as_quat(), est.rotation.as_quat()     # once: Pose's indexing copies them each time
+    # BLOCK_ROWS pairs at a time: each pair's errors depend on its two poses only, so the values are the whole
+    # arrays', and the (K, 3, 3) intermediates (~700 bytes a pair) stay one block's
+    parts = [_block_errors(gt, est, quats, starts[rows], ends[rows], scale, length) for rows in row_blocks(ends.size)]
+    trans, trans_perc, rot, yaw_deg, gravity_deg, rot_per_m = (
+        np.concatenate([part[c] for part in parts]) for c in range(6))
+    return RelativeErrors(length, starts, ends, trans, trans_perc, rot, yaw_deg, gravity_deg, rot_per_m)
+
+
+def _block_errors(gt: Pose, est: Pose, quats: tuple[np.ndarray, np.ndarray], starts: np.ndarray, ends: np.ndarray,
+                  scale: float, length: float):
+    """(trans, trans %, rot deg, yaw deg, gravity deg, rot deg per m) of the pairs ``starts``-``ends``."""
+    both = np.concatenate([starts, ends])
+    n = starts.size
+    local = np.arange(n)
+    g, e = (Pose(Rotation(q[both], normalize=False, copy=False), np.atleast_2d(p.translation)[both])
+            for q, p in zip(quats, (gt, est), strict=True))
+    r_w, t_w, r_e = pair_errors(g, e, local, local + n, scale)
     trans = np.sqrt(np.sum(t_w * t_w, axis=1))
     cos = (np.trace(r_e, axis1=1, axis2=2) - 1.0) / 2.0
     rot = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
     yaw, pitch, roll = euler_zyx(r_w)
-    return RelativeErrors(
-        length, starts, ends, trans, trans / length * 100.0, rot,
-        np.abs(yaw) * 180.0 / np.pi, np.sqrt(pitch ** 2 + roll ** 2) * 180.0 / np.pi, rot / length)
+    return (trans, trans / length * 100.0, rot, np.abs(yaw) * 180.0 / np.pi,
+            np.sqrt(pitch ** 2 + roll ** 2) * 180.0 / np.pi, rot / length)
 
 
 def relative_errors(gt: Pose, est: Pose, lengths, scale: float = 1.0,

@@ -14,7 +14,7 @@ from phonepose.errors import ConfigError, SessionContentError
 from phonepose.evaluation.alignment import align
 from phonepose.evaluation.association import associate_index, associate_rpg
 from phonepose.evaluation.ate import absolute_errors, scale_errors_perc
-from phonepose.evaluation.relative import default_lengths, relative_errors
+from phonepose.evaluation.relative import RelativeErrors, accumulated_distances, default_lengths, relative_errors_at
 from phonepose.evaluation.stats import statistics
 from phonepose.evaluation.trajectory import Trajectory
 
@@ -52,24 +52,30 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
     e_al = al.apply(e)
     e_trans, e_rot = absolute_errors(g, e_al)
     e_scale = scale_errors_perc(g.translation, e_al.translation, rpg_quirk=scale_quirk)
-    rel = relative_errors(g, e, lengths, al.scale, index_shift_quirk)
+    re: dict[str, dict] = {}
     out = {
         "n_matched": int(i_est.size),
         "align": al.to_dict(),
         "ate": {"trans_m": statistics(e_trans), "rot_deg": statistics(e_rot), "scale_perc": statistics(e_scale)},
-        "re": {
-            length_key(L): {
-                "num_pairs": len(r),
-                "trans_m": statistics(r.trans),
-                "trans_perc": statistics(r.trans_perc),
-                "rot_deg": statistics(r.rot_deg),
-                "yaw_deg": statistics(r.yaw_deg),
-                "gravity_deg": statistics(r.gravity_deg),
-                "rot_deg_per_m": statistics(r.rot_deg_per_m),
-            }
-            for L, r in rel.items()
-        },
+        "re": re,
     }
+    # one length at a time, its per-pair errors dropped once summed up (all of them at once were ~6 arrays of a
+    # million pairs per length), unless the caller asks for them
+    rel: dict[float, RelativeErrors] = {}
+    distances = accumulated_distances(g.translation)
+    for L in lengths:
+        r = relative_errors_at(g, e, L, al.scale, index_shift_quirk, distances)
+        re[length_key(L)] = {
+            "num_pairs": len(r),
+            "trans_m": statistics(r.trans),
+            "trans_perc": statistics(r.trans_perc),
+            "rot_deg": statistics(r.rot_deg),
+            "yaw_deg": statistics(r.yaw_deg),
+            "gravity_deg": statistics(r.gravity_deg),
+            "rot_deg_per_m": statistics(r.rot_deg_per_m),
+        }
+        if details:
+            rel[L] = r
     if details:
         out["_matches"] = (i_est, i_gt)
         out["_relative"] = rel

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import os
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,33 +82,79 @@ def _check_bounds(path, m: np.ndarray, lines: list[int], bounds) -> None:
             raise InputFileError(f"{path}:{lines[bad[0]]}: {text.format(v=v)}: check the file's columns and units")
 
 
-def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) -> np.ndarray:
+# Lines parsed at a time: the text's lines as Python strings cost ~6x the text, so a 1 GiB file is parsed in blocks
+# of about this many characters, each block's rows going into one float64 array.
+PARSE_BLOCK_CHARS = 1 << 22
+
+
+def _text_blocks(text: str) -> Iterator[tuple[int, str]]:
+    """(number of the block's first line, the block): ``text`` cut after a ``\n`` every PARSE_BLOCK_CHARS characters or
+    so, so that no line is cut (``\n`` ends a line for ``str.splitlines`` whatever came before it)."""
+    start, lineno = 0, 1
+    while start < len(text):
+        end = text.find("\n", start + PARSE_BLOCK_CHARS) + 1 or len(text)
+        block = text[start:end]
+        yield lineno, block
+        lineno += len(block.splitlines())
+        start = end
+
+
+def _read_matrix(path, delimiter: str | None, ncols: int, what: str, bounds=()) -> tuple[np.ndarray, np.ndarray]:
     """All numeric rows of a text file (``#`` comments and blank lines skipped), ``ncols`` or more each,
-    each value within ``bounds`` (:data:`TUM_BOUNDS`)."""
+    each value within ``bounds`` (:data:`TUM_BOUNDS`), and the line number of each row.
+
+    Parsed block by block (:data:`PARSE_BLOCK_CHARS`), each row by the same ``np.loadtxt`` as a whole file, so the
+    numbers are the same and the memory is the text, the array and one block's strings."""
     from phonepose.files import read_text_input
 
     text = read_text_input(path, "trajectory file",
                            note="1 GiB of TUM lines is ~13 million poses, 37 hours at 100 Hz")
-    rows = []
-    lines = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.split("#", 1)[0].strip()
-        if s:
-            rows.append(s)
-            lines.append(lineno)
-    if len(rows) > 1 and _is_header(rows[0]):     # a file of one such line is no trajectory: an error below
-        del rows[0], lines[0]
-    if not rows:
+    parts: list[np.ndarray] = []
+    numbers: list[np.ndarray] = []
+    width = None
+    first = True
+    for first_line, block in _text_blocks(text):
+        rows = []
+        lines = []
+        for lineno, line in enumerate(block.splitlines(), start=first_line):
+            s = line.split("#", 1)[0].strip()
+            if s:
+                rows.append(s)
+                lines.append(lineno)
+        if first and rows:
+            # a file of one such line is no trajectory: an error below
+            if _is_header(rows[0]) and (len(rows) > 1 or _more_rows(text, block)):
+                del rows[0], lines[0]
+            first = False
+        if not rows:
+            continue
+        m = _parse_rows(path, delimiter, ncols, what, bounds, rows, lines, width)
+        width = m.shape[1]
+        parts.append(m)
+        numbers.append(np.asarray(lines, dtype=np.int64))
+    del text
+    if not parts:
         raise InputFileError(f"{path}: no poses (expected {what})")
+    m = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    return m, (numbers[0] if len(numbers) == 1 else np.concatenate(numbers))
+
+
+def _more_rows(text: str, block: str) -> bool:
+    """Whether ``text`` holds a row after ``block`` (its first, whose only row is a header)."""
+    return any(line.split("#", 1)[0].strip() for line in text[len(block):].splitlines())
+
+
+def _parse_rows(path, delimiter: str | None, ncols: int, what: str, bounds, rows: list[str], lines: list[int],
+                width: int | None) -> np.ndarray:
+    """``rows`` (at ``lines``) as one array; ``width``: the columns of the rows before, if any."""
     try:
         m = np.loadtxt(rows, delimiter=delimiter, ndmin=2, dtype=float)
     except ValueError:
         m = None
-    if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])):
+    if m is not None and m.shape[1] >= ncols and np.all(np.isfinite(m[:, :ncols])) and width in (None, m.shape[1]):
         _check_bounds(path, m, lines, bounds)
         return m
     # slow path: find the first bad line and name it
-    width = None
     for s, lineno in zip(rows, lines, strict=True):
         parts = [x for x in (s.split(delimiter) if delimiter else s.split())]
         try:
@@ -143,12 +189,32 @@ def _is_header(row: str) -> bool:
     return True
 
 
-def _poses_from_xyzw(path, lines_offset, xyz, quat_xyzw) -> Pose:
-    norms = np.linalg.norm(quat_xyzw, axis=1)
+# A quaternion component beyond this is scaled before its norm is taken: the squares of 1e160 overflow float64.
+QUAT_SCALE_ABOVE = 1e150
+
+
+def _quat_norms(quat_xyzw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the quaternions scipy is given, their norms): a row with a component beyond :data:`QUAT_SCALE_ABOVE` is
+    divided by its largest component first (1e300's norm overflowed to inf, which scipy read as a zero quaternion);
+    every other row is given unchanged, so its numbers stay evo's and rpg's."""
+    q = np.asarray(quat_xyzw, dtype=float)
+    big = np.flatnonzero(np.max(np.abs(q), axis=1) > QUAT_SCALE_ABOVE)
+    norms = np.linalg.norm(q, axis=1)
+    if big.size:
+        q = q.copy()
+        scale = np.max(np.abs(q[big]), axis=1)
+        q[big] /= scale[:, None]
+        norms[big] = scale * np.linalg.norm(q[big], axis=1)   # inf only beyond float64's 1.8e308
+    return q, norms
+
+
+def _poses_from_xyzw(path, lines: np.ndarray, xyz, quat_xyzw) -> Pose:
+    q, norms = _quat_norms(quat_xyzw)
     bad = np.flatnonzero(~(norms > 1e-12))
     if bad.size:
-        raise InputFileError(f"{path}: pose {int(bad[0]) + lines_offset} has a zero quaternion")
-    return Pose.from_xyzw(xyz, quat_xyzw)
+        raise InputFileError(f"{path}:{lines[bad[0]]}: pose {int(bad[0])} has a zero quaternion (|q| "
+                             f"{norms[bad[0]]:.3g}): check the file's columns")
+    return Pose.from_xyzw(xyz, q)
 
 
 def _report_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> None:
@@ -160,7 +226,7 @@ def _report_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> None:
     are used as they are: evo and rpg do (real datasets have some, e.g. EuRoC V102), and our numbers must equal
     theirs (docs/evaluation.md).
     """
-    norms = np.linalg.norm(quat_xyzw, axis=1)
+    norms = _quat_norms(quat_xyzw)[1]
     off = np.abs(norms - 1.0) > QUAT_NORM_TOL
     n_quat = int(np.count_nonzero(off))
     n_time = int(np.count_nonzero(np.diff(stamps) <= 0))
@@ -174,28 +240,28 @@ def _report_rows(path, stamps: np.ndarray, quat_xyzw: np.ndarray) -> None:
 
 def load_tum(path) -> Trajectory:
     """TUM: ``t tx ty tz qx qy qz qw`` per line, time in seconds, quaternion w last."""
-    m = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'", TUM_BOUNDS)
+    m, lines = _read_matrix(path, None, 8, "TUM 't tx ty tz qx qy qz qw'", TUM_BOUNDS)
     if m.shape[1] != 8:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 8 (TUM 't tx ty tz qx qy qz qw')")
-    poses = _poses_from_xyzw(path, 0, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the pose
+    poses = _poses_from_xyzw(path, lines, m[:, 1:4], m[:, 4:8])   # zero quaternions: an error naming the line
     _report_rows(path, m[:, 0], m[:, 4:8])
     return Trajectory(m[:, 0].copy(), poses, str(path))
 
 
 def load_euroc(path) -> Trajectory:
     """EuRoC/ASL csv: ``t[ns], px, py, pz, qw, qx, qy, qz[, ...]`` (as evo: stamps = t / 1e9)."""
-    m = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'",
+    m, lines = _read_matrix(path, ",", 8, "EuRoC csv 't[ns],px,py,pz,qw,qx,qy,qz,...'",
                      (([0], MAX_STAMP_S * 1e9, "stamp {v:g} ns is not a time (beyond ±9e18 ns, the year 2262)"),
                       *TUM_BOUNDS[1:]))
     quat_xyzw = m[:, [5, 6, 7, 4]]
-    poses = _poses_from_xyzw(path, 0, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the pose
+    poses = _poses_from_xyzw(path, lines, m[:, 1:4], quat_xyzw)   # zero quaternions: an error naming the line
     _report_rows(path, m[:, 0], quat_xyzw)
     return Trajectory(np.divide(m[:, 0], 1e9), poses, str(path))
 
 
 def load_kitti(path) -> Trajectory:
     """KITTI: 12 values per line, the row-major 3x4 ``[R|t]``; no stamps (poses matched by index)."""
-    m = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values",
+    m, lines = _read_matrix(path, None, 12, "KITTI 3x4 row-major [R|t], 12 values",
                      (([3, 7, 11], MAX_POSITION_M, _OFF_EARTH),))
     if m.shape[1] != 12:
         raise InputFileError(f"{path}: {m.shape[1]} columns, expected 12 (KITTI 3x4 row-major [R|t])")
@@ -207,7 +273,7 @@ def load_kitti(path) -> Trajectory:
     orthogonal = np.all(np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)) < 1e-3, axis=(1, 2))
     bad = np.flatnonzero(~((np.abs(dets - 1.0) < 1e-3) & orthogonal))
     if bad.size:
-        raise InputFileError(f"{path}: pose {int(bad[0])} is not a rotation (det {dets[bad[0]]:.4g})")
+        raise InputFileError(f"{path}:{lines[bad[0]]}: pose {int(bad[0])} is not a rotation (det {dets[bad[0]]:.4g})")
     return Trajectory(None, Pose.from_matrix(mat), str(path))
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
-from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext, check_plumb_bob
+from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext, check_camera, check_plumb_bob
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
 
@@ -33,16 +33,6 @@ def _static_pose(path: str, what: str, decode, msg) -> Pose:
         return decode(msg)
     except codec.BrokenPose as exc:
         raise SessionContentError(f"{path}: {what} {exc.detail}") from None
-
-
-def _check_camera(path: str, calib) -> None:
-    if calib.width <= 0 or calib.height <= 0:
-        raise SessionContentError(f"{path}: camera calibration has size {calib.width}x{calib.height}, expected > 0")
-    K = np.asarray(calib.K, dtype=float)
-    if not np.isfinite(K).all() or not np.isfinite(np.asarray(calib.D, dtype=float)).all():
-        raise SessionContentError(f"{path}: camera calibration has NaN/inf values")
-    if not (K[0] > 0 and K[4] > 0):
-        raise SessionContentError(f"{path}: camera calibration focal lengths fx={K[0]:g}, fy={K[4]:g}: expected > 0")
 
 
 def _marker_model(path: str, spec) -> MarkerModel:
@@ -117,7 +107,8 @@ def context_from_static(path: str, has_images: bool, static: dict) -> SessionCon
             raise SessionContentError(f"{path}: camera images but no camera calibration ({Topic.CAMERA_CALIBRATION})")
         if len(calib.K) != 9:
             raise SessionContentError(f"{path}: camera calibration has {len(calib.K)} K values, expected 9")
-        _check_camera(path, calib)
+        check_camera(f"{path}: camera calibration", np.asarray(calib.K, dtype=float), np.asarray(calib.D, dtype=float),
+                     calib.width, calib.height, SessionContentError)
         check_plumb_bob(f"{path}: {Topic.CAMERA_CALIBRATION}", calib.distortion_model, np.asarray(calib.D, dtype=float),
                         SessionContentError)
         D = np.zeros(5)

@@ -47,6 +47,55 @@ def check_plumb_bob(where: str, model: str, D: np.ndarray, error: type[Exception
                     "calibrate without CALIB_RATIONAL_MODEL, or with phonepose calibrate-camera")
 
 
+# What a camera calibration may hold, checked where one enters (a calibration file, a session's calibration topic):
+# a side beyond this is no camera's (1e9 px frames were planned), a focal length below 1 px or above 1e6 px is no
+# lens's (fx = 1e-30 px made every marker pose overflow), a principal point more than an image away from the image
+# is no camera's, and plumb_bob coefficients beyond ±1e4 are no lens's (1e300 overflowed the projection).
+MAX_IMAGE_SIDE_PX = 100_000
+FOCAL_RANGE_PX = (1.0, 1e6)
+MAX_DISTORTION = 1e4
+
+
+def check_camera(where: str, K: np.ndarray, D: np.ndarray, width: float, height: float,
+                 error: type[Exception]) -> None:
+    """``error`` (one line starting ``where``) unless ``K`` (3x3), ``D``, ``width`` and ``height`` are a camera's:
+    the one check of a calibration's values, whichever way it came in (:data:`FOCAL_RANGE_PX` and beside it)."""
+    problem = camera_problem(K, D, width, height)
+    if problem is not None:
+        raise error(f"{where}: {problem}")
+
+
+def camera_problem(K: np.ndarray, D: np.ndarray, width: float, height: float) -> str | None:
+    """Why ``K``, ``D``, ``width`` and ``height`` are not a camera's (:func:`check_camera`), or None."""
+    from phonepose.numbers import show_number
+
+    K = np.asarray(K, dtype=float).reshape(3, 3)
+    D = np.asarray(D, dtype=float).ravel()
+    if not (np.isfinite(K).all() and np.isfinite(D).all()):
+        return "the camera matrix or distortion coefficients have NaN/inf values"
+    if not (1 <= width <= MAX_IMAGE_SIDE_PX and 1 <= height <= MAX_IMAGE_SIDE_PX
+            and float(width).is_integer() and float(height).is_integer()):
+        return (f"image size {show_number(float(width))} x {show_number(float(height))} px: expected whole pixels in "
+                f"[1, {MAX_IMAGE_SIDE_PX}]")
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    lo, hi = FOCAL_RANGE_PX
+    if not (lo <= fx <= hi and lo <= fy <= hi):
+        return (f"focal lengths fx={show_number(fx)}, fy={show_number(fy)} px: expected {show_number(lo)} to "
+                f"{show_number(hi)} px (a camera matrix in pixels)")
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    if not (-width <= cx <= 2 * width and -height <= cy <= 2 * height):
+        return (f"principal point cx={show_number(cx)}, cy={show_number(cy)} px is not near the "
+                f"{int(width)}x{int(height)} image (expected within one image size of it)")
+    if not (K[1, 0] == 0 and K[2, 0] == 0 and K[2, 1] == 0 and K[2, 2] == 1 and abs(K[0, 1]) <= hi):
+        rows = "; ".join(" ".join(show_number(float(v)) for v in row) for row in K[1:])
+        return f"the camera matrix is not [[fx, s, cx], [0, fy, cy], [0, 0, 1]] (its rows 2 and 3 are {rows})"
+    big = np.flatnonzero(np.abs(D) > MAX_DISTORTION)
+    if big.size:
+        return (f"distortion coefficient {show_number(float(D[big[0]]))} (the {_ordinal(int(big[0]) + 1)}) is beyond "
+                f"±{show_number(MAX_DISTORTION)}: not a plumb_bob lens's")
+    return None
+
+
 def _ordinal(n: int) -> str:
     return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
@@ -184,6 +233,8 @@ class Stages(Protocol):
     frames_undecodable: int    # of which could not be decoded (reported once by the engine)
     frames_wrong_size: int     # of which are not of the calibration's size (reported once by the engine)
     wrong_size: str            # what the first of those is ("1280x960 px, not the calibration's 640x480")
+    frames_damaged: int        # decoded as far as they go; the decoder called them damaged (reported once)
+    damaged: str               # what it said of the first ("Corrupt JPEG data: premature end of data segment")
 
     def process(self, tick: Tick) -> Observation: ...
 

@@ -39,7 +39,7 @@ from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
 from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
-from phonepose.pipeline.shared import SharedStages, warn_wrong_size
+from phonepose.pipeline.shared import SharedStages, warn_damaged, warn_wrong_size
 from phonepose.pipeline.trackers import NAME_RULE, check_unique_names, is_safe_name, make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
@@ -386,6 +386,7 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         log.warning("%s: %d camera frame(s) could not be decoded; they count as showing no marker",
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
     warn_wrong_size(stages.frames_wrong_size, stages.wrong_size)
+    warn_damaged(stages.frames_damaged, stages.damaged)
     trajs = engine.trajectories()
     gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
     per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))

@@ -30,6 +30,7 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf.message import Message
 
+from phonepose.pipeline.types import camera_problem
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import codec
 from phonepose.session.codec import frame_transform
@@ -109,7 +110,8 @@ class FrameTree:
             T = self._anchors[Topic.DISPLAY_ANCHOR] @ self._anchors[Topic.CONTROLLER_ANCHOR].inv()
             return [(Topic.TF_CONTROLLER_VIO, frame_transform(T, Frame.DISPLAY_VIO, Frame.CONTROLLER_VIO,
                                                               codec.stamp_ns(msg, log_time_ns)))]
-        if topic == Topic.CAMERA_CALIBRATION and msg.width > 0 and len(msg.K) == 9 and msg.K[0] > 0:
+        if topic == Topic.CAMERA_CALIBRATION and len(msg.K) == 9 and camera_problem(msg.K, msg.D, msg.width,
+                                                                                    msg.height) is None:
             return [(Topic.CAMERA_FRUSTUM, camera_frustum(msg.K, msg.width, msg.height, codec.stamp_ns(msg, log_time_ns)))]
         if topic == Topic.CONTROLLER_MARKER:
             t = codec.stamp_ns(msg, log_time_ns)
