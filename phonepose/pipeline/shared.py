@@ -178,7 +178,7 @@ def warn_damaged(count: int, first: str) -> None:
     """The one warning line for ``count`` frames the decoder called damaged (``first``: what it said of the first)."""
     if count:
         logging.getLogger("phonepose").warning(
-            "phonepose: warning: %s: %d camera frame(s) hold damaged image data (%s); decoded as far as it goes",
+            "%s: %d camera frame(s) hold damaged image data (%s); decoded as far as it goes",
             topics.Topic.CAMERA_IMAGE, count, first)
 
 
