@@ -407,3 +407,25 @@ def test_the_library_logs_plain_messages_and_the_cli_prefixes_them(capsys):
         assert capsys.readouterr().err == "phonepose: warning: /imu\\x1b[2J: 3 sample(s) skipped\n"
     finally:
         logger.handlers[:], logger.propagate = handlers, propagate
+
+
+def test_no_library_module_writes_the_command_line_s_prefix():
+    """The library's messages are plain; only the command line (cli/, and the handler in logs.py it installs)
+    prints ``phonepose: warning:``. The tick watchdog writes its line itself, just before it ends a process
+    whose tracker step cannot be stopped."""
+    import ast
+    from pathlib import Path
+
+    import phonepose
+
+    root = Path(phonepose.__file__).parent
+    found = []
+    for path in root.rglob("*.py"):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith("cli/") or rel in ("logs.py", "playback/watchdog.py") or rel.endswith("_pb2.py"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and \
+                    ("phonepose: warning:" in node.value or "phonepose: error:" in node.value):
+                found.append(f"{rel}:{node.lineno}")
+    assert found == []
