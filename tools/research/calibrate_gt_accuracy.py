@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """How close ``calibrate-gt`` comes to the simulator's truth: the figures in docs/calibration.md.
 
-    python tools/calibrate_gt_accuracy.py --sessions DIR [--trials 3] [--seed 0]
+    python tools/research/calibrate_gt_accuracy.py --sessions DIR [--trials 3] [--seed 0]
 
 Records (once; kept in DIR) the exp2 sessions TRI1/TRI2/REC1/REC2 x trials, runs
 ``calibrate_gt_session`` on each and prints, per session and as the maximum over all, the error

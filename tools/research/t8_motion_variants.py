@@ -1,12 +1,12 @@
 """T8 with other FusionConfig values on single sessions (the real-motion ones), beside T6 and T7L.
 
-    python tools/t8_motion_variants.py fr1.mcap:fr1_he.yaml fr1_exact.mcap fr2.mcap:fr2_he.yaml fr2_exact.mcap \\
+    python tools/research/t8_motion_variants.py fr1.mcap:fr1_he.yaml fr1_exact.mcap fr2.mcap:fr2_he.yaml fr2_exact.mcap \\
         -- entry_acceleration_time_s=0 "pull_prediction_deg_per_s=20"
 
 Each SESSION[:CALIBRATION] is played back once (a calibration file from `calibrate-hand-eye`: scored
 against that ground truth; none: the session's own) with T6, T7L, T8 at its defaults and one T8 per
 variant; prints each one's largest boundary jump and total p_ATE, r_ATE (inside in brackets) and p_RE.
-The sessions are those of docs/pipeline.md, "Real hand motion"; tools/t8_variants.py does the same on
+The sessions are those of docs/pipeline.md, "Real hand motion"; tools/research/t8_variants.py does the same on
 `experiment exp2` outputs, cell by cell. A development tool.
 """
 

@@ -1,6 +1,6 @@
 """The correlation time T8 estimates for its gyro's held rate (FusionConfig.gyro_rate_*), per session.
 
-    python tools/gyro_rate_time.py fr1_exact.mcap fr2_exact.mcap exp2-ex-s0/TRI2_01.mcap ...
+    python tools/research/gyro_rate_time.py fr1_exact.mcap fr2_exact.mcap exp2-ex-s0/TRI2_01.mcap ...
 
 Each session is played back with T8 alone (no outputs written); after every tick the estimator's tau is
 kept, and the median and the 10-90 % range over the last three quarters of the ticks are printed (the first

@@ -1,6 +1,6 @@
 """Which velocity should T8 carry into the view? The Singer correlation time of FusionConfig.entry_acceleration_time_s.
 
-    python tools/entry_velocity.py        # exp2 TRI2 + REC2 trials 1-3, seeds 0-5, and fr1_xyz (~10 s)
+    python tools/research/entry_velocity.py        # exp2 TRI2 + REC2 trials 1-3, seeds 0-5, and fr1_xyz (~10 s)
 
 Entering the view, T8 moves its output over the switching tick by the VIO velocity carried from the newest
 VIO sample (~0.15 s old at the tick) to the tick: v + a tau (1 - exp(-h / tau)), v and a the slope and
@@ -26,7 +26,7 @@ from phonepose.record.sim import SimSession, default_config
 from phonepose.record.sim.recorded import MotionSpec
 from phonepose.record.sim.world import marker_in_view
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 TICK_S = 0.05
 WINDOW_S = 0.3            # FusionConfig.velocity_window_s
 JITTER_M = 0.0015         # [controller_vio] jitter_m

@@ -2,7 +2,7 @@
 
     printf '[mocap]\\nexact = true\\n' > exact.toml
     phonepose record sim --scenario exp1 --seed 7 --config exact.toml --out exp1x7.mcap
-    python tools/sighting_ambiguity.py exp1x7.mcap
+    python tools/research/sighting_ambiguity.py exp1x7.mcap
 
 For every tick with a new camera frame and a recognised marker, the controller's orientation from the marker
 (the shared stages' own, as every tracker gets it) against the ground truth at the tick; grouped by the

@@ -1,7 +1,7 @@
-"""How much of T8's calibrated r_ATE is the ground truth's own error, and what 0.6x would ask of T8 (issue 22).
+"""How much of T8's calibrated r_ATE is the ground truth's own error, and what 0.6x would ask of T8.
 
-    python tools/r_ate_goal.py                    # the generated results in docs/results/, seeds 0-2
-    python tools/r_ate_goal.py --seeds 3 4 5
+    python tools/research/r_ate_goal.py                    # the generated results in docs/results/, seeds 0-2
+    python tools/research/r_ate_goal.py --seeds 3 4 5
 
 Per TRI2 / REC2 sequence, a tracker scored against hand-eye-calibrated ground truth and against exact
 ground truth differs by what the calibrated ground truth itself carries: with and without
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
 PAPER_ROWS = ("T1", "T2", "T3", "T4", "T5", "T6", "T7")
 GOAL = 0.6
 

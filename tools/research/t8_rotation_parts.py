@@ -1,7 +1,7 @@
 """Where T8's orientation error comes from, tick by tick, on one session with exact ground truth.
 
-    python tools/t8_rotation_parts.py fr2_exact.mcap                      # T8 at its defaults
-    python tools/t8_rotation_parts.py fr2_exact.mcap gyro_rate_adapt_s=0  # FusionConfig values as name=value
+    python tools/research/t8_rotation_parts.py fr2_exact.mcap                      # T8 at its defaults
+    python tools/research/t8_rotation_parts.py fr2_exact.mcap gyro_rate_adapt_s=0  # FusionConfig values as name=value
 
 Plays the session back with T6 and an instrumented T8 and prints RMS angles, inside / outside the view /
 total: T8's output against the ground truth; its correction C against the true one (the ground truth times

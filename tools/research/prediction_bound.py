@@ -1,6 +1,6 @@
 """How well can any tracker know the orientation at a tick, when the controller's streams arrive late?
 
-    python tools/prediction_bound.py            # exp2 TRI2 + REC2, trials 1-3, seeds 0-2 (18 sessions)
+    python tools/research/prediction_bound.py            # exp2 TRI2 + REC2, trials 1-3, seeds 0-2 (18 sessions)
 
 The controller's IMU (like its VIO) reaches the display ~0.12 s plus Wi-Fi jitter after capture
 (`[network]`), so at a tick the newest gyro sample is ~0.15 s old. This replays the simulator's

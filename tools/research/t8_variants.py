@@ -1,6 +1,7 @@
 """T8 with other FusionConfig values on recorded sessions, cell by cell against the other trackers.
 
-    python tools/t8_variants.py exp2-ex-s0 exp2-ex-s1 exp2-ex-s2 -- "blend_time_s=0.05" "marker_gain=0.85,blend_time_s=0.05"
+    python tools/research/t8_variants.py exp2-ex-s0 exp2-ex-s1 exp2-ex-s2 -- \\
+        "blend_time_s=0.05" "marker_gain=0.85,blend_time_s=0.05"
 
 Plays every session of the given `experiment exp2` outputs back once, with T8 at its defaults and
 one T8 per variant side by side (the shared stages run once per session), scored against the
@@ -17,7 +18,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tools/exp2_cells.py
 
 from exp2_cells import PAPER_ROWS, TIE, cells, load_sequences, mean_cell  # noqa: E402
 
