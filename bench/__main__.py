@@ -42,7 +42,7 @@ def machine() -> dict:
     except OSError:
         pass
     # the interpreter's own speed, to read per-tick figures across machines: VMs differ ~3x here while
-    # OpenCV's floor barely moves (docs/performance.md "Issue 23, fourth round": 16.7 us against ~6 us)
+    # OpenCV's floor barely moves (docs/performance.md#reading-the-figures)
     out["python_sum_range_1000_us"] = round(min(timeit.repeat("sum(range(1000))", number=2000, repeat=5)) / 2000 * 1e6, 2)
     return out
 

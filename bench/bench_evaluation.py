@@ -1,4 +1,4 @@
-"""Our trajectory evaluation against evo's Python API, on every input format (issue 23), then in depth on TUM.
+"""Our trajectory evaluation against evo's Python API, on every input format, then in depth on TUM.
 
 Part 1, per format: TUM fr2/desk (ORB estimate, association by stamps), EuRoC V1_02 (csv GT with a
 TUM estimate, association) and KITTI (index-matched: the fr2/desk associated pairs written as two

@@ -3,8 +3,8 @@
 A simulated TRI2 session (trial 1, seed 0) is recorded once; its Observations (decode, marker
 recognition, anchor mapping, stamped VIO samples) are built once by the shared stages, then
 each tracker steps over all of them, three times, best run kept. Reported as ratios to T7 and to the
-shared stages of the same run (a loaded machine scales all of them). Targets: T8 < 2 ms per tick
-(issue 9), <= 0.4 ms (issue 23; docs/performance.md, "T8 per tick without scipy Rotation objects").
+shared stages of the same run (a loaded machine scales all of them). Target: T8 <= 0.4 ms per
+tick (docs/performance.md#per-tick-cost-of-the-trackers).
 """
 
 from __future__ import annotations

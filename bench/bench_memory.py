@@ -30,7 +30,7 @@ from pathlib import Path
 
 LONG_S = 600.0
 SHORT_S = 60.0
-TARGET_RATIO = 1.05  # "does not grow": within 5 % (allocator noise) of the 1-minute session (issue 23)
+TARGET_RATIO = 1.05  # "does not grow": within 5 % (allocator noise) of the 1-minute session
 
 _CHILD = r"""
 import json, resource, sys, time

@@ -1,7 +1,7 @@
-"""Playback of every tracker on a long session against the decode+detect floor (issue 23), and of
-the paper's seven trackers on a short one against the frames it decodes (issue 8).
+"""Playback of every tracker on a long session against the decode+detect floor, and of
+the paper's seven trackers on a short one against the frames it decodes.
 
-Part 1 (issue 23): an exp1 session (112 s, ~3360 frames, 2250 ticks at 20 Hz). The floor is what a
+Part 1: an exp1 session (112 s, ~3360 frames, 2250 ticks at 20 Hz). The floor is what a
 user starting from OpenCV would run: JPEG-decode every camera frame of the session and run a
 plain ``ArucoDetector.detectMarkers`` (default parameters) on it. Playback ``--tracker all``
 (T1-T7, T7L, T8; all outputs), and the same with ``--rerun FILE.rrd``, alternate with it in one
@@ -12,12 +12,12 @@ on a worker thread (``SharedStages.prefetch``), so with a second core free its w
 its recognition's alone; the CPU time of the process (all threads) is reported beside, the work
 done whatever the cores.
 
-Part 2 (issue 8): playback throughput of the paper's seven trackers (``--tracker paper``, T1-T7)
+Part 2: playback throughput of the paper's seven trackers (``--tracker paper``, T1-T7)
 without and with Rerun, next to the floor.
 
 The floor is what no playback can avoid: JPEG decode + marker recognition of the same camera
 frames the engine decodes (the frames the ticks carry as new). Playback adds the file pass, the
-tick scheduling, the seven trackers T1-T7 (the issue's target; ``all`` also runs our T8), the output
+tick scheduling, the seven trackers T1-T7 (the target's set; ``all`` also runs our T8), the output
 files and (optionally) Rerun logging. Reported as frames/s and as ratios to the floor, measured side
 by side in one run (best of ``ROUNDS``), by wall clock and by the process's CPU time (all threads, so
 Rerun's writer thread counts).
@@ -104,8 +104,8 @@ def _playback(session: Path, out: Path, rrd: Path | None, trackers: str = "paper
 def _warm_up(tmp: Path) -> None:
     """Untimed: one playback with Rerun of a 2 s hand-made session, so that no timed round pays the
     modules imported on first use (Rerun's SDK, the metrics). The floor's imports (cv2) are outside
-    its timing too; where no bytecode is cached (PYTHONDONTWRITEBYTECODE=1 on the shared machine)
-    they cost the first round ~1.5 s of compiling, ~0.2-0.4x the floor."""
+    its timing too, so no timed round pays their compiling where no bytecode is cached
+    (PYTHONDONTWRITEBYTECODE=1)."""
     from phonepose.playback.engine import run_playback
     from phonepose.testing.playback_session import write_test_session
 

@@ -1,9 +1,9 @@
 """Chunk parsing through the mcap library versus hand-written ``struct`` parsing, on a whole playback.
 
-The session reader parses each chunk with ``mcap.stream_reader.breakup_chunk`` (issue 19: the
-library made for the job). Until then it had its own ``struct`` loop, kept here only as the
-comparison. Both run side by side in one process, alternated, best of ``ROUNDS``: a whole
-``--tracker paper`` playback (what a user waits for) and, for scale, one pass over every message.
+The session reader parses each chunk with ``mcap.stream_reader.breakup_chunk`` (the library made
+for the job); the hand-written ``struct`` loop here is only the comparison. Both run side by side
+in one process, alternated, best of ``ROUNDS``: a whole ``--tracker paper`` playback (what a user
+waits for) and, for scale, one pass over every message.
 The hand-written parser would be worth keeping only if the whole playback were > 10 % faster.
 
     python -m bench reader        or        python bench/bench_reader.py

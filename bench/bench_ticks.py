@@ -7,8 +7,8 @@ the whole ``SharedStages.process`` and, through thin wrappers, every OpenCV call
 the difference is the shared stages' own work (Python, numpy, the pose algebra). Then the trackers
 step over the Observations built once, three times each, best kept: T1-T7 together, T7L and T8.
 
-Targets (issue 23): T1-T7 together <= 0.1 ms per tick; the shared stages' non-OpenCV work
-<= 0.3 ms per tick; T8 <= 0.4 ms per tick (helper "accuracy"'s).
+Targets: T1-T7 together <= 0.1 ms per tick; the shared stages' non-OpenCV work <= 0.3 ms per
+tick; T8 <= 0.4 ms per tick.
 
 Every figure is taken twice in the same run: by the wall clock and by the thread's CPU time
 (``time.thread_time``; OpenCV runs single-threaded here, in the calling thread). On a shared

@@ -594,7 +594,7 @@ class OutputDir(_Output):
 
     def _set_aside(self, tmp: Path) -> Path:
         """The finished folder under a new name beside the one it could not replace (a file of the user's arrived
-        in that one while the command ran): an experiment's hour of work was removed with the temporary."""
+        in that one while the command ran), so that the command's work is never removed with the temporary."""
         for n in range(1, 1000):
             name = f"{self.target.name}.new" + (f"{n}" if n > 1 else "")
             if not os.path.lexists(self.target.parent / name):
@@ -793,8 +793,8 @@ _TMP_NAME_EXTRA = len(f"..{2**22}-{'0' * 8}{TMP_SUFFIX}")
 
 def _tmp_stem(target: Path) -> str:
     """The output's name as its temporaries carry it: the name, or, when a temporary's name would exceed what
-    the file system allows (NAME_MAX, 255 bytes: a 250-byte name was refused as "File name too long", a name
-    the user may give), its start and a hash of the whole name."""
+    the file system allows (NAME_MAX, 255 bytes, which a name the user gives may nearly fill), its start and a
+    hash of the whole name."""
     try:
         name_max = os.pathconf(target.parent, "PC_NAME_MAX")
     except (OSError, ValueError):
@@ -845,8 +845,8 @@ def _listed_in_manifest(manifest: Path) -> set[str] | None:
 
 
 def _keep_mode(tmp: Path, target: Path) -> None:
-    """A replaced output keeps the permissions its owner gave it: a calibration made private with chmod 600
-    became 644 again, readable by all, when it was written anew."""
+    """A replaced output keeps the permissions its owner gave it (a calibration made private with chmod 600
+    stays private when written anew)."""
     try:
         mode = stat.S_IMODE(os.stat(target).st_mode)
     except FileNotFoundError:

@@ -36,7 +36,7 @@ def interp_columns(x, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     at a sample is that sample's, else (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) (x - xp[j]) + fp[j]), and its
     ends outside ``[xp[0], xp[-1]]``. ``xp`` ascending; ``x`` a float (a row back) or an array (rows back).
 
-    Written out because the loops over columns were ~10 % of T8's accelerometer work per tick. Where a slope
+    Written out because T8 calls it for its accelerometer on every tick, where loops over columns cost. Where a slope
     is not finite (repeated stamps, or values that overflow) numpy has fallbacks, so those calls go to
     np.interp column by column."""
     xp = np.asarray(xp, dtype=float)
@@ -76,7 +76,7 @@ def _interp_row(x: float, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
 def interp_columns_inside(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """interp_columns where the caller knows every ``x`` lies in ``[xp[0], xp[-1])``, ``xp`` strictly rising and
     ``fp`` finite: the same numbers (a zero's sign aside: at a sample, slope * 0 + value is the value) without
-    the clamping, the end and at-sample cases and the finiteness check, which were half its array operations
+    the clamping, the end and at-sample cases and the finiteness check, half its array operations
     (T8 interpolates its accelerometer integral at the window's VIO stamps on every tick)."""
     j = xp.searchsorted(x, side="right") - 1
     f0, x0 = fp[j], xp[j]         # (each row gathered once)

@@ -79,8 +79,8 @@ def require_browser() -> str | None:
 def pytest_collection_modifyitems(config, items) -> None:
     """The tests marked ``long`` first, the rest in their order: pytest-xdist hands tests to its workers in
     collection order, so a long test collected near the end runs alone while the other worker idles. Not the
-    browser rehearsal: it streams in real time, and started first it ran beside exp2's worker processes, where
-    its page fell behind (a CI run: VIO at 44 Hz, T1 r_ATE 5.0 deg against the 3 deg goal)."""
+    browser rehearsal: it streams in real time, and started first beside exp2's worker processes its page falls
+    behind and misses its goals."""
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
 
 
@@ -106,8 +106,8 @@ def cli(capsys, monkeypatch) -> Callable[..., CliResult]:
     """``phonepose ARGS`` run in this process, through the console script's own entry point
     (``phonepose.cli.main``: the same one-line errors and exit codes), with ``env`` set for the call.
 
-    A spawned interpreter spends ~1 s importing numpy, scipy and the CLI before the command starts: the fast
-    tests spawned 99 before this fixture, most to check what a command prints or refuses. The tests that need
+    A spawned interpreter spends most of a second importing numpy, scipy and the CLI before the command starts,
+    and most tests only check what a command prints or refuses. The tests that need
     a real process (signals, a killed command, logging's warnings, the entry point's own wiring:
     test_evaluation's ``test_cli_error_in_a_real_process``) still spawn one."""
     from phonepose.cli import main

@@ -252,7 +252,7 @@ def _cell_sequences(summaries: list[dict]) -> list[dict]:
 
 
 def table_t8_cells(calibrated: list[dict], exact: list[dict]) -> str:
-    """Issue 22's cells (tools/exp2_cells.py): T8, the best of T1-T7 and T7L, their ratio (ok: <= 1.02)."""
+    """T8's cells (tools/exp2_cells.py): T8, the best of T1-T7 and T7L, their ratio (ok: <= 1.02)."""
     seeds = ", ".join(str(s["seed"]) for s in calibrated)
     a, b = _cell_sequences(calibrated), _cell_sequences(exact)
     ca, cb = t8_cells(a), t8_cells(b)

@@ -1,4 +1,4 @@
-"""T8 against every other tracker, cell by cell, from `phonepose experiment exp2` outputs (issue 22).
+"""T8 against every other tracker, cell by cell, from `phonepose experiment exp2` outputs.
 
     python tools/exp2_cells.py exp2-he-s0 exp2-he-s1 exp2-he-s2      # --hand-eye runs, seeds 0-2
     python tools/exp2_cells.py exp2-ex-s0 exp2-ex-s1 exp2-ex-s2      # --exact-gt runs
@@ -7,7 +7,7 @@ Reads each folder's exp2.json and averages the per-sequence RMSE values over eve
 given runs, as Tables 5 and 6 do: TRI2 + REC2 (inside / outside / total) and TRI1 + REC1 (total,
 all in view). Each cell prints T8, the best of T1-T7 and T7L with its name, and the ratio T8 / best;
 "ok" marks T8 best or tied within 2 %. The last lines give r_ATE total against the best of T1-T7
-(issue 22's goal: <= 0.6x with calibrated ground truth) and T8's largest boundary jump (< 1 cm).
+(the goal: <= 0.6x with calibrated ground truth) and T8's largest boundary jump (< 1 cm).
 Exit 1 when a cell misses, so a script can use it.
 """
 

@@ -67,7 +67,7 @@ DISTINCT_DEG = 0.5
 BOOTSTRAP = 200
 BLOCK_S = 3.0
 MIN_BLOCKS = 5
-# 1σ above these is warned about: the accuracy the calibration is meant for (issue 20's tolerances)
+# 1σ above these is warned about: the accuracy the calibration is meant for (docs/calibration.md)
 TOLERANCE = {"sigma_time_offset_ms": 5.0, "sigma_world_rotation_deg": 0.5, "sigma_world_translation_mm": 5.0,
              "sigma_body_rotation_deg": 0.5, "sigma_body_translation_mm": 5.0}
 WHAT = {"sigma_time_offset_ms": ("clock offset", "ms"), "sigma_world_rotation_deg": ("world->camera rotation", "deg"),

@@ -104,8 +104,7 @@ def _uncertainty(t_phone, phone, t_mocap, mocap, delta: float, R_X: Rotation, st
     (``Rotation.align_vectors(a, b, weights)``) and its cost need only the weighted sums of the outer
     products a bᵀ and of |a|² + |b|², so these are summed per block once, and all resamples at all offsets
     are fitted in one batched SVD: the same rotations as align_vectors (to rounding; test_hand_eye compares the
-    two), and this function 4-5x faster than with 2100 calls of it (docs/performance.md, seventh round): what is
-    left is building the motions at the 21 offsets."""
+    two) in one call instead of one per resample and offset."""
     grid = np.round(np.arange(delta - 0.01, delta + 0.01 + 1e-9, 0.001), 6)
     sets = []
     for d in grid:

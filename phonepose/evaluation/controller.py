@@ -75,9 +75,9 @@ class _Segments:
     """np.interp of each column at many points, for lag_curve: the value at a point inside the stamps is
     interp_columns' to the bit (the same slope of its segment, times the same offset, plus the same sample);
     outside them it is any finite number (lag_curve leaves those points out). The slopes are computed once per
-    segment, not once per point and shift, and gathered column by column (1-D takes: ~1.6x faster than rows of
-    three): lag_curve interpolates ~200 shifts of every stamp, three quarters of a playback's metrics. Stamps
-    repeated or values not finite: interp_columns itself."""
+    segment, not once per point and shift, and gathered column by column (1-D takes are cheaper than rows of
+    three): lag_curve interpolates ~200 shifts of every stamp, most of a playback's metrics
+    (docs/performance.md#where-a-playbacks-time-goes). Stamps repeated or values not finite: interp_columns itself."""
 
     def __init__(self, t: np.ndarray, p: np.ndarray) -> None:
         self.t, self.p = t, p

@@ -1,8 +1,8 @@
 """The per-tracker metrics, defined once: what each is, its unit, its scopes and its type.
 
 Playback's metrics.json, ``evaluate --metric paper``, the experiment tables and the batch table
-all take their keys, order and types from :data:`METRICS` (issue 19: one metrics result type
-instead of three string-keyed layouts). A tracker's result is ``{scope: {key: value}}`` with the
+all take their keys, order and types from :data:`METRICS` (one result type, not one layout per
+command). A tracker's result is ``{scope: {key: value}}`` with the
 scopes ``inside``, ``outside`` and ``total``; a metric defined for ``total`` only appears there.
 ``None`` is a value that cannot be computed (and ``null`` in JSON).
 """

@@ -61,7 +61,7 @@ def relative_translation_pairs(gt: Pose, est: Pose, lengths=None) -> tuple[np.nd
                 # positions only (Alignment.apply's own expression): the rotations are not needed here
                 p_est = align(gt, est, "posyaw").apply_positions(np.atleast_2d(est.translation))
             # one length and BLOCK_ROWS pairs at a time (row by row: the same values as whole arrays):
-            # the (pairs, 3) temporaries were the largest allocation of a long playback's metrics
+            # the (pairs, 3) temporaries would be the largest allocation of a long playback's metrics
             errors = np.empty(s.size)
             for rows in row_blocks(s.size):
                 si, ei = s[rows], e[rows]

@@ -12,8 +12,7 @@ STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
 
 # Per-pose and per-pair errors are computed this many rows at a time. Every step is row by row (the
 # reductions run over the whole error vector afterwards), so the values are the same bits as one
-# whole-array pass, while the temporaries are one block's: a 10-minute playback's metrics peaked
-# 4.1 MB above its last tick with whole arrays, ~1 MB in blocks (docs/performance.md). 2048 rows
+# whole-array pass, while the temporaries are one block's (docs/performance.md#memory). 2048 rows
 # keep numpy's per-call cost negligible (one block covers a typical 2000-pose evaluation).
 BLOCK_ROWS = 2048
 

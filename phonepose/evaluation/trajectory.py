@@ -348,7 +348,7 @@ def _write_rows(path: str | os.PathLike, header: str, session: str | None, n: in
     """``header``, the session tag, then ``lines(rows)`` for each block of ``TUM_WRITE_BLOCK`` rows of ``n``.
 
     In blocks: the text of a 10-minute trajectory at once would be the playback's peak memory
-    (docs/performance.md); each line depends on its row only, so the bytes are the same."""
+    (docs/performance.md#memory); each line depends on its row only, so the bytes are the same."""
     try:
         with open(path, "w") as f:
             f.write(header + session_tag_line(session))

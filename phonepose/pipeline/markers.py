@@ -42,8 +42,8 @@ AMBIGUITY_RATIO = 4.0
 CONTINUITY_MAX_GAP_NS = 500_000_000
 # Crop margin (fraction of the marker's bounding-box side) around a fresh full-frame detection,
 # and the larger one around last frame's position (the marker may have moved since; if it moved
-# out of the crop the full-frame pass runs). Measured on a 20 Hz sequence: margin 0.8 -> 5.6 ms,
-# 0.5 -> 2.0 ms, 0.35 -> 1.8 ms median per frame (APRILTAG cost grows with the crop area).
+# out of the crop the full-frame pass runs). APRILTAG's cost grows with the crop area
+# (docs/performance.md#marker-recognition).
 DETECTION_MARGIN = 0.35
 TRACKING_MARGIN = 0.5
 MIN_MARGIN_PX = 12
@@ -52,13 +52,10 @@ MIN_MARGIN_PX = 12
 # left out of every component. At OpenCV's default (5) the noise of flat image areas becomes
 # many tiny components whose boundaries are each fitted as a candidate quad. A marker's own
 # edge spans the black-to-white range of the screen (~190 levels in the simulator's frames), so every
-# tile along it is classified the same at 30 and the marker's quad is fitted from the same pixels:
-# the corners were byte-identical to the default's in all 5 547 crops of nine simulated sessions
-# (exp1, exp2, recorded hand motion: every playback output identical) and on 127 markers of 26 real
-# photos (OpenCV's ArUco tutorial, AprilTag's test images), at 0.9 instead of 3.9 ms per crop
-# (docs/performance.md, issue 23 fourth round). A crop
-# where the marker is not found this way (a dim or washed-out screen) is searched again with the
-# default, so no marker that was found before is lost.
+# tile along it is classified the same at 30 and the marker's quad is fitted from the same pixels
+# (same corners as the default; docs/performance.md#marker-recognition). A crop where the marker is
+# not found this way (a dim or washed-out screen) is searched again with the default, so the higher
+# threshold never loses a marker the default finds.
 APRILTAG_MIN_CONTRAST = 30
 # AprilTag convention leaks a +0.5 px shift; CONTOUR edges sit 0.5 px inside the true edge.
 APRILTAG_SHIFT_PX = 0.5

@@ -16,8 +16,8 @@ playback on a session with a camera). Recognition is a chain (each frame's crop 
 last one's marker), decoding is not: the next frame is decoded while this one is recognised. The
 recognition worker takes the frames one after the other in tick order, exactly as ``process`` does
 without it, so the results are the same bits; ``process`` of a prefetched tick waits for its result.
-Measured on exp1 (docs/performance.md): the playback's wall time falls by the trackers' and outputs'
-share when a second core is free, and by 10-15 % more with the decode on its own thread.
+With a second core free, the playback's wall time falls by the trackers' and outputs' share, and further
+with the decode on its own thread (docs/performance.md#where-a-playbacks-time-goes).
 """
 
 from __future__ import annotations
@@ -201,7 +201,7 @@ class SharedStages:
         self.anchor_map = AnchorMap()
         # Map every received VIO sample into display_vio (Observation.controller_vio_samples_dvio).
         # Only trackers with ``uses_vio_samples`` (T8) read them; the engine switches this off
-        # when none runs, since it costs ~0.2 ms per tick.
+        # when none runs (docs/performance.md#per-tick-cost-of-the-trackers).
         self.map_vio_samples = True
         self._worker: ThreadPoolExecutor | None = None     # recognition, started by the first prefetch
         self._decoder: ThreadPoolExecutor | None = None    # JPEG decoding, a frame or more ahead of it

@@ -35,8 +35,8 @@ PLUMB_BOB_MODELS = ("", "plumb_bob", "rational_polynomial", "radtan", "radial-ta
 
 def check_plumb_bob(where: str, model: str, D: np.ndarray, error: type[Exception]) -> None:
     """``error`` unless distortion model ``model`` with coefficients ``D`` is plumb_bob's (k1 k2 p1 p2 k3): another
-    model (fisheye ``equidistant``, ``kannala_brandt``) or non-zero coefficients beyond the fifth were read as
-    plumb_bob's first five, silently: every marker pose then came from a wrong lens."""
+    model (fisheye ``equidistant``, ``kannala_brandt``) or non-zero coefficients beyond the fifth would be read
+    as plumb_bob's first five, silently: every marker pose would then come from a wrong lens."""
     if model.strip().lower() not in PLUMB_BOB_MODELS:
         raise error(f"{where}: distortion model {model!r}: phonepose models plumb_bob (k1 k2 p1 p2 k3) only; "
                     "calibrate the camera with phonepose calibrate-camera")
@@ -205,7 +205,7 @@ class Tracker(Protocol):
     Capabilities, read by the engine before the first tick: ``needs_camera`` (the session must have
     camera images; refused on one without, before any output) and ``uses_vio_samples`` (the shared
     stages map ``Tick.controller_vio_samples`` into display_vio for it:
-    ``Observation.controller_vio_samples_dvio``; ~0.2 ms per tick, skipped when no tracker asks).
+    ``Observation.controller_vio_samples_dvio``; skipped when no tracker asks).
     """
 
     name: str

@@ -4,7 +4,7 @@ The metrics need each tracker's whole trajectory (the alignment and the relative
 all of it), so a playback must keep ``(t, pose, in view)`` of every task-window tick for every
 tracker and for the ground truth: ~65 bytes per tick and tracker packed, ~8 MB for ten minutes of
 nine trackers + GT, which alone would break the "memory flat in session length" budget (a
-10-minute session's peak <= 1.05x a 1-minute one's, docs/performance.md). So each
+10-minute session's peak <= 1.05x a 1-minute one's, docs/performance.md#memory). So each
 :class:`TrajectoryCollector` packs the values into ``array`` buffers (8 bytes per number) and
 moves them every ``BLOCK_TICKS`` ticks into an unnamed temporary file (deleted when closed, also
 on a crash); ``stamps()`` / ``poses()`` read them back when the metrics ask, one tracker at a

@@ -2,7 +2,7 @@
 
 An MCAP file's summary (schemas, channels, statistics, one index record per chunk) is what lets a
 reader seek instead of reading the whole file, and what ``info`` prints. It is data like any other:
-one flipped bit in it used to make playback run forever (a Statistics end time), drop a topic (a
+one flipped bit in it could make playback run forever (a Statistics end time), drop a topic (a
 Channel's name) or shift ``--start/--end`` (a start time). So :func:`read_index`
 
 1. checks the footer's summary CRC (the writer's CRC32 of the summary section and footer);
@@ -380,9 +380,9 @@ def message_index_times(f: BinaryIO, ci: ChunkIndex) -> dict[int, np.ndarray] | 
     outside the summary's CRC, so they only ever serve as a hint (see :func:`main_span`).
 
     Parsed here rather than by mcap's StreamReader, which makes a tuple of two Python ints per
-    message: on a 10-minute session (150 k messages) that was a 10 MB transient at the start of
-    every playback, 2.4 MB of it never returned to the system (bench/bench_memory.py). The
-    (log time, offset) pairs are read as one uint64 array per record instead."""
+    message: a transient that grows with the session, partly never returned to the system
+    (docs/performance.md#memory). The (log time, offset) pairs are read as one uint64 array per
+    record instead."""
     offsets = [o for o in ci.message_index_offsets.values()]
     left = os.fstat(f.fileno()).st_size - min(offsets, default=0)
     if not offsets or min(offsets) == 0 or not 0 < ci.message_index_length <= min(left, MAX_RECORD_BYTES):

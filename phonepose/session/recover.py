@@ -434,9 +434,9 @@ def _pread(fd: int, n: int, offset: int) -> bytes:
 
 class _FileBytes:
     """The input as the salvager reads it: ``b[i]``, ``b[i:j]`` and ``b.find``, by ``os.pread`` through a 1 MiB
-    window. It was an mmap: a file that another program cut while recover read it (a copy still going on)
-    killed recover with SIGBUS (exit 135, no line, its temporaries left); a short read is damage like any
-    other here, and :func:`salvage` then says the file changed."""
+    window, not an mmap: a file another program cuts while recover reads it (a copy still going on) would
+    kill an mmap reader with SIGBUS; a short read is damage like any other here, and :func:`salvage` then
+    says the file changed."""
 
     WINDOW = 1 << 20
 

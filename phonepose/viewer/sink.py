@@ -101,9 +101,9 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
     return rec
 
 
-# How long closing waits for the sink to take what is still buffered. rerun's own default is forever, and once,
-# under `ulimit -f`, its flush waited for a file writer that had already stopped: the command hung. A .rrd's
-# writer keeps up with the logging while the command runs, so what is left at the end takes seconds.
+# How long closing waits for the sink to take what is still buffered. rerun's own default is forever, and a
+# flush can wait on a file writer that has stopped (`ulimit -f`). A .rrd's writer keeps up with the logging
+# while the command runs, so what is left at the end takes seconds.
 FLUSH_TIMEOUT_S = 120.0
 
 
@@ -111,11 +111,11 @@ def close_recording(rec: rr.RecordingStream, rrd_path: str | os.PathLike | None)
     """Send what is buffered and close the sink (a .rrd gets its footer only then). A write that failed on the
     way (a full disk, `ulimit -f`: rerun's file writer stopped and the process carried on), or a sink that does
     not take the rest within FLUSH_TIMEOUT_S, is one OutputError naming ``rrd_path``, so that the caller never
-    puts a cut .rrd in place (``record --rerun`` did, exit 0) and never waits forever."""
+    puts a cut .rrd in place and never waits forever."""
     try:
         rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         rec.disconnect()
-    except RuntimeError as exc:    # "File-writer thread shut down prematurely"; the cause was rerun's log line
+    except RuntimeError as exc:    # "File-writer thread shut down prematurely"; the cause is in rerun's log line
         if rrd_path is None:
             raise OutputError(f"the Rerun viewer stopped taking the recording ({exc})") from None
         raise OutputError(f"cannot write {rrd_path}: {_sink_failure(rrd_path, exc)}") from None

@@ -83,7 +83,7 @@ from phonepose.schemas.topics import Topic
 from phonepose.session.codec import encode_pose, frame_transform
 
 # A SIGKILL loses what waits in the reorder buffer plus what the writer has not flushed yet: at most
-# HOLD_NS + FLUSH_NS = 1 s (issue 20; it was 1 s + 1 s, measured 1.2-1.7 s). Samples held longer
+# HOLD_NS + FLUSH_NS = 1 s. Samples held longer
 # than HOLD_NS (waiting for a first pong) are still written, their log time raised to keep the order.
 HOLD_NS = 500_000_000                # reorder buffer across the camera thread and the server
 FLUSH_NS = 500_000_000               # the session writer's flush interval (log time)

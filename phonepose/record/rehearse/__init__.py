@@ -1,4 +1,4 @@
-"""``phonepose record rehearse``: a real recording rehearsed with no hardware (issue 20).
+"""``phonepose record rehearse``: a real recording rehearsed with no hardware.
 
 A simulated session is the truth (scene.py); its frames become a video that ``record live --camera
 FILE`` plays; headless Chromium opens the real phone and headset pages with emulated WebXR devices

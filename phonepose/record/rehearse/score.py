@@ -27,13 +27,13 @@ from phonepose.record.rehearse.session import RecordedRun
 from phonepose.series import interp_columns, newer_than_before
 
 SCORED_TRACKERS = ("T4", "T5", "T6", "T7", "T7L", "T8")
-# the goals of issue 20
+# the goals a rehearsal is held to (docs/recording-real-sessions.md#rehearsal-the-whole-live-path-with-no-hardware)
 GOAL_OFFSET_MS = 5.0
 GOAL_MM = 5.0
 GOAL_DEG = 0.5
 GOAL_ATE_CM = 1.0
 EXPLAIN_ATE_CM = 0.3
-# the pose-timing tolerance: the recorder's clock-offset estimate (its pings; 1-4 ms off on this loaded machine),
+# the pose-timing tolerance: the recorder's clock-offset estimate (its pings; a few ms off on a loaded machine),
 # held to calibrate-gt's goal for the clock; with that lag taken out, what is left must be a stamp's
 # wobble (the estimate moves as pongs come), never the centimetres or tens of degrees of a wrong sign or axis
 LAG_MAX_MS = 5.0
@@ -43,8 +43,8 @@ GRAVITY_MAX_DEG = 5.0    # the accelerometer's bias (0.1 m/s², 0.6 deg) and spa
 IMU_MAX_GYRO = 0.05      # rad/s RMS, lag out: the simulated noise is 0.002; a wrong sign on one axis is 0.4
 IMU_MAX_ACCEL = 0.5      # m/s² RMS: a wrong sign is ~10-20 (gravity)
 # the IMU's own lag is sought within this of the VIO's (ms, on a 0.5 ms grid): the page stamps DeviceMotion
-# events on its timer and the VIO on its XR frames; on a loaded machine the two lags differ by ms, which at the
-# hand's angular acceleration put the gyro 0.058 rad/s RMS off with the VIO's lag (a CI run beside two more jobs)
+# events on its timer and the VIO on its XR frames; on a loaded machine the two lags differ by ms, enough at the
+# hand's angular acceleration to put the gyro past IMU_MAX_GYRO with the VIO's lag
 IMU_LAG_SEARCH_MS = 100.0
 
 
@@ -372,7 +372,7 @@ class Row:
 
 
 def rows(sc: Scores) -> list[Row]:
-    """The rehearsal's table: every number with the goal it is held to (issue 20)."""
+    """The rehearsal's table: every number with the goal it is held to."""
     out = [Row("frames recorded", f"{sc.frames}", "", None),
            Row("anchors set (the Anchor button, tapped)", f"{sc.anchors}", "1", sc.anchors == 1),
            *_stream_rows("phone VIO", sc.vio),
