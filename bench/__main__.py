@@ -112,8 +112,7 @@ def main(argv: list[str]) -> int:
     t0 = time.perf_counter()
     failed = []
     # fusion, pipeline and ticks time OpenCV on one thread (cv2.setNumThreads(1)); the next item must start
-    # from OpenCV's default again: left at one thread, the playback item's floor (plain detectMarkers, which
-    # spreads over the cores) took 7.5 s instead of ~6 s in a full run, and its ratios read 0.69x
+    # from OpenCV's default again: the playback item's floor (plain detectMarkers) spreads over the cores
     opencv_threads = cv2.getNumThreads()
     for name in names:
         print(f"\n=== {name} ===", flush=True)

@@ -200,7 +200,7 @@ class Pose:
         return len(self.rotation)
 
     def __getitem__(self, index) -> Pose:
-        # the stored quaternions indexed directly: scipy's __getitem__ costs ~0.7 ms on 2000 poses
+        # the stored quaternions indexed directly: scipy's __getitem__ is slow on large stacks
         q = self.rotation.as_quat()
         if q.ndim == 1:
             raise TypeError("Single rotation is not subscriptable.")
@@ -226,7 +226,7 @@ class Pose:
 
 def rotation_product(a: Rotation, b: Rotation) -> Rotation:
     """``a * b`` of scipy Rotations (single or stacks, broadcast), vectorised in numpy with scipy's
-    arithmetic (so the same bits): scipy's compiled loop allocates per rotation, ~7 µs each."""
+    arithmetic (so the same bits): scipy's compiled loop allocates per rotation."""
     p, q = a.as_quat(), b.as_quat()
     if p.ndim > 2 or q.ndim > 2:
         return a * b
@@ -352,8 +352,8 @@ def raw_compose(a: RawPose, b: RawPose) -> RawPose:
 
 
 # ----------------------------------------------------------------------------- single poses
-# scipy's Rotation costs 5-60 µs per call on a single rotation (its array-API dispatch and
-# validation), the arithmetic nanoseconds; playback makes ~40 such calls per tick. These functions
+# scipy's Rotation costs microseconds per call on a single rotation (its array-API dispatch and
+# validation), the arithmetic nanoseconds; playback makes dozens of such calls per tick. These functions
 # repeat what scipy 1.17's compiled backend computes, operation for operation (the same products
 # summed in the same order, the same libm functions, normalisation where scipy normalises), so their
 # results are bit-identical to scipy's: tests/test_geometry.py checks that with hypothesis. Rotating a

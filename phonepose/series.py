@@ -57,8 +57,8 @@ def interp_columns(x, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
 
 def _interp_row(x: float, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """interp_columns at one (not NaN) float: the same formula on one row, with the index found and the ends
-    clamped as Python numbers (T8 interpolates single instants several times a tick; the array path's ~15
-    array operations cost ~30 µs there)."""
+    clamped as Python numbers (T8 interpolates single instants several times a tick, where the array path's
+    per-call overhead dominates)."""
     n = len(xp)
     lo, hi = float(xp[0]), float(xp[-1])
     x = hi if x > hi else (lo if x < lo else x)

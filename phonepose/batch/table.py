@@ -48,8 +48,8 @@ def columns_hash(table: pa.Table) -> str:
     """SHA-256 of the table as Arrow holds it: each column's name, type, nulls and values, in order.
 
     Numbers are hashed as their bytes and strings as their lengths and UTF-8, the same before writing
-    and after reading back. Hashing every row as JSON (``rows_hash``) was three quarters of a rewrite
-    (3.2 of 5.3 s at 100,000 rows), and a stopped batch waits for its last rewrite."""
+    and after reading back. Hashing every row as JSON (``rows_hash``) would be most of a rewrite, and a
+    stopped batch waits for its last rewrite."""
     digest = hashlib.sha256()
     for name, column in zip(table.column_names, table.columns, strict=True):
         values = column.combine_chunks()
@@ -116,7 +116,7 @@ def schema_for(rows: list[dict]) -> pa.Schema:
 @functools.lru_cache(maxsize=2 * MAX_UNITS)
 def _params_order(params_text: str) -> tuple:
     """The typed order of a ``params`` text. Cached: the table is sorted on every rewrite, and parsing
-    each row's JSON again was most of a rewrite's time (2.3 of 4.4 s at 100,000 rows)."""
+    each row's JSON again would be most of a rewrite's time."""
     try:
         params = json.loads(params_text)
     except ValueError:

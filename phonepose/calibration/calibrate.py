@@ -177,7 +177,7 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
 
 def _decode_image(path: Path) -> Decoded:
     """The grayscale image in ``path`` (pipeline.shared.decode_gray: the size from its header first). The bytes are
-    read here and decoded from memory: a path that is not UTF-8 crashed ``cv2.imread`` (SIGSEGV)."""
+    read here and decoded from memory: a path that is not UTF-8 crashes ``cv2.imread`` (SIGSEGV)."""
     try:
         data = path.read_bytes()
     except OSError as exc:

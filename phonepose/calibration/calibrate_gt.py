@@ -57,8 +57,7 @@ OUTLIER_FACTOR = 5.0
 # A sighting counts only where the tracked body (the ground truth) or the display camera moved at least
 # DISTINCT_MM or turned DISTINCT_DEG since the last one counted: a phone held still for a minute is one
 # view of one pose, and 1800 copies of it would weigh its own marker error (a few mm in depth, ~1 deg
-# of tilt, the same in every copy) as if it were 1800 views (the rehearsal: 600 still sightings put
-# world->camera 2.0 mm / 0.26 deg off). The thresholds lie above a good ground truth's jitter (the
+# of tilt, the same in every copy) as if it were 1800 views. The thresholds lie above a good ground truth's jitter (the
 # simulator's mocap 0.3 mm / 0.05 deg per axis, a Quest controller's similar) and at the hand's own
 # tremor (0.8 mm / 0.25 deg per axis), so a phone held still counts a few times a second, not 30;
 # a hand moving at 6 cm/s or more moves 2 mm per 30 Hz frame, so a moving phone counts every frame.
@@ -80,7 +79,7 @@ class _GtInterpolator:
     """The ground truth at any time inside its samples (slerp, linear translation), and where that is valid.
 
     Plain numpy on quaternion and matrix stacks: the refinement evaluates it thousands of times, and
-    scipy's Rotation costs ~10x more per call on a few hundred poses (measured: 2.4 ms vs 0.2 ms)."""
+    scipy's Rotation costs several times more per call on a few hundred poses."""
 
     def __init__(self, gt: GroundTruthSeries):
         self.t = gt.stamps_s

@@ -80,7 +80,7 @@ def open_yaml(path: Path, what: str, write: bool = False) -> cv2.FileStorage:
     is an InputFileError) or for writing (OutputError).
 
     A file is read by phonepose.files (size, binary content, a UTF-8 byte-order mark) and parsed from memory, so no
-    path reaches OpenCV: one that is not UTF-8 crashed it (SIGSEGV)."""
+    path reaches OpenCV: one that is not UTF-8 crashes it (SIGSEGV)."""
     if not write:
         from phonepose.files import read_text_input
         try:
@@ -134,7 +134,7 @@ def yaml_text(path: Path, fs: cv2.FileStorage | cv2.FileNode, key: str) -> str:
 
 def yaml_matrix(path: Path, fs: cv2.FileStorage, key: str) -> np.ndarray | None:
     """``key``'s ``!!opencv-matrix`` (None when it is absent), its type and size checked before OpenCV reads it: a
-    nested list was an OpenCV assertion, and ``rows: 100000 cols: 100000`` asks it for 80 GB."""
+    nested list is an OpenCV assertion, and ``rows: 100000 cols: 100000`` asks it for 80 GB."""
     node = fs.getNode(key)
     if node.empty():
         return None

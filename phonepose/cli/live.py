@@ -150,7 +150,7 @@ def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str,
 
 def print_qr(url: str) -> None:
     """``url`` as a QR code on standard output: half blocks (compact) where the terminal takes them, else
-    coloured spaces (a C or latin-1 locale showed the blocks as \\u2580 escapes: no code at all)."""
+    coloured spaces (a C or latin-1 locale would show the blocks as \\u2580 escapes: no code at all)."""
     import segno
 
     segno.make(url, error="m").terminal(out=sys.stdout, compact=takes_unicode(sys.stdout))

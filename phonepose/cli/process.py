@@ -31,8 +31,8 @@ def check_before_any_work(args: list[str]) -> None:
 
 def check_arguments(args: list[str]) -> None:
     """Every argument is UTF-8 text. A file name in another encoding reaches Python with its bytes escaped
-    (PEP 383), and the libraries the commands hand paths to cannot take it: OpenCV crashed (exit 139), rerun,
-    rich and the JSON outputs raised; one line here instead, before any work."""
+    (PEP 383), and the libraries the commands hand paths to cannot take it: OpenCV crashes (SIGSEGV), rerun,
+    rich and the JSON outputs raise; one line here instead, before any work."""
     for arg in args:
         try:
             arg.encode("utf-8")

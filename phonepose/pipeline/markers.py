@@ -7,8 +7,8 @@ Choices (measured; see docs/pipeline.md and ../shared/docs/notes/markers.md §1.
   and farther away; we push every fitted edge 0.5 px outward and re-intersect. APRILTAG
   refinement returns the whole quad shifted by +0.5 px in x and y (AprilTag's pixel-centre
   convention); we subtract 0.5 px.
-- Two stages, so that the accurate but slow APRILTAG refinement (~40 ms on a full 640x480
-  frame) only ever runs on a small crop: a fast CONTOUR detection on the full frame finds the
+- Two stages, so that the accurate but slow APRILTAG refinement (docs/performance.md#marker-recognition)
+  only ever runs on a small crop: a fast CONTOUR detection on the full frame finds the
   marker, then the APRILTAG detector runs on a crop around it; if the crop fails, the CONTOUR
   corners (+0.5 px edge fix) are used. When the marker was seen in the previous frame, the
   APRILTAG crop is taken around that position first and the full-frame pass is skipped.

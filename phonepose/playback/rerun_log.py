@@ -72,8 +72,8 @@ MARKER_STATES = {"in_view": ("marker in view", MARKER_COLOR), "out_of_view": ("m
 def session_fingerprint(path: str | os.PathLike) -> str:
     """A digest of the session's content, cheap for any size: the MCAP summary section (every
     chunk's offset, size and time range, the schemas, channels and message counts) and the file
-    size; the whole file for a file without a summary. Hashing the whole 120 MB exp1 session
-    takes ~1 s, the summary ~1 ms."""
+    size; the whole file for a file without a summary. The summary is a few kB whatever the
+    session's size."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         size = f.seek(0, os.SEEK_END)

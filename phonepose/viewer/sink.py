@@ -9,7 +9,7 @@ wall-clock ``log_time`` timeline (only the session's own clocks, so a recording'
 session's, not the seconds the logging took).
 
 :class:`Columns` buffers the rows of one entity and sends them with one ``send_columns`` call:
-one ``log`` call per entity per tick costs ~0.2 ms and dominated playback otherwise.
+one ``log`` call per entity per tick would dominate playback.
 """
 
 from __future__ import annotations

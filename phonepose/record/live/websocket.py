@@ -6,8 +6,7 @@ without waiting for the peer's close frame (aiohttp issues #3448, #9506). A page
 sending (a pong, a sample) then gets a TCP reset, which can discard the close frame before the
 browser has read it: the page sees code 1006 (abnormal) instead of the code sent. A phone page
 told "1000: the recording finished / another page replaced you, do not reconnect" then reconnects,
-and a replaced page takes the session back. Measured: 1 close in 25 arrived as 1006 in headless
-Chromium on a loaded 2-core machine (CI failure of ``test_reconnects_unless_closed_normally``).
+and a replaced page takes the session back; on a loaded machine this happens often enough to matter.
 
 So the close is done by the task that reads: :meth:`PageSocket.serve` reads in a child task; a
 :meth:`PageSocket.close` from anywhere stops that reader (its pending read is cancelled; nothing

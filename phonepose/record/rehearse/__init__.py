@@ -65,7 +65,7 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
 
     check_choice(scenario, path, trial)
     check_seed(seed)
-    # OpenCV writes camera.avi into the folder (a name that is not UTF-8 crashed it: SIGSEGV)
+    # OpenCV writes camera.avi into the folder (a name that is not UTF-8 crashes it: SIGSEGV)
     opencv_path(Path(out_dir), "a --out folder (camera.avi is written there by OpenCV)", "choose another --out",
                 OutputError)
     if config is not None:

@@ -216,7 +216,7 @@ def gravity_angle_deg(t_imu_ns: np.ndarray, accel: np.ndarray, t_vio_ns: np.ndar
     over the session (the hand's accelerations average out; or the largest over ``bin_s`` bins): a wrong
     sign or axis order in either stream gives tens of degrees. (A page starved of timer callbacks sends
     the IMU at irregular, sparse times: its 8-12 Hz tremor then no longer averages out over a few
-    seconds; measured 6.5 deg over 5 s bins at 17 samples/s, 2 deg over the session.)"""
+    seconds, so a short bin reads degrees off while the whole session does not.)"""
     from phonepose.geometry import interpolate_many
 
     # the recorder writes samples as received: a clock-sync update can stamp one at or before its

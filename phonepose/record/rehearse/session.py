@@ -22,8 +22,7 @@ from phonepose.record.rehearse.scene import Scene
 
 ANCHOR_BEFORE_S = 5.0     # the tap: this long before the motion starts (lead-in: still, in view; a click can take 1-2 s)
 # Enter VR this long before the motion: the ground truth starts then. Sooner, calibrate-gt would weigh the still
-# lead-in's one pose hundreds of times (measured: 1040 sightings with the whole 20 s lead-in gave world->camera
-# 2.0 mm / 0.26 deg off, 501 with 2 s of it 0.44 mm / 0.09 deg)
+# lead-in's one pose hundreds of times, and its world->camera would carry that pose's marker error
 ENTER_VR_BEFORE_S = 2.0
 
 
