@@ -25,11 +25,11 @@ def _outputs(session: Path) -> tuple[object, float, int]:
     import cv2
     import numpy as np
 
-    from phonepose.pipeline.context import read_context
     from phonepose.pipeline.shared import SharedStages
     from phonepose.pipeline.t8 import FusedTracker
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     cv2.setNumThreads(1)
     with SessionReader(session) as reader:
