@@ -158,6 +158,12 @@ def test_events_delivered_once_at_the_first_tick_at_or_after_them(session):
     assert all(isinstance(e, CalibrationEvent) and e.pose_fix_vio is None for t in ticks for e in t.events)
 
 
+def test_calibration_kinds_are_the_schemas_numbers():
+    """A tracker that compares ``kind`` with the schema's enum (``pb.CalibrationEvent.CM1``) reads the same."""
+    assert {k.name: int(k) for k in CalibrationKind} == \
+        {name.removeprefix("KIND_"): number for name, number in pb.CalibrationEvent.Kind.items()}
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_a_calibration_event_is_decoded_into_plain_values(seed):
     """What a tracker reads of an event is the message's content as phonepose types, by the codec's rules."""
