@@ -17,10 +17,10 @@ import cv2
 
 
 def _observations(session: Path) -> tuple[list, float]:
-    from phonepose.pipeline.context import read_context
     from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     with SessionReader(session) as reader:
         context = read_context(reader)

@@ -68,9 +68,9 @@ def _make_session(tmp: Path) -> tuple[Path, str]:
 
 def _new_frames(session: Path) -> list:
     """The camera frames the ticks carry as new (what the shared stages decode), with their tick."""
-    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     frames = []
     with SessionReader(session) as r:
@@ -142,8 +142,8 @@ def long_session(tmp: Path, session: Path | None = None) -> dict:
     (``session``: an exp1 session recorded before, else one is recorded into ``tmp``)."""
     import statistics
 
-    from phonepose.pipeline.context import read_context
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     if session is None:
         session = tmp / "exp1.mcap"

@@ -76,10 +76,10 @@ def _opencv_timed(stages, clock: _Clock) -> Iterator[None]:
 
 
 def _shared_stages(session: Path, repeats: int = 3) -> tuple[list, dict]:
-    from phonepose.pipeline.context import read_context
     from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     with SessionReader(session) as reader:
         context = read_context(reader)

@@ -21,6 +21,7 @@ from phonepose.errors import PhoneposeError
 from phonepose.geometry import Pose
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import MarkerObservation, Observation, Tick
+from phonepose.playback.scheduler import calibration_event
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.session.codec import encode_pose
 
@@ -56,7 +57,7 @@ def cm_events(draw):
                 pose.position.x, pose.position.y, pose.position.z = (draw(NUMBER) for _ in range(3))
                 q = pose.orientation
                 q.x, q.y, q.z, q.w = (draw(NUMBER) for _ in range(4))
-        out.append(ev)
+        out.append(calibration_event(ev, 1))   # as the scheduler hands it on
     return out
 
 
@@ -104,12 +105,14 @@ def test_a_bad_cm1_event_is_ignored_not_used():
     encode_pose(Pose.from_xyzw([0.1, 0, 0], [0, 0, 0, 1]), good.pose_fix_vio)
     encode_pose(Pose.identity(), good.pose_align_vio)
     vio = Pose.from_xyzw([1.0, 2.0, 3.0], [0, 0, 0, 1])
-    est = t2.step(Observation(Tick(index=0, t_ns=1, events=[good]), None, vio))
+    est = t2.step(Observation(Tick(index=0, t_ns=1, events=[calibration_event(good, 1)]), None, vio))
     assert np.allclose(est.translation, [1.1, 2.0, 3.0])
     bad = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
     bad.pose_fix_vio.position.x = math.nan
     unset = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
-    est = t2.step(Observation(Tick(index=1, t_ns=2, events=[bad, unset]), None, vio))
+    events = [calibration_event(bad, 2), calibration_event(unset, 2)]
+    assert [(e.pose_fix_vio, e.pose_align_vio) for e in events] == [(None, None), (None, None)]
+    est = t2.step(Observation(Tick(index=1, t_ns=2, events=events), None, vio))
     assert np.allclose(est.translation, [1.1, 2.0, 3.0])   # the good offset stays
 
 

@@ -1,5 +1,6 @@
-"""The package's import structure: no package imports one that imports it back, and production code
-never imports a fixture (phonepose.testing).
+"""The package's import structure: no package imports one that imports it back, production code
+never imports a fixture (phonepose.testing), and the pipeline knows no session format (it imports
+neither phonepose.session nor phonepose.schemas: the scheduler hands it plain values).
 
 Every import statement counts, also those inside functions and under ``if TYPE_CHECKING:``: a
 local import still ties the two packages together, it only hides the tie from a reader.
@@ -15,6 +16,8 @@ import phonepose
 
 ROOT = Path(phonepose.__file__).parent
 FIXTURES = "phonepose.testing"
+FORMAT_FREE = "phonepose.pipeline"
+FORMATS = ("phonepose.session", "phonepose.schemas")
 
 
 def _modules() -> dict[str, tuple[Path, bool]]:
@@ -47,7 +50,7 @@ def _imports(name: str) -> set[str]:
                 base = ".".join(anchor + ([node.module] if node.module else []))
             found.add(base)
             found.update(f"{base}.{a.name}" for a in node.names)
-    return {m for m in found if m in MODULES}
+    return {m for m in found if m in MODULES or m.startswith(FORMATS)}   # generated _pb2 modules too
 
 
 def _package(name: str) -> str:
@@ -62,7 +65,7 @@ def _package_graph() -> dict[str, dict[str, list[str]]]:
     """package -> imported package -> the module imports that make the edge (for the message)."""
     graph: dict[str, dict[str, list[str]]] = defaultdict(lambda: defaultdict(list))
     for name in MODULES:
-        for target in _imports(name):
+        for target in _imports(name) & MODULES.keys():
             a, b = _package(name), _package(target)
             if a != b:
                 graph[a][b].append(f"{name} -> {target}")
@@ -128,3 +131,22 @@ def test_no_production_module_imports_a_fixture():
     bad = sorted(f"{name} imports {target}" for name in MODULES if not name.startswith(FIXTURES)
                  for target in _imports(name) if target == FIXTURES or target.startswith(FIXTURES + "."))
     assert not bad, "\n".join(bad)
+
+
+def _within(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def test_the_pipeline_imports_no_session_format():
+    assert any(_within(name, FORMAT_FREE) for name in MODULES)
+    bad = sorted(f"{name} imports {target}" for name in MODULES if _within(name, FORMAT_FREE)
+                 for target in _imports(name) if any(_within(target, f) for f in FORMATS))
+    assert not bad, "the pipeline must not know the session's format:\n" + "\n".join(bad)
+
+
+def test_the_format_check_sees_a_generated_module(tmp_path, monkeypatch):
+    """An import of phonepose_pb2 (left out of MODULES) still counts, as a function-local one does."""
+    src = tmp_path / "probe.py"
+    src.write_text("def f():\n    from phonepose.schemas import phonepose_pb2 as pb\n    from phonepose.session import codec\n")
+    monkeypatch.setitem(MODULES, "phonepose.pipeline.probe", (src, False))
+    assert _imports("phonepose.pipeline.probe") >= {"phonepose.schemas.phonepose_pb2", "phonepose.session.codec"}

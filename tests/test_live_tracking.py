@@ -43,8 +43,8 @@ def session(tmp_path_factory):
 @pytest.fixture(scope="module")
 def n_ticks(session) -> int:
     """The ticks playback forms on the session."""
-    from phonepose.pipeline.context import read_context
     from phonepose.playback.scheduler import TickScheduler
+    from phonepose.session.context import read_context
     with SessionReader(session) as reader:
         return len(TickScheduler(reader, read_context(reader)))
 
@@ -143,7 +143,7 @@ def test_a_tracker_that_raises_is_one_warning_and_the_rest_goes_on(session, n_ti
 
 
 def _records(path) -> tuple[list[Record], list[Record]]:
-    from phonepose.pipeline.context import STATIC_TOPICS
+    from phonepose.session.context import STATIC_TOPICS
     with SessionReader(path) as reader:
         msgs = [Record(m.topic, m.msg, m.log_time_ns, m.publish_time_ns) for m in reader.messages()]
     return [r for r in msgs if r.topic in STATIC_TOPICS], [r for r in msgs if r.topic not in STATIC_TOPICS]

@@ -8,10 +8,11 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from phonepose.geometry import Pose
 from phonepose.pipeline.anchors import controller_in_display_vio
-from phonepose.pipeline.shared import SharedStages, detections_message
+from phonepose.pipeline.shared import SharedStages
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.pipeline.types import Frame as PipelineFrame
 from phonepose.pipeline.types import MarkerModel, SessionContext, Tick
+from phonepose.playback.outputs import detections_message
 from phonepose.schemas.topics import Frame
 from phonepose.session import codec
 from phonepose.testing.marker_images import encode_jpeg, looking_at, pinhole_camera, render_marker

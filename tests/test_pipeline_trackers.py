@@ -9,9 +9,7 @@ from phonepose.errors import ConfigError
 from phonepose.geometry import Pose
 from phonepose.pipeline.corrections import cm1_correction, marker_correction
 from phonepose.pipeline.trackers import TRACKERS, CorrectionKind, Method, make_tracker, make_trackers, tracker_names
-from phonepose.pipeline.types import MarkerObservation, Observation, Tick
-from phonepose.schemas import phonepose_pb2 as pb
-from phonepose.session.codec import encode_pose
+from phonepose.pipeline.types import CalibrationEvent, CalibrationKind, MarkerObservation, Observation, Tick
 
 rng = np.random.default_rng(7)
 
@@ -20,11 +18,11 @@ def random_pose() -> Pose:
     return Pose.from_rotvec(rng.uniform(-0.5, 0.5, 3), rng.uniform(-1, 1, 3))
 
 
-def cm1_event(fix: Pose, align: Pose) -> pb.CalibrationEvent:
-    e = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
-    encode_pose(fix, e.pose_fix_vio)
-    encode_pose(align, e.pose_align_vio)
-    return e
+def cm1_event(fix: Pose, align: Pose) -> CalibrationEvent:
+    return CalibrationEvent(kind=CalibrationKind.CM1, t_ns=0, log_time_ns=0, pose_fix_vio=fix, pose_align_vio=align)
+
+
+CM2_EVENT = CalibrationEvent(kind=CalibrationKind.CM2, t_ns=0, log_time_ns=0)
 
 
 def observation(i: int, vio: Pose | None, marker: Pose | None, events=()) -> Observation:
@@ -62,7 +60,7 @@ def test_each_tracker_switches_at_the_fov_boundary(math):
     ticks = [
         observation(0, V[0], None),                                  # out, nothing calibrated yet
         observation(1, V[1], None, [cm1_event(fix, align)]),         # out, CM1 alignment arrives
-        observation(2, V[2], M[2], [pb.CalibrationEvent(kind=pb.CalibrationEvent.CM2)]),  # in, CM2 moment
+        observation(2, V[2], M[2], [CM2_EVENT]),  # in, CM2 moment
         observation(3, V[3], M[3]),                                  # in
         observation(4, V[4], None),                                  # out: the boundary
         observation(5, None, None),                                  # out, no VIO
@@ -107,7 +105,7 @@ def test_cm2_waits_for_the_marker_after_its_event():
     V = [random_pose() for _ in range(4)]
     M3 = random_pose()
     t3 = make_tracker("T3")
-    assert t3.step(observation(0, V[0], None, [pb.CalibrationEvent(kind=pb.CalibrationEvent.CM2)])).allclose(V[0])
+    assert t3.step(observation(0, V[0], None, [CM2_EVENT])).allclose(V[0])
     assert t3.step(observation(1, V[1], None)).allclose(V[1])          # still pending: no marker yet
     assert t3.step(observation(2, V[2], M3)).allclose(M3, atol=1e-9)   # captured here
     assert t3.step(observation(3, V[3], None)).allclose(marker_correction(M3, V[2]).apply(V[3]), atol=1e-9)

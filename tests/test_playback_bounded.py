@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from test_reliability_cli import rewrite
 
-from phonepose.pipeline.context import read_context
 from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader
+from phonepose.session.context import read_context
 from phonepose.testing.playback_session import write_test_session
 
 HOUR_NS = 3600 * 10**9

@@ -10,12 +10,13 @@ from scipy.spatial.transform import Rotation
 
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import read_context
-from phonepose.playback.scheduler import PoseStream, TickScheduler
+from phonepose.pipeline.types import CalibrationEvent, CalibrationKind
+from phonepose.playback.scheduler import PoseStream, TickScheduler, calibration_event
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.codec import frame_transform, pose_in_frame
+from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
+from phonepose.session.context import read_context
 
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
@@ -151,8 +152,39 @@ def test_imu_rows_partition_exactly_across_ticks(session):
 
 def test_events_delivered_once_at_the_first_tick_at_or_after_them(session):
     ticks, _ = ticks_of(session)
-    got = [((t.t_ns - T0) // MS, (e.timestamp.ToNanoseconds() - T0) // MS) for t in ticks for e in t.events]
-    assert got == [(105, 100), (105, 100), (505, 457)]
+    got = [((t.t_ns - T0) // MS, (e.t_ns - T0) // MS, (e.log_time_ns - T0) // MS, e.kind) for t in ticks for e in t.events]
+    assert got == [(105, 100, 100, CalibrationKind.CM1), (105, 100, 100, CalibrationKind.CM2),
+                   (505, 457, 457, CalibrationKind.CM1)]
+    assert all(isinstance(e, CalibrationEvent) and e.pose_fix_vio is None for t in ticks for e in t.events)
+
+
+def test_calibration_kinds_are_the_schemas_numbers():
+    """A tracker that compares ``kind`` with the schema's enum (``pb.CalibrationEvent.CM1``) reads the same."""
+    assert {k.name: int(k) for k in CalibrationKind} == \
+        {name.removeprefix("KIND_"): number for name, number in pb.CalibrationEvent.Kind.items()}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_calibration_event_is_decoded_into_plain_values(seed):
+    """What a tracker reads of an event is the message's content as phonepose types, by the codec's rules."""
+    rng = np.random.default_rng(seed)
+    fix, align = (Pose.from_rotvec(rng.uniform(-3, 3, 3), rng.uniform(-5, 5, 3)) for _ in range(2))
+    stamp, fixed, log_time = (int(v) for v in rng.integers(1, 2**62, 3))
+    kind = int(rng.integers(0, 6))            # 3..5: kinds this version does not know, passed on as numbers
+    msg = pb.CalibrationEvent(kind=kind, frame_id=Frame.DISPLAY_VIO)  # type: ignore[arg-type]
+    msg.timestamp.FromNanoseconds(stamp)
+    msg.fix_timestamp.FromNanoseconds(fixed)
+    encode_pose(fix, msg.pose_fix_vio)
+    encode_pose(align, msg.pose_align_vio)
+    ev = calibration_event(msg, log_time)
+    assert (ev.kind, type(ev.kind) is CalibrationKind) == (kind, kind < 3)
+    assert (ev.t_ns, ev.log_time_ns, ev.fix_t_ns, ev.frame_id) == (stamp, log_time, fixed, Frame.DISPLAY_VIO)
+    assert ev.pose_fix_vio.allclose(fix, atol=1e-12) and ev.pose_align_vio.allclose(align, atol=1e-12)
+    # unset stamps: the log time, no fix time; an unset or broken pose: None
+    bare = pb.CalibrationEvent(kind=pb.CalibrationEvent.CM1)
+    bare.pose_align_vio.position.x = float(rng.choice([np.nan, np.inf]))
+    ev = calibration_event(bare, log_time)
+    assert (ev.t_ns, ev.fix_t_ns, ev.pose_fix_vio, ev.pose_align_vio) == (log_time, None, None, None)
 
 
 def test_latest_anchor_at_or_before_the_tick(session):

@@ -203,9 +203,11 @@ def test_blueprint_holds_the_documented_views_and_an_eye_on_the_task(played):
 def test_the_eye_looks_between_the_camera_and_the_task_from_behind_the_camera():
     from types import SimpleNamespace
 
+    from phonepose.pipeline.types import TaskPath
     from phonepose.playback.rerun_log import _eye
 
-    path = SimpleNamespace(waypoints=[SimpleNamespace(x=-0.1, y=1.0, z=0.0), SimpleNamespace(x=0.1, y=1.2, z=0.2)])
+    path = TaskPath(frame_id="display_vio", name="TRI1", trial=1, waypoints=((-0.1, 1.0, 0.0), (0.1, 1.2, 0.2)),
+                    closed=True)
     task_center, camera = np.array([0.0, 1.1, 0.1]), np.array([0.0, 0.0, 0.1])
     eye = _eye(SimpleNamespace(path=path, targets=None), camera)
     target = np.array(eye.look_target.as_arrow_array().to_pylist()[0])

@@ -1,7 +1,7 @@
 """A session opened for a notebook: its topics, span, task window, camera and streams as numpy arrays.
 
 A thin layer over :class:`phonepose.session.SessionReader` (which it keeps open as ``reader``) and
-:func:`phonepose.pipeline.context.read_context`; poses are decoded by the codec's rules, as playback does.
+:func:`phonepose.session.context.read_context`; poses are decoded by the codec's rules, as playback does.
 """
 
 from __future__ import annotations
@@ -92,14 +92,14 @@ class Session:
     @cached_property
     def context(self) -> SessionContext:
         """What playback reads before the first tick; SessionContentError when it cannot be played back."""
-        from phonepose.pipeline.context import read_context
+        from phonepose.session.context import read_context
 
         return read_context(self.reader)
 
     @property
     def camera(self) -> CameraModel | None:
         """The display camera's calibration (K, D plumb_bob, size, pose on the display); None without images."""
-        from phonepose.pipeline.context import has_camera
+        from phonepose.session.context import has_camera
 
         return self.context.camera if has_camera(self.context) else None
 

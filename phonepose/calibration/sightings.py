@@ -71,11 +71,11 @@ def _display_vio(reader) -> tuple[np.ndarray, Pose]:
 
 def read_sightings(path: str | os.PathLike) -> Sightings:
     """Every marker sighting of the session; SessionContentError when it has no camera or no display VIO."""
-    from phonepose.pipeline.context import has_camera, read_context
     from phonepose.pipeline.markers import MarkerRecognizer
     from phonepose.pipeline.shared import decode_gray, warn_damaged, warn_wrong_size
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader
+    from phonepose.session.context import has_camera, read_context
 
     with SessionReader(path) as reader:
         context = read_context(reader)

@@ -163,9 +163,9 @@ def _write_table6(rows: list[dict], out: Path, notes: list[str]) -> tuple[Path, 
 
 def display_camera_pose(session: str) -> Pose:
     """The display camera in display_vio at the start of the session (the origin of Fig. 11)."""
-    from phonepose.pipeline.context import read_context
     from phonepose.schemas.topics import Topic
     from phonepose.session import SessionReader, codec
+    from phonepose.session.context import read_context
 
     with SessionReader(session) as reader:
         context = read_context(reader)

@@ -42,9 +42,7 @@ import numpy as np
 from phonepose.pipeline.anchors import AnchorMap
 from phonepose.pipeline.markers import MarkerRecognizer
 from phonepose.pipeline.types import Frame, MarkerObservation, Observation, SessionContext, Tick
-from phonepose.schemas import phonepose_pb2 as pb
-from phonepose.schemas import topics
-from phonepose.session.codec import encode_pose
+from phonepose.topics import Topic
 
 # The most pixels phonepose decodes in one image: 80 Mpx holds any phone camera's photo (64 Mpx) and stays below the
 # size at which Pillow warns of a decompression bomb; a header claiming 20000x20000 px made a playback decode 400 Mpx
@@ -179,7 +177,7 @@ def warn_damaged(count: int, first: str) -> None:
     if count:
         logging.getLogger("phonepose").warning(
             "%s: %d camera frame(s) hold damaged image data (%s); decoded as far as it goes",
-            topics.Topic.CAMERA_IMAGE, count, first)
+            Topic.CAMERA_IMAGE, count, first)
 
 
 def warn_wrong_size(count: int, first: str) -> None:
@@ -188,7 +186,7 @@ def warn_wrong_size(count: int, first: str) -> None:
     if count:
         logging.getLogger("phonepose").warning(
             "%s: %d camera frame(s) are %s; they count as showing no marker",
-            topics.Topic.CAMERA_IMAGE, count, first)
+            Topic.CAMERA_IMAGE, count, first)
 
 
 class SharedStages:
@@ -287,23 +285,3 @@ class SharedStages:
             if mapped is not None:
                 samples.append((capture_ns, mapped))
         return Observation(tick=tick, marker=marker, T_dvio_controller_vio=vio, controller_vio_samples_dvio=samples)
-
-    def detections_message(self, obs: Observation) -> pb.MarkerDetections:
-        return detections_message(obs)
-
-
-def detections_message(obs: Observation) -> pb.MarkerDetections:
-    """The /pipeline/markers message for this tick's frame (empty when nothing was recognised)."""
-    msg = pb.MarkerDetections(frame_id=topics.Frame.DISPLAY_CAMERA)
-    stamp = obs.tick.frame_t_ns
-    msg.timestamp.FromNanoseconds(int(stamp))
-    m = obs.marker
-    if m is not None:
-        det = msg.detections.add(id=m.id, reprojection_error_px=m.reprojection_error_px,
-                                 chosen_solution=m.chosen_solution,
-                                 ambiguity_ratio=m.ambiguity_ratio if np.isfinite(m.ambiguity_ratio) else 0.0)
-        det.corners_px.extend(float(v) for v in np.asarray(m.corners_px).reshape(-1))
-        encode_pose(m.T_camera_marker, det.pose_in_camera)
-        if m.T_dvio_controller is not None:
-            encode_pose(m.T_dvio_controller, det.controller_in_display_vio)
-    return msg

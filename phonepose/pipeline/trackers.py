@@ -46,9 +46,7 @@ from phonepose.geometry import Pose, is_finite
 from phonepose.pipeline.corrections import CM1Reading, Correction, CorrectionMath, cm1_correction, marker_correction
 from phonepose.pipeline.t7l import LatencyAwareCM3Tracker
 from phonepose.pipeline.t8 import FusedTracker
-from phonepose.pipeline.types import Observation, Tracker
-from phonepose.schemas import phonepose_pb2 as pb
-from phonepose.session import codec
+from phonepose.pipeline.types import CalibrationKind, Observation, Tracker
 
 
 class Method(StrEnum):
@@ -65,14 +63,6 @@ class CorrectionKind(StrEnum):
 
 # ----------------------------------------------------------------------------- correction sources
 log = logging.getLogger("phonepose")
-
-
-def _event_pose(fg) -> Pose | None:
-    """A CalibrationEvent pose by the codec's rules (docs/format.md), or None if it is broken."""
-    try:
-        return codec.pose_of(fg)
-    except codec.BrokenPose:
-        return None
 
 
 class CorrectionSource:
@@ -99,8 +89,8 @@ class CM1Source(CorrectionSource):
 
     def update(self, obs: Observation) -> None:
         for event in obs.tick.events:
-            if event.kind == pb.CalibrationEvent.CM1:
-                fix, align = _event_pose(event.pose_fix_vio), _event_pose(event.pose_align_vio)
+            if event.kind == CalibrationKind.CM1:
+                fix, align = event.pose_fix_vio, event.pose_align_vio
                 if fix is None or align is None:
                     log.warning("CM1 event at %d ns ignored: a pose is missing, NaN/inf or "
                                 "its quaternion is not unit length", obs.tick.t_ns)
@@ -120,7 +110,7 @@ class CM2Source(CorrectionSource):
         self.pending = False
 
     def update(self, obs: Observation) -> None:
-        if any(event.kind == pb.CalibrationEvent.CM2 for event in obs.tick.events):
+        if any(event.kind == CalibrationKind.CM2 for event in obs.tick.events):
             self.pending = True
         # The marker must be recognised at the moment; if it is not on the event's tick, the
         # first tick after it on which it is (with VIO) is the calibration moment.

@@ -9,7 +9,8 @@ objects would run live. Poses follow phonepose.geometry: ``T_a_b`` is frame b in
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from enum import IntEnum
+from typing import Protocol
 
 import numpy as np
 
@@ -108,6 +109,38 @@ class MarkerModel:
     T_body_marker: Pose           # marker in the controller body frame
 
 
+@dataclass(frozen=True)
+class TaskTarget:
+    """One experiment-1 target, as recorded (values unchecked: only the viewer draws them; experiment 1
+    reads the hold times from the session itself)."""
+
+    index: int
+    position: tuple[float, float, float]               # in TaskTargets.frame_id
+    orientation_xyzw: tuple[float, float, float, float]
+    inside_view: bool                                  # whether it lies inside the display camera's view
+
+
+@dataclass(frozen=True)
+class TaskTargets:
+    """Experiment 1's targets (/experiment/targets)."""
+
+    frame_id: str
+    cube_size_m: float
+    select_radius_m: float
+    targets: tuple[TaskTarget, ...]
+
+
+@dataclass(frozen=True)
+class TaskPath:
+    """Experiment 2's path (/experiment/path)."""
+
+    frame_id: str
+    name: str                                          # TRI1 | TRI2 | REC1 | REC2
+    trial: int
+    waypoints: tuple[tuple[float, float, float], ...]
+    closed: bool
+
+
 @dataclass
 class SessionContext:
     """What does not change during a session (read once before the first tick)."""
@@ -117,9 +150,40 @@ class SessionContext:
     T_world_display_vio: Pose | None = None   # mocap world -> display_vio calibration (/gt/calibration)
     task_start_ns: int | None = None
     task_end_ns: int | None = None
-    session_info: object | None = None        # phonepose.SessionInfo
-    targets: object | None = None             # phonepose.Targets
-    path: object | None = None                # phonepose.PathSpec
+    session_id: str | None = None             # 16-hex digest of /session/info (None: the session has none)
+    targets: TaskTargets | None = None
+    path: TaskPath | None = None
+
+
+def has_camera(context: SessionContext) -> bool:
+    return context.camera.width > 0
+
+
+class CalibrationKind(IntEnum):
+    """The kind of a calibration event (the session schema's numbers, so ``kind == 1`` still reads CM1)."""
+
+    UNSPECIFIED = 0
+    CM1 = 1     # manual alignment: the user aligned the phone with a fixed CG object
+    CM2 = 2     # calibration moment: the phone is held inside the camera's view
+
+
+@dataclass(frozen=True)
+class CalibrationEvent:
+    """A correction moment recorded during the session (/events/calibration), decoded by the scheduler.
+
+    ``kind`` is a :class:`CalibrationKind`, or the plain number of a kind this version does not know.
+    CM1's poses are display_vio poses: ``pose_fix_vio`` the VIO pose shown as the fixed CG object,
+    ``pose_align_vio`` the VIO pose when the user had aligned the phone with it; None where the
+    event has none or it is broken (unset, NaN/inf, non-unit quaternion: docs/format.md).
+    """
+
+    kind: int
+    t_ns: int                                 # the event's stamp (its log time when unset)
+    log_time_ns: int                          # when it was recorded: the tick that carries it is the first at or after
+    frame_id: str = ""
+    pose_fix_vio: Pose | None = None
+    pose_align_vio: Pose | None = None
+    fix_t_ns: int | None = None               # when the CG object was fixed (None: unset)
 
 
 @dataclass(frozen=True)
@@ -153,7 +217,7 @@ class Tick:
     T_dvio_anchor: Pose | None = None         # anchor as the display resolved it (latest)
     T_cvio_anchor: Pose | None = None         # anchor as the controller resolved it (latest)
     imu: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))  # rows t_s, gx gy gz, ax ay az since last tick
-    events: list = field(default_factory=list)  # phonepose.CalibrationEvent received since the last tick
+    events: list[CalibrationEvent] = field(default_factory=list)  # recorded since the last tick
     in_task: bool = True                      # inside [task_start, task_end]
     # controller VIO samples received since the previous tick: (capture_ns from the message's
     # timestamp, T_cvio_controller), in receipt order (used by T8; the rows above do not need it)
@@ -237,7 +301,3 @@ class Stages(Protocol):
     damaged: str               # what it said of the first ("Corrupt JPEG data: premature end of data segment")
 
     def process(self, tick: Tick) -> Observation: ...
-
-    def detections_message(self, obs: Observation) -> Any:
-        """The /pipeline/markers message (phonepose.MarkerDetections) for this tick's new frame."""
-        ...

@@ -37,18 +37,18 @@ from phonepose.errors import ConfigError, OutputError, SessionContentError, Trac
 from phonepose.evaluation.controller import controller_metrics
 from phonepose.evaluation.trajectory import write_in_view, write_tum
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import has_camera, read_context, session_tag
 from phonepose.pipeline.corrections import CorrectionMath
 from phonepose.pipeline.shared import SharedStages, warn_damaged, warn_wrong_size
 from phonepose.pipeline.trackers import NAME_RULE, check_unique_names, is_safe_name, make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
-from phonepose.playback.outputs import metrics_document, paper_metrics, write_metrics
+from phonepose.playback.outputs import detections_message, metrics_document, paper_metrics, write_metrics
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.playback.watchdog import StepTimeout, StepWatchdog
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
 from phonepose.session.codec import pose_in_frame
+from phonepose.session.context import has_camera, read_context, session_tag
 from phonepose.viewer.annotations import marker_annotations
 
 if TYPE_CHECKING:
@@ -173,7 +173,7 @@ class PlaybackEngine:
     def _write(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None]) -> None:
         assert self.writer is not None
         if tick.new_frame is not None:
-            self.writer.write(Topic.PIPELINE_MARKERS, self.stages.detections_message(obs), tick.t_ns)
+            self.writer.write(Topic.PIPELINE_MARKERS, detections_message(obs), tick.t_ns)
             self.writer.write(Topic.PIPELINE_MARKER_ANNOTATIONS, marker_annotations(obs), tick.t_ns)
         encoded: dict[int, tuple] = {}   # trackers often return the very same Pose object (e.g. the marker's)
         for name, pose in poses.items():
@@ -379,7 +379,7 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             engine.writer = SessionWriter(out / "trackers.mcap")
             stack.callback(engine.writer.finish)
         _play(scheduler, engine, options)
-    if context.session_info is None:    # e.g. a session cut by a tool that keeps only some topics
+    if context.session_id is None:    # e.g. a session cut by a tool that keeps only some topics
         log.warning("%s: no %s, so no task window: the metrics cover the whole session",
                     session, Topic.SESSION_INFO)
     if stages.frames_undecodable:

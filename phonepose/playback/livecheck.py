@@ -13,7 +13,6 @@ import os
 from dataclasses import dataclass
 
 from phonepose.errors import SessionContentError
-from phonepose.pipeline.context import read_context
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.playback.engine import _check_camera_trackers, _ticks_ahead
 from phonepose.playback.livereport import live_report
@@ -21,6 +20,7 @@ from phonepose.playback.scheduler import TickScheduler
 from phonepose.schemas.topics import Frame, tracker_pose_topic
 from phonepose.session import SessionReader
 from phonepose.session.codec import pose_in_frame
+from phonepose.session.context import read_context
 
 
 @dataclass

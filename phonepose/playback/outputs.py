@@ -1,4 +1,5 @@
-"""Playback outputs: metrics.json and the call into the evaluation module's paper metrics.
+"""Playback outputs: metrics.json, the call into the evaluation module's paper metrics, and the
+/pipeline/markers message of trackers.mcap.
 
 TUM trajectories are written by :func:`phonepose.evaluation.trajectory.write_tum` (one writer,
 fixed format). metrics.json has a fixed layout, 2-space indent and ``null`` for every value that
@@ -17,6 +18,10 @@ import numpy as np
 from phonepose.errors import OutputError
 from phonepose.evaluation.metrics import SCOPES
 from phonepose.geometry import Pose
+from phonepose.pipeline.types import Observation
+from phonepose.schemas import phonepose_pb2 as pb
+from phonepose.session.codec import encode_pose
+from phonepose.topics import Frame
 
 
 def empty_scope(scope: str = "inside") -> dict:
@@ -63,3 +68,20 @@ def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, tracker
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     return doc
+
+
+def detections_message(obs: Observation) -> pb.MarkerDetections:
+    """The /pipeline/markers message for this tick's frame (empty when nothing was recognised)."""
+    msg = pb.MarkerDetections(frame_id=Frame.DISPLAY_CAMERA)
+    stamp = obs.tick.frame_t_ns
+    msg.timestamp.FromNanoseconds(int(stamp))
+    m = obs.marker
+    if m is not None:
+        det = msg.detections.add(id=m.id, reprojection_error_px=m.reprojection_error_px,
+                                 chosen_solution=m.chosen_solution,
+                                 ambiguity_ratio=m.ambiguity_ratio if np.isfinite(m.ambiguity_ratio) else 0.0)
+        det.corners_px.extend(float(v) for v in np.asarray(m.corners_px).reshape(-1))
+        encode_pose(m.T_camera_marker, det.pose_in_camera)
+        if m.T_dvio_controller is not None:
+            encode_pose(m.T_dvio_controller, det.controller_in_display_vio)
+    return msg

@@ -21,7 +21,6 @@ import json
 import os
 import re
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -125,13 +124,12 @@ def recording_name(session: str | os.PathLike, tracker_names: list[str], params:
 def _eye(context: SessionContext, camera_position: np.ndarray | None) -> rrb.EyeControls3D | None:
     """An orbit eye on the task, from behind, above and beside the display camera, so the camera
     frustum, the task and every trajectory are in view; fixed, so scrubbing does not move it."""
-    path: Any = context.path
-    targets: Any = context.targets
-    points: list[list[float]] = []
+    path, targets = context.path, context.targets
+    points: list = []
     if path is not None and len(path.waypoints):
-        points = [[w.x, w.y, w.z] for w in path.waypoints]
+        points = list(path.waypoints)
     elif targets is not None and len(targets.targets):
-        points = [[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in targets.targets]
+        points = [t.position for t in targets.targets]
     if not points or camera_position is None:
         return None
     pts = np.asarray(points, dtype=float)

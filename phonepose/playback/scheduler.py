@@ -37,7 +37,7 @@ import numpy as np
 
 from phonepose.errors import ConfigError, SessionContentError
 from phonepose.geometry import Pose, RawPose, raw_compose, raw_interpolate
-from phonepose.pipeline.types import Frame, SessionContext, Tick
+from phonepose.pipeline.types import CalibrationEvent, CalibrationKind, Frame, SessionContext, Tick
 from phonepose.schemas.topics import Topic
 from phonepose.session import SessionReader, codec
 from phonepose.session.index import main_span
@@ -342,6 +342,26 @@ class TickFeed:
         return out
 
 
+def _event_pose(fg) -> Pose | None:
+    """A CalibrationEvent pose by the codec's rules (docs/format.md), or None if it is unset or broken."""
+    try:
+        return codec.pose_of(fg)
+    except codec.BrokenPose:
+        return None
+
+
+_KINDS = {int(k): k for k in CalibrationKind}
+
+
+def calibration_event(msg, log_time_ns: int) -> CalibrationEvent:
+    """A ``phonepose.CalibrationEvent`` message as the pipeline's :class:`CalibrationEvent`."""
+    fix_t = codec.timestamp_ns(msg.fix_timestamp) if msg.HasField("fix_timestamp") else None
+    return CalibrationEvent(kind=_KINDS.get(msg.kind, msg.kind), t_ns=codec.stamp_ns(msg, log_time_ns),
+                            log_time_ns=log_time_ns, frame_id=msg.frame_id,
+                            pose_fix_vio=_event_pose(msg.pose_fix_vio), pose_align_vio=_event_pose(msg.pose_align_vio),
+                            fix_t_ns=fix_t)
+
+
 def _take(queue: list, t_ns: int) -> list:
     """Remove and return the leading ``(log_time, ...)`` items with ``log_time <= t``."""
     k = 0
@@ -372,7 +392,7 @@ class _PassState:
         self.c_anchors: deque = deque()
         self.imu: list = []                 # (log_time, row)
         self.cvio_samples: list = []        # (log_time, capture_ns, raw): controller VIO with its capture stamp
-        self.events: list = []              # (log_time, CalibrationEvent)
+        self.events: list = []              # (log_time, pipeline CalibrationEvent)
         self.image: tuple[bytes, str] | None = None   # the newest frame carried so far (data, format), and its log_time
         self.image_t: int | None = None
         self.display_cache: tuple = (None, None)
@@ -449,7 +469,7 @@ class _PassState:
         self.imu.append((now, row))
 
     def _event(self, msg, now: int, raw: RawPose | None) -> None:
-        self.events.append((now, msg))
+        self.events.append((now, calibration_event(msg, now)))
 
     # ---------------------------------------------------------------- ready / build
     def ready(self, t: int, now: int) -> bool:

@@ -26,6 +26,7 @@ from phonepose.geometry import Pose
 from phonepose.record.source import Record
 from phonepose.schemas.topics import Topic
 from phonepose.session import codec
+from phonepose.session.context import task_path, task_targets
 from phonepose.viewer import entities as E
 from phonepose.viewer.scene import log_body_marker, log_camera, log_task
 from phonepose.viewer.sink import Columns, close_recording, open_recording, transform_columns
@@ -106,9 +107,9 @@ class RecordRerunLogger:
         elif topic == Topic.GT_CALIBRATION:
             self._T_dvio_world = codec.transform_of(m).inv()
         elif topic == Topic.EXPERIMENT_TARGETS:
-            log_task(self.rec, targets=m)
+            log_task(self.rec, targets=task_targets(m))
         elif topic == Topic.EXPERIMENT_PATH:
-            log_task(self.rec, path=m)
+            log_task(self.rec, path=task_path(m))
         elif topic == Topic.DISPLAY_VIO_POSE:
             self._pose(E.DISPLAY, codec.pose_of(m.pose), t)
         elif topic in (Topic.DISPLAY_ANCHOR, Topic.CONTROLLER_ANCHOR):

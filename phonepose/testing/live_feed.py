@@ -14,12 +14,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from phonepose.pipeline.context import STATIC_TOPICS
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.playback.livereport import METADATA_NAME
 from phonepose.record.live.tracking import LiveTracker
 from phonepose.record.source import Record
 from phonepose.session import SessionReader, SessionWriter
+from phonepose.session.context import STATIC_TOPICS
 
 
 def arrival_order(records: list[Record], max_delay_ns: dict[str, int], seed: int,

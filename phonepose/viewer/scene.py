@@ -6,6 +6,7 @@ import numpy as np
 import rerun as rr
 
 from phonepose.geometry import Pose
+from phonepose.pipeline.types import TaskPath, TaskTargets
 from phonepose.viewer import entities as E
 from phonepose.viewer.style import TASK_COLOR
 
@@ -26,20 +27,17 @@ def log_camera(rec: rr.RecordingStream, T_display_camera: Pose | None = None, K=
                                     image_plane_distance=IMAGE_PLANE_DISTANCE_M), static=True)
 
 
-def log_task(rec: rr.RecordingStream, targets=None, path=None) -> None:
-    """Experiment 1's targets (``phonepose.Targets``: cubes) or experiment 2's path
-    (``phonepose.PathSpec``: a closed line), static, in display_vio."""
+def log_task(rec: rr.RecordingStream, targets: TaskTargets | None = None, path: TaskPath | None = None) -> None:
+    """Experiment 1's targets (cubes) or experiment 2's path (a closed line), static, in display_vio."""
     if targets is not None and len(targets.targets):
-        centers = np.array([[t.pose.position.x, t.pose.position.y, t.pose.position.z] for t in targets.targets],
-                           dtype=np.float32)
-        quats = [rr.Quaternion(xyzw=[t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z,
-                                     t.pose.orientation.w]) for t in targets.targets]
+        centers = np.array([t.position for t in targets.targets], dtype=np.float32)
+        quats = [rr.Quaternion(xyzw=list(t.orientation_xyzw)) for t in targets.targets]
         half = float(targets.cube_size_m or 0.02) / 2
         rec.log(E.TASK_TARGETS, rr.Boxes3D(centers=centers, half_sizes=[[half, half, half]] * len(centers),
                                            quaternions=quats, labels=[str(t.index) for t in targets.targets],
                                            colors=[TASK_COLOR]), static=True)
     if path is not None and len(path.waypoints):
-        pts = np.array([[w.x, w.y, w.z] for w in path.waypoints], dtype=np.float32)
+        pts = np.array(path.waypoints, dtype=np.float32)
         if path.closed:
             pts = np.vstack([pts, pts[:1]])
         rec.log(E.TASK_PATH, rr.LineStrips3D([pts], colors=[TASK_COLOR], radii=0.0015,

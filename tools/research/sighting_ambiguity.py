@@ -25,10 +25,10 @@ def sightings(session: Path):
     import cv2
     import numpy as np
 
-    from phonepose.pipeline.context import read_context
     from phonepose.pipeline.shared import SharedStages
     from phonepose.playback.scheduler import TickScheduler
     from phonepose.session import SessionReader
+    from phonepose.session.context import read_context
 
     cv2.setNumThreads(1)
     rows = []

@@ -31,13 +31,13 @@ import numpy as np
 
 from phonepose.errors import PhoneposeError
 from phonepose.geometry import Pose
-from phonepose.pipeline.context import STATIC_TOPICS, context_from_static
 from phonepose.pipeline.types import Stages, Tracker
 from phonepose.playback.livereport import summary_lines
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, SCHEDULED_TOPICS, TickFeed, TickScheduler
 from phonepose.record.source import Record
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session.codec import pose_in_frame
+from phonepose.session.context import STATIC_TOPICS, context_from_static
 
 HOLD_BACK_NS = 500_000_000         # a stream that delivered nothing for this long (log time) is not waited for
 QUEUE_MAX = 4096                   # messages waiting for the tracking thread (~20 s of a live session's streams)

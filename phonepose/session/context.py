@@ -2,7 +2,8 @@
 
 What does not change during a session (camera intrinsics and extrinsics, the marker, the
 mocap calibration, the task window, the targets or path) is read once, before the first tick,
-from the first message of each static topic.
+from the first message of each static topic, and decoded here: the context holds no message of
+the session's format, so the pipeline that receives it depends on none.
 """
 
 from __future__ import annotations
@@ -16,9 +17,23 @@ import numpy as np
 from phonepose.errors import SessionContentError
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import aruco_dictionary, aruco_dictionary_names
-from phonepose.pipeline.types import CameraModel, MarkerModel, SessionContext, check_camera, check_plumb_bob
+from phonepose.pipeline.types import (
+    CameraModel,
+    MarkerModel,
+    SessionContext,
+    TaskPath,
+    TaskTarget,
+    TaskTargets,
+    check_camera,
+    check_plumb_bob,
+    has_camera,
+)
 from phonepose.schemas.topics import Topic
-from phonepose.session import SessionReader, codec
+from phonepose.session import codec
+from phonepose.session.reader import SessionReader
+
+__all__ = ["MAX_MARKER_SIZE_M", "STATIC_TOPICS", "context_from_static", "has_camera", "read_context", "session_tag", "task_path",
+           "task_targets"]
 
 # Used when a session has no camera at all (controller VIO only): nothing looks at it.
 _NO_CAMERA = CameraModel(K=np.eye(3), D=np.zeros(5), width=0, height=0, T_display_camera=Pose.identity())
@@ -142,8 +157,31 @@ def context_from_static(path: str, has_images: bool, static: dict) -> SessionCon
         camera=camera, marker=marker,
         T_world_display_vio=T_world_display_vio,
         task_start_ns=task_start, task_end_ns=task_end,
-        session_info=info, targets=targets, path=path_spec,
+        session_id=None if info is None else _digest(info),
+        targets=None if targets is None else task_targets(targets),
+        path=None if path_spec is None else task_path(path_spec),
     )
+
+
+def _digest(info) -> str:
+    """16 hex digits naming a SessionInfo message: equal messages, equal digests."""
+    return hashlib.sha256(info.SerializeToString(deterministic=True)).hexdigest()[:16]
+
+
+def task_targets(msg) -> TaskTargets:
+    """A ``phonepose.Targets`` message as the pipeline's TaskTargets."""
+    return TaskTargets(
+        frame_id=msg.frame_id, cube_size_m=msg.cube_size_m, select_radius_m=msg.select_radius_m,
+        targets=tuple(TaskTarget(
+            index=t.index, position=(t.pose.position.x, t.pose.position.y, t.pose.position.z),
+            orientation_xyzw=(t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z, t.pose.orientation.w),
+            inside_view=t.inside_view) for t in msg.targets))
+
+
+def task_path(msg) -> TaskPath:
+    """A ``phonepose.PathSpec`` message as the pipeline's TaskPath."""
+    return TaskPath(frame_id=msg.frame_id, name=msg.name, trial=msg.trial,
+                    waypoints=tuple((w.x, w.y, w.z) for w in msg.waypoints), closed=msg.closed)
 
 
 def session_tag(path: str | os.PathLike, context: SessionContext) -> str | None:
@@ -155,12 +193,6 @@ def session_tag(path: str | os.PathLike, context: SessionContext) -> str | None:
     (the same simulator config and seed, or a copy of one file) get the same ID, as they should.
     None for a session without SessionInfo.
     """
-    info = context.session_info
-    if info is None:
+    if context.session_id is None:
         return None
-    digest = hashlib.sha256(info.SerializeToString(deterministic=True)).hexdigest()[:16]  # type: ignore[attr-defined]
-    return f"{Path(path).name} {digest}"
-
-
-def has_camera(context: SessionContext) -> bool:
-    return context.camera.width > 0
+    return f"{Path(path).name} {context.session_id}"
