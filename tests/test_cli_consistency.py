@@ -151,3 +151,40 @@ def test_quiet_keeps_the_warnings_among_the_progress_lines(lines, quiet, stamp):
         assert all(re.match(r"\[\d\d:\d\d:\d\d\] ", p) for p in printed)
         printed = [p[11:] for p in printed]
     assert printed == expected
+
+
+def _documented_command_lines() -> list[tuple[str, str]]:
+    """(file, line) for each concrete ``phonepose ...`` command in the code blocks of README.md and docs/*.md
+    (a synopsis with [optional] or <placeholder> parts, or shell variables, left out)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    found = []
+    for f in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        for block in re.findall(r"```(?:bash|sh|console)?\n(.*?)```", f.read_text(encoding="utf-8"), re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                line = line.split("  #")[0].split(" # ")[0].strip()
+                for part in (p.strip() for p in re.split(r"&&|;|\|", line)):
+                    if part.startswith("phonepose ") and not any(c in part for c in "[<$") and "..." not in part:
+                        found.append((f.name, part))
+    return found
+
+
+DOCUMENTED = _documented_command_lines()
+
+
+def test_the_docs_show_commands():
+    assert len(DOCUMENTED) >= 40
+
+
+@pytest.mark.parametrize("doc, line", DOCUMENTED, ids=[f"{d}: {line}" for d, line in DOCUMENTED])
+def test_every_documented_command_parses(doc, line):
+    """The docs name only options that exist, with values they take."""
+    words = shlex.split(line)[1:]
+    target, path = command(), []
+    while _is_group(target) and words and words[0] in target.commands:
+        path.append(words[0])
+        target = target.commands[words.pop(0)]
+    if _is_group(target) or "--help" in words or "--version" in words:
+        return
+    target.make_context(" ".join(path), words).close()
