@@ -307,7 +307,8 @@ def test_a_builtin_name_in_another_case_is_refused(session, here, cli):
 ])
 def test_two_trackers_of_one_name_are_refused_before_any_work(session, here, cli, command, second, words):
     before = snapshot(here)
-    argv = commands(session, ref("Dup1"))[command] + ["-t", ref(second)]
+    argv = commands(session, ref("Dup1"))[command]
+    argv += [argv[-2], ref(second)]     # the command's own tracker option (-t, or the experiments' --add-tracker)
     code, _, err = cli(*argv)
     assert code == 5
     assert one_line(err) == f"phonepose: error: {words}"
