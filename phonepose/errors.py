@@ -52,7 +52,7 @@ class TrackerError(ConfigError):
         super().__init__(message)
         self.tracker = tracker
 
-    def __reduce__(self):   # sent back from a worker process (experiment --jobs, batch) whole
+    def __reduce__(self):   # sent back from a worker process (experiment --workers, batch) whole
         return type(self), (str(self), self.tracker)
 
 

@@ -17,7 +17,7 @@ RATE_MAX_HZ = 1000.0      # ticks per second: 8x the fastest camera the simulato
 # The slowest: a tick every 10 s, the longest stretch the scheduler ticks through (docs/reliability.md, "Work is
 # bounded by the data"); a rate of 5e-324 Hz overflowed the tick period (1e9 / rate ns) instead
 RATE_MIN_HZ = 0.1
-WORKERS_MAX = 256         # local worker processes (batch --workers, experiment --jobs)
+WORKERS_MAX = 256         # local worker processes (batch and experiment --workers)
 UNIT_TIMEOUT_S = 3600.0   # batch --unit-timeout's default: a playback longer than an hour is a session that never ends
 
 

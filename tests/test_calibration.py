@@ -269,7 +269,7 @@ def test_cli_video_recovers_the_known_camera(synthetic_video, tmp_path, cli):
 
 
 def test_device_path_with_a_stand_in_camera(synthetic_video, monkeypatch):
-    """--device cannot be tested without a camera: the video stands in for it (same capture loop)."""
+    """--camera cannot be tested without a camera: the video stands in for it (same capture loop)."""
     from phonepose.calibration import calibrate as mod
 
     monkeypatch.setattr(mod, "_open_device", lambda index, size: cv2.VideoCapture(str(synthetic_video)))
@@ -553,10 +553,10 @@ ERROR_CASES = [
     ("no source", lambda d: [], 5, "exactly one"),
     ("video that is not a video", lambda d: ["--video", str(_text(d / "v.avi"))], 2, "not a video"),
     ("missing video", lambda d: ["--video", str(d / "nope.mp4")], 2, "no such file"),
-    ("camera that does not exist", lambda d: ["--device", "57"], 2, "cannot be opened"),
+    ("camera that does not exist", lambda d: ["--camera", "57"], 2, "cannot be opened"),
     ("bad --board", lambda d: ["--images", str(d), "--board", "squares=7"], 5, "board spec"),
-    ("bad --size", lambda d: ["--device", "0", "--size", "big"], 5, "WIDTHxHEIGHT"),
-    ("--size without --device", lambda d: ["--images", str(d), "--size", "640x480"], 5, "--device only"),
+    ("bad --size", lambda d: ["--camera", "0", "--size", "big"], 5, "WIDTHxHEIGHT"),
+    ("--size without --camera", lambda d: ["--images", str(d), "--size", "640x480"], 5, "--camera only"),
     ("--out in a missing directory", lambda d: ["--images", str(d), "--out", str(d / "no" / "c.yaml")], 6,
      "does not exist"),
 ]

@@ -274,7 +274,7 @@ def test_loaders_read_the_fixture_formats():
     ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 0 1 9\n", ":2: 9 values, the lines before have 8"),
     # commas: refused, not guessed (an 8-column EuRoC row, t[ns] and w first, would read as TUM without an error)
     ("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n", ":2: values separated by commas in '0,1,2,3,0,0,0,1': TUM 't tx ty tz "
-                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is --format euroc)"),
+                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is --gt-format euroc)"),
     ("timestamp tx ty tz qx qy qz qw\n0 1 2 3 0 0 0 1\ntimestamp tx ty tz qx qy qz qw\n", ":3: not a number"),
 ])
 def test_malformed_tum_is_one_clear_line(tmp_path, text, where):
@@ -419,7 +419,7 @@ def test_cli_json_layout(cli):
     assert set(d["re"]["9.17"]) >= {"trans_m", "trans_perc", "rot_deg", "yaw_deg", "gravity_deg"}
     assert d["ate"]["trans_m"]["rmse"] == pytest.approx(0.105614372, abs=5e-10)
     code, out, err = cli("evaluate", "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
-                             str(DATA / "evo/V102.txt"), "--format", "euroc", "--metric", "rpe", "--delta", "1",
+                             str(DATA / "evo/V102.txt"), "--gt-format", "euroc", "--metric", "rpe", "--delta", "1",
                              "--delta-unit", "m", "--json")
     d = json.loads(out)
     assert d["rpe"]["num_samples"] == 72 and d["rpe"]["rmse"] == pytest.approx(0.060284, abs=5e-7)
@@ -438,9 +438,9 @@ def test_cli_table(cli):
     code, out, _ = cli("evaluate", "--gt", str(DATA / "evo/fr2_desk_groundtruth.txt"), "--est",
                            str(DATA / "evo/fr2_desk_ORB.txt"), "--metric", "ape", "--align", "se3")
     assert code == 0 and "2174 matched poses" in out and "0.00811898" in out
-    # a .csv estimate with --format euroc is read as EuRoC too: GT against itself
+    # a .csv estimate with --gt-format euroc is read as EuRoC too: GT against itself
     code, out, _ = cli("evaluate", "--gt", str(DATA / "evo/V102_groundtruth.csv"), "--est",
-                           str(DATA / "evo/V102_groundtruth.csv"), "--format", "euroc", "--metric", "ape", "--json")
+                           str(DATA / "evo/V102_groundtruth.csv"), "--gt-format", "euroc", "--metric", "ape", "--json")
     assert code == 0 and json.loads(out)["ape"]["max"] == 0.0
 
 

@@ -98,7 +98,7 @@ def run(*args, cwd=None):
 @pytest.mark.slow
 @pytest.mark.long
 def test_exp2_one_trial_end_to_end(tmp_path):
-    r = run("experiment", "exp2", "--trials", "1", "--out", str(tmp_path / "x"), "--jobs", "2")
+    r = run("experiment", "exp2", "--trials", "1", "--out", str(tmp_path / "x"), "--workers", "2")
     assert r.returncode == 0, r.stderr
     out = tmp_path / "x"
     with open(out / "table5.csv") as f:
@@ -122,7 +122,7 @@ def test_exp2_one_trial_end_to_end(tmp_path):
 
 @pytest.mark.slow
 def test_exp2_hand_eye_sequence_scores_in_the_phone_frame(tmp_path):
-    """`experiment exp2 --hand-eye`: each sequence is calibrated from itself before playback."""
+    """`experiment exp2 --calibrate-hand-eye`: each sequence is calibrated from itself before playback."""
     from phonepose.experiments.common import run_sequence
     from phonepose.experiments.exp2 import HAND_EYE_NOTE, _write_table6, make_jobs
 

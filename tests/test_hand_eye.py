@@ -1,4 +1,4 @@
-"""Hand-eye calibration (phonepose/calibration/hand_eye.py), `calibrate-hand-eye` and `playback --hand-eye`."""
+"""Hand-eye calibration (phonepose/calibration/hand_eye.py), `calibrate-hand-eye` and `playback --gt-calibration`."""
 
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
 @pytest.mark.slow
 def test_simulated_session_cli_end_to_end(tmp_path, cli):
     """record sim -> calibrate-hand-eye finds the simulator's 11 deg hand-eye and 30 ms mocap clock;
-    playback --hand-eye then scores the trackers' own orientation error, not the rigid body's."""
+    playback --gt-calibration then scores the trackers' own orientation error, not the rigid body's."""
     from phonepose.record.sim import SimSession, default_config, record_sim
 
     session = tmp_path / "s.mcap"
@@ -127,7 +127,7 @@ def test_simulated_session_cli_end_to_end(tmp_path, cli):
     broken = hand_eye_from_session(rewrite(session, tmp_path / "broken.mcap", _bad_quaternions()))
     assert np.degrees(broken.T_controller_mocap.angle_to(truth)) < 0.5 and broken.pairs < he.pairs
 
-    for args, name in (((), "plain"), (("--hand-eye", str(tmp_path / "he.yaml")), "moved")):
+    for args, name in (((), "plain"), (("--gt-calibration", str(tmp_path / "he.yaml")), "moved")):
         r = cli("playback", str(session), "-q", "-t", "T4,T8", "--out", str(tmp_path / name), *args)
         assert r.returncode == 0, r.stderr
     plain = json.loads((tmp_path / "plain" / "metrics.json").read_text())["trackers"]

@@ -143,10 +143,10 @@ def test_a_log_time_beyond_int64_is_one_line_in_every_command(good, tmp_path, cl
 FIFO_INPUTS = {
     "info": [["info", "{fifo}"]],
     "playback": [["playback", "{fifo}", "-q", "-o", "{d}/o"],
-                 ["playback", "{good}", "-q", "--hand-eye", "{fifo}", "-o", "{d}/o"],
+                 ["playback", "{good}", "-q", "--gt-calibration", "{fifo}", "-o", "{d}/o"],
                  ["playback", "{good}", "-q", "--gt", "{fifo}", "-o", "{d}/o"]],
     "evaluate": [["evaluate", "--gt", "{fifo}", "--est", "{tum}"], ["evaluate", "--gt", "{tum}", "--est", "{fifo}"],
-                 ["evaluate", "--gt", "{tum}", "--est", "{tum}", "--hand-eye", "{fifo}"],
+                 ["evaluate", "--gt", "{tum}", "--est", "{tum}", "--gt-calibration", "{fifo}"],
                  ["evaluate", "--gt", "{tum}", "--est", "{tum}", "--metric", "paper", "--in-view", "{fifo}"]],
     "recover": [["recover", "{fifo}", "-o", "{d}/r.mcap"]],
     "calibrate-camera": [["calibrate-camera", "-q", "--video", "{fifo}", "-o", "{d}/c.yaml"]],

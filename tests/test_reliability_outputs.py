@@ -145,7 +145,7 @@ WRITERS = [
            what="a Parquet table", wrong="r.csv", ok=True, fails=_fail_batch, earlier=_earlier_table),
     Writer("experiment-exp1", ["experiment", "exp1", "-q", "--config", "{input}"], "--out", "exp1-out", kind="dir",
            input="config", fails=_fail_recording, missing_input_code=5),
-    Writer("experiment-exp2", ["experiment", "exp2", "--trials", "1", "--jobs", "1", "--config", "{input}"], "--out",
+    Writer("experiment-exp2", ["experiment", "exp2", "--trials", "1", "--workers", "1", "--config", "{input}"], "--out",
            "exp2-out", kind="dir", input="config", fails=_fail_recording, missing_input_code=5),
     Writer("demo", ["demo"], "--out", "phonepose-demo", kind="dir", fails=_fail_recording),
     # playback's trackers.mcap is written by a SessionWriter too: _fail_recording fills the disk under it

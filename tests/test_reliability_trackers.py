@@ -251,7 +251,8 @@ def commands(session: Path, tracker: str) -> dict[str, list]:
     return {
         "playback": ["playback", "-q", session, "-o", "pt", "-t", "T1", "-t", tracker],
         "batch": ["batch", "-q", session, "--out", "r.parquet", "--workers", "1", "-t", "T1", "-t", tracker],
-        "experiment": ["experiment", "exp2", "--trials", "1", "--config", "../../c.toml", "--out", "et", "-t", tracker],
+        "experiment": ["experiment", "exp2", "--trials", "1", "--config", "../../c.toml", "--out", "et",
+                       "--add-tracker", tracker],
     }
 
 
@@ -306,7 +307,8 @@ def test_a_builtin_name_in_another_case_is_refused(session, here, cli):
 ])
 def test_two_trackers_of_one_name_are_refused_before_any_work(session, here, cli, command, second, words):
     before = snapshot(here)
-    argv = commands(session, ref("Dup1"))[command] + ["-t", ref(second)]
+    argv = commands(session, ref("Dup1"))[command]
+    argv += [argv[-2], ref(second)]     # the command's own tracker option (-t, or the experiments' --add-tracker)
     code, _, err = cli(*argv)
     assert code == 5
     assert one_line(err) == f"phonepose: error: {words}"
@@ -413,7 +415,7 @@ def test_a_unit_whose_trackers_all_fail_gives_each_its_own_error(session):
 def test_an_experiment_whose_tracker_exits_is_one_line_and_no_folder(session, here, cli):
     """`experiment exp2 --trials 1` with it ended with exit 0 and no folder; its sequences run in 2 worker processes."""
     before = snapshot(here)
-    code, _, err = cli(*commands(session, ref("ExitInStep"))["experiment"], "--jobs", "2")
+    code, _, err = cli(*commands(session, ref("ExitInStep"))["experiment"], "--workers", "2")
     assert code == 5
     assert one_line(err) == ("phonepose: error: tracker 'hostile_trackers:ExitInStep' (E) failed in step(): it called "
                              "sys.exit(0): a tracker must not end the process; raise an exception instead")

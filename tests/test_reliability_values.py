@@ -52,7 +52,7 @@ def test_a_byte_order_mark_is_accepted_in_tum_euroc_and_toml(tmp_path, cli):
     csv = b"#timestamp,p_x,p_y,p_z,q_w,q_x,q_y,q_z\n" + b"".join(
         b"%d,%.3f,0,0,1,0,0,0\n" % (k * 10**8, k / 50) for k in range(40))
     (tmp_path / "gt.csv").write_bytes(BOM + csv)
-    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.csv", "--est", tmp_path / "gt.csv", "--format", "euroc",
+    code, out, err = cli("evaluate", "--gt", tmp_path / "gt.csv", "--est", tmp_path / "gt.csv", "--gt-format", "euroc",
                          "--metric", "ape", "--json")
     assert code == 0 and err == "", err
     (tmp_path / "c.toml").write_bytes(BOM + b"[camera]\nrate_hz = 24\n")

@@ -113,14 +113,14 @@ def test_a_wrong_reference_is_one_line_before_any_work(on_path):
 def test_experiments_refuse_a_builtin_as_an_extra_tracker_before_any_work(tmp_path):
     from phonepose.experiments.exp1 import run_exp1
 
-    with pytest.raises(ConfigError, match=r"^--tracker T4: the experiments always run T1-T8; --tracker adds your own"):
+    with pytest.raises(ConfigError, match=r"^--add-tracker T4: the experiments always run T1-T8; --add-tracker adds your own"):
         run_exp1(tmp_path / "e1", trackers=["T4"])
     assert not (tmp_path / "e1").exists()
 
 
 @pytest.mark.slow
 def test_example_in_experiment_1_beside_t1_t8(on_path, tmp_path, short_exp1):
-    """`experiment exp1 -t my_tracker:LastSightingTracker`: its rows join Tables 2 and 3 (no paper values); on
+    """`experiment exp1 --add-tracker my_tracker:LastSightingTracker`: its rows join Tables 2 and 3 (no paper values); on
     4 of exp1's targets, inside and outside the view."""
     from phonepose.experiments.exp1 import run_exp1
 

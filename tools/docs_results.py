@@ -19,8 +19,8 @@ numbers the tables show). So a number in the docs cannot drift from the program:
 
 The seed-0 tables are Tables 2, 3, 5 and 6 of the paper beside ours (`phonepose experiment exp1|exp2`,
 default simulator); the 18-sequence tables are the means over exp2's TRI2 and REC2 at seeds 0-2, as recorded
-and with each session's hand-eye offset calibrated from itself (`experiment exp2 --hand-eye`); T8's cells
-(tools/exp2_cells.py) use the `--hand-eye` and `--exact-gt` runs of seeds 0-2 and of the held-out seeds 3-5;
+and with each session's hand-eye offset calibrated from itself (`experiment exp2 --calibrate-hand-eye`); T8's cells
+(tools/exp2_cells.py) use the `--calibrate-hand-eye` and `--exact-gt` runs of seeds 0-2 and of the held-out seeds 3-5;
 the real-motion tables (docs/pipeline.md, "Real hand motion") are `record sim --motion` on the TUM windows
 of MOTIONS at seed 0, played back with every tracker against calibrated and exact ground truth, rendered by
 tools/metrics_md.py's table.
@@ -229,8 +229,8 @@ def table_18(plain: list[dict]) -> str:
 
 def table_18_hand_eye(plain: list[dict], hand_eye: list[dict]) -> str:
     a, b = _means(plain), _means(hand_eye)
-    head = [f"| r_ATE °, in / out / total ({a['n']} sequences) | as recorded | with `--hand-eye` "
-            "| p_ATE cm total, as recorded → `--hand-eye` |",
+    head = [f"| r_ATE °, in / out / total ({a['n']} sequences) | as recorded | with `--calibrate-hand-eye` "
+            "| p_ATE cm total, as recorded → `--calibrate-hand-eye` |",
             "|---|---|---|---|"]
     rows = [f"| {t} | {_triple(a, t, 'r_ate_deg', 1)} | {_triple(b, t, 'r_ate_deg', 1)} | "
             f"{_f(a[(t, 'total', 'p_ate_m')], 100, 2)} → {_f(b[(t, 'total', 'p_ate_m')], 100, 2)} |" for t in paper.REPORTED]
@@ -343,13 +343,14 @@ def render() -> list[str]:
 
 # ---------------------------------------------------------------------------------------------- running
 # the ground truths an exp2 run is scored against: (name part, option, run_exp2 keywords)
-GROUND_TRUTHS = (("", "", {}), ("-hand-eye", " --hand-eye", {"hand_eye": True}), ("-exact", " --exact-gt", {"exact_gt": True}))
+GROUND_TRUTHS = (("", "", {}), ("-hand-eye", " --calibrate-hand-eye", {"hand_eye": True}),
+                 ("-exact", " --exact-gt", {"exact_gt": True}))
 
 
 def run_motion(out: Path) -> dict:
     """The real-motion sessions (MOTIONS, seed 0) played back with every tracker, against each of MOTION_GTS:
     what docs/pipeline.md's "Real hand motion" commands do, `record sim --motion` + `calibrate-hand-eye` +
-    `playback --hand-eye`, and the same session simulated with `[mocap] exact = true`."""
+    `playback --gt-calibration`, and the same session simulated with `[mocap] exact = true`."""
     from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
     from phonepose.playback.engine import run_playback
     from phonepose.record.sim import load_config, record_sim

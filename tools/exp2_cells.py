@@ -1,6 +1,6 @@
 """T8 against every other tracker, cell by cell, from `phonepose experiment exp2` outputs.
 
-    python tools/exp2_cells.py exp2-he-s0 exp2-he-s1 exp2-he-s2      # --hand-eye runs, seeds 0-2
+    python tools/exp2_cells.py exp2-he-s0 exp2-he-s1 exp2-he-s2      # --calibrate-hand-eye runs, seeds 0-2
     python tools/exp2_cells.py exp2-ex-s0 exp2-ex-s1 exp2-ex-s2      # --exact-gt runs
 
 Reads each folder's exp2.json and averages the per-sequence RMSE values over every sequence of the

@@ -8,7 +8,7 @@ standard deviations of the intrinsics. What is ours is which frames become views
 - ``--images DIR``: every image in which the board shows at least ``min_corners`` non-collinear corners;
 - ``--video FILE``: every k-th frame (k chosen so about ``3 * max_views`` frames are examined),
   skipping frames in which the board has barely moved since the last kept view;
-- ``--device N``: MJPG at ``--size`` (the mode ``record live`` records in), one frame every
+- ``--camera N``: MJPG at ``--size`` (the mode ``record live`` records in), one frame every
   ``interval_s`` seconds, the same way, until ``max_views`` views, ``seconds`` elapsed or Ctrl-C.
 
 and, if more than ``max_views`` views remain, an evenly spaced subset of them (more views of the
@@ -345,10 +345,10 @@ def calibrate_camera(*, images: str | Path | None = None, video: str | Path | No
                      progress: Progress | None = None) -> CalibrationResult:
     """Calibrate from exactly one source. Too few views is a SessionContentError (exit 4) saying how
     many frames showed the board; unreadable inputs are InputFileErrors (exit 2)."""
-    given = [name for name, value in (("--device", device), ("--video", video), ("--images", images))
+    given = [name for name, value in (("--camera", device), ("--video", video), ("--images", images))
              if value is not None]
     if len(given) != 1:
-        raise ConfigError("give exactly one of --device N, --video FILE, --images DIR"
+        raise ConfigError("give exactly one of --camera N, --video FILE, --images DIR"
                           + (f" (got {' and '.join(given)})" if given else ""))
     if max_views < min_views:
         raise ConfigError(f"--max-views {max_views}: must be >= {min_views}")

@@ -6,7 +6,7 @@ error carries their fixed rotation: the paper's r_ATE of 10-13 deg for every tra
 such an offset (docs/evaluation.md), and the simulator models it as ``mocap.hand_eye_*``.
 Like evo and rpg_trajectory_evaluation, the metrics do not remove it themselves (evo issue #562:
 calibration belongs before the evaluation); this module estimates it once per rig, and
-``playback --hand-eye FILE`` applies it to the ground truth.
+``playback --gt-calibration FILE`` applies it to the ground truth.
 
 Method: the classic AX = XB hand-eye problem on the relative motions of the controller's own VIO
 (A, phone frame) and of the ground truth (B, rigid body frame), X = T_controller_mocap. Rotation:

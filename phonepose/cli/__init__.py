@@ -26,7 +26,8 @@ from phonepose.text import printable
 
 app = typer.Typer(
     name="phonepose",
-    help="Record, replay and evaluate sessions in which a smartphone is the 6DoF controller of an AR display.",
+    help="Record, replay and evaluate sessions in which a smartphone is the 6DoF controller of an AR display.\n\n"
+         "Example: [bold]phonepose demo[/bold] (a simulated session recorded, replayed and scored end to end)",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.options import TRACKER_HELP, number
+from phonepose.cli.options import QUIET, TRACKER_HELP, number
 from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.cli.output import shown as shown_text
 from phonepose.numbers import SECONDS_MAX, UNIT_TIMEOUT_S, WORKERS_MAX
@@ -96,7 +96,7 @@ def batch(
     unit_timeout: float = typer.Option(UNIT_TIMEOUT_S, "--unit-timeout",
                                        callback=number(0, SECONDS_MAX, lo_open=True, unit="s"),
                                        help="Seconds one playback may take; a longer one becomes error rows."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
     keep_waiting: bool = typer.Option(False, "--keep-waiting", help="With --scheduler: when the cluster has no "
                                       "worker, wait for one for ever instead of stopping after 30 s."),
     calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from "
@@ -107,6 +107,8 @@ def batch(
     Exit 0 when every row is ok, 1 when some playbacks failed (their rows say why; they are
     retried by the next run with the same --out). Ctrl-C or SIGTERM stop the workers and keep
     every finished row in --out.
+
+    Example: [bold]phonepose batch s1.mcap s2.mcap -t T1,T8 -p rate_hz=10,20 -j 2 --out sweep.parquet[/bold]
     """
     from phonepose.batch import summarize
     from phonepose.batch.driver import execute_batch, prepare_batch

@@ -12,7 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.options import Paper, number
+from phonepose.cli.options import QUIET, QUIET_ACCEPTED, Paper, number
 from phonepose.cli.output import print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.files import check_input, check_output, write_text_output
@@ -84,8 +84,9 @@ def marker(
 def calibrate_camera(
     out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (OpenCV YAML, read by "
                              "`record live --calibration`)."),
-    device: int | None = typer.Option(None, "--device", callback=number(0, MAX_CAMERA_INDEX, integer=True),
-                                         help="Capture live from camera N (cv2.VideoCapture index)."),
+    device: int | None = typer.Option(None, "--camera", callback=number(0, MAX_CAMERA_INDEX, integer=True),
+                                         help="Capture live from camera N (cv2.VideoCapture index, as "
+                                              "`record live --camera N`)."),
     video: Path | None = typer.Option(None, "--video", help="A video of the board."),
     images: Path | None = typer.Option(None, "--images", help="A directory of photos of the board."),
     spec: str = typer.Option(DEFAULT_SPEC, "--board", help="The board that was filmed (as `phonepose board --board`)."),
@@ -94,14 +95,14 @@ def calibrate_camera(
     min_corners: int = typer.Option(8, "--min-corners", callback=number(4, 10_000, integer=True),
                                     help="A frame is a view if it shows at least this many board corners."),
     seconds: float = typer.Option(120.0, "--seconds", callback=number(0, 24 * 3600, lo_open=True, unit="s"),
-                                  help="--device: stop capturing after this long."),
-    size: str | None = typer.Option(None, "--size", help="--device: ask for WxH frames (e.g. 1280x720); "
+                                  help="--camera: stop capturing after this long."),
+    size: str | None = typer.Option(None, "--size", help="--camera: ask for WxH frames (e.g. 1280x720); "
                                        "calibrate at the resolution you record at."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress lines."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
 ) -> None:
     """Calibrate a camera (intrinsics + plumb_bob distortion) from views of the ChArUco board.
 
-    Give exactly one of --device N, --video FILE, --images DIR.
+    Give exactly one of --camera N, --video FILE, --images DIR.
 
     Example: [bold]phonepose calibrate-camera --video board.mp4 --out cam.yaml[/bold]
     """
@@ -123,7 +124,7 @@ def calibrate_camera(
         except ValueError:
             raise ConfigError(f"--size {size!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
         if device is None:
-            raise ConfigError("--size applies to --device only (a video or photos have their own size)")
+            raise ConfigError("--size applies to --camera only (a video or photos have their own size)")
         device_size = (w, h)
     inputs = [video] if video is not None else []
     check_output(out, "--out", inputs=inputs, suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)  # before the capture
@@ -172,15 +173,16 @@ def calibrate_camera(
 def calibrate_hand_eye(
     session: Path = typer.Argument(..., help="A session with the controller's VIO and motion-capture ground truth."),
     out: Path = typer.Option(..., "--out", "-o", help="Calibration file to write (YAML, read by "
-                             "`playback --gt-calibration`, alias --hand-eye)."),
+                             "`playback --gt-calibration`)."),
     translation: str = typer.Option("0,0,0", "--translation", help="The rigid body's origin in the phone's frame, "
                                     "metres x,y,z, measured (it is not estimated: see docs/evaluation.md)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET_ACCEPTED),
 ) -> None:
     """Estimate the mocap rigid body's rotation against the phone's frame, and the mocap clock's offset, from one session.
 
     Uses the controller's own VIO and the motion-capture ground truth (docs/evaluation.md).
 
-    Example: [bold]phonepose calibrate-hand-eye s.mcap --out he.yaml && phonepose playback s.mcap --hand-eye he.yaml[/bold]
+    Example: [bold]phonepose calibrate-hand-eye s.mcap --out he.yaml && phonepose playback s.mcap --gt-calibration he.yaml[/bold]
     """
     import numpy as np
 
@@ -249,6 +251,7 @@ def calibrate_gt(
                                      help="Search the ground truth's clock offset within +- this (s)."),
     bootstrap: int = typer.Option(200, "--bootstrap", callback=number(0, 10_000, integer=True),
                                   help="Resamples for the uncertainties (0: none)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET_ACCEPTED),
 ) -> None:
     """Estimate the ground truth's clock offset, its world in the display camera and the tracked body on the phone.
 

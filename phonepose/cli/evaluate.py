@@ -182,8 +182,8 @@ def _warn_on_other_session(gt: Path, est: Path, in_view: Path | None) -> None:
 @app.command()
 def evaluate(
     gt: Path = typer.Option(..., "--gt", help="Ground-truth trajectory file."),
-    est: Path = typer.Option(..., "--est", help="Estimated trajectory file (TUM, or KITTI with --format kitti)."),
-    fmt: TrajectoryFormat = typer.Option(TrajectoryFormat.tum, "--format", case_sensitive=False,
+    est: Path = typer.Option(..., "--est", help="Estimated trajectory file (TUM, or KITTI with --gt-format kitti)."),
+    fmt: TrajectoryFormat = typer.Option(TrajectoryFormat.tum, "--gt-format", case_sensitive=False,
                                          help="GT format: tum | euroc (ASL csv; the estimate in TUM, or ASL csv if "
                                               "it ends in .csv) | kitti."),
     align: Align | None = typer.Option(None, "--align", case_sensitive=False,
@@ -212,12 +212,15 @@ def evaluate(
     rpg_quirks: bool = typer.Option(False, "--rpg-quirks", help="Reproduce rpg's RE index shift and scale-error "
                                     "bugs bit for bit (default: the intended maths, see docs/evaluation.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
-    gt_calibration: Path | None = typer.Option(None, "--gt-calibration", "--hand-eye",
+    gt_calibration: Path | None = typer.Option(None, "--gt-calibration",
                                                   help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
                                                   "move --gt onto the recorder's clock, the phone's frame and display_vio "
                                                   "first, as playback does (docs/calibration.md)."),
 ) -> None:
-    """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE."""
+    """Compare an estimated trajectory with ground truth: ATE + RE (Zhang & Scaramuzza) or evo's APE/RPE.
+
+    Example: [bold]phonepose evaluate --gt gt.csv --gt-format euroc --est est.tum --metric ape --align se3[/bold]
+    """
     from phonepose.evaluation.evo_metrics import evaluate_ape, evaluate_rpe
     from phonepose.evaluation.rpg import evaluate_rpg
     from phonepose.evaluation.trajectory import load_trajectory

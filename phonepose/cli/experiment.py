@@ -9,15 +9,17 @@ from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from phonepose.cli import app
-from phonepose.cli.options import SEED, CorrectionMath, number
+from phonepose.cli.options import QUIET, SEED, CorrectionMath, number
 from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import WORKERS_MAX
 
-USER_TRACKER_HELP = ("Your own tracker beside T1-T8 (repeat): package.module:ClassName or an installed "
+# --tracker/-t selects the trackers elsewhere (playback, batch, record live); the experiments always run T1-T8
+USER_TRACKER_HELP = ("Add your own tracker to T1-T8 (repeat): package.module:ClassName or an installed "
                      "phonepose.trackers entry point (docs/writing-a-tracker.md); its rows join the tables.")
 
-experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.", no_args_is_help=True,
+experiment_app = typer.Typer(help="Reproduce the paper's experiments on simulated data.\n\n"
+                             "Example: [bold]phonepose experiment exp2 --out exp2-out[/bold]", no_args_is_help=True,
                              add_completion=False, pretty_exceptions_enable=False, rich_markup_mode="rich")
 app.add_typer(experiment_app, name="experiment")
 
@@ -76,37 +78,41 @@ def exp2(
     config: Path | None = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (eq. 1-6) or se3."),
-    jobs: int | None = typer.Option(None, "--jobs", "-j", callback=number(1, WORKERS_MAX, integer=True),
-                                       help="Sequences in parallel (default: up to 2)."),
-    hand_eye: bool = typer.Option(False, "--hand-eye", help="Calibrate each session's mocap hand-eye and clock "
+    workers: int | None = typer.Option(None, "--workers", "-j", callback=number(1, WORKERS_MAX, integer=True),
+                                       help="Worker processes: sequences in parallel (default: up to 2)."),
+    hand_eye: bool = typer.Option(False, "--calibrate-hand-eye", help="Calibrate each session's mocap hand-eye and clock "
                                   "offset from itself and score in the phone's frame (r_ATE without the 11 deg "
                                   "offset; docs/evaluation.md)."),
     exact_gt: bool = typer.Option(False, "--exact-gt", help="Simulate with [mocap] exact = true: the same sensor "
                                   "data, scored against the phone's true pose (no mocap error at all)."),
     calibrate_gt: bool = typer.Option(False, "--calibrate-gt", help="Calibrate each session's ground truth from itself "
                                       "(`phonepose calibrate-gt`: clock, world and rigid body; docs/calibration.md)."),
-    tracker: list[str] = typer.Option([], "--tracker", "-t", help=USER_TRACKER_HELP),
+    tracker: list[str] = typer.Option([], "--add-tracker", help=USER_TRACKER_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
 ) -> None:
     """Experiment 2 (continuous data): 12 sequences TRI1/TRI2/REC1/REC2 x 3 trials, Tables 5-6, Fig. 11.
 
     Writes sessions/, playback/ (TUM trajectories and metrics per sequence), table5.md/.csv,
     table6.md/.csv, fig11_TRI2_01.png and exp2.json into --out, all at once when complete.
+
+    Example: [bold]phonepose experiment exp2 --trials 1 --calibrate-hand-eye --out exp2-he[/bold]
     """
     from phonepose.experiments.exp2 import run_exp2
 
     _check_config(config)
     if hand_eye and calibrate_gt:
-        raise ConfigError("--hand-eye and --calibrate-gt are exclusive: calibrate-gt estimates the hand-eye too")
+        raise ConfigError("--calibrate-hand-eye and --calibrate-gt are exclusive: calibrate-gt estimates the hand-eye too")
     console = stdout_console()
     done = []
 
     def progress(name: str) -> None:
         done.append(name)
-        console.print(f"  [green]done[/green] {name} ({len(done)}/{4 * trials})")
+        if not quiet:
+            console.print(f"  [green]done[/green] {name} ({len(done)}/{4 * trials})")
 
     console.print(f"[bold]experiment 2[/bold]: {4 * trials} sequences, seed {seed} -> {out}")
     result = run_exp2(out, trials=trials, seed=seed, config=str(config) if config else None,
-                      correction_math=correction_math.value, jobs=jobs, progress=progress, hand_eye=hand_eye,
+                      correction_math=correction_math.value, jobs=workers, progress=progress, hand_eye=hand_eye,
                       exact_gt=exact_gt, calibrate_gt=calibrate_gt, trackers=tracker)
     if calibrate_gt:
         console.print("ground truth calibrated from each session itself (clock, world, rigid body: calibrate-gt)")
@@ -128,10 +134,13 @@ def exp1(
     config: Path | None = typer.Option(None, "--config", help="Simulator TOML overrides (docs/simulation.md)."),
     correction_math: CorrectionMath = typer.Option(CorrectionMath.paper, "--correction-math", case_sensitive=False,
                                                    help="paper (eq. 1-6) or se3."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-    tracker: list[str] = typer.Option([], "--tracker", "-t", help=USER_TRACKER_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
+    tracker: list[str] = typer.Option([], "--add-tracker", help=USER_TRACKER_HELP),
 ) -> None:
-    """Experiment 1 (discrete data): 16 targets at 25 and 35 cm, Tables 2 and 3 and target selection."""
+    """Experiment 1 (discrete data): 16 targets at 25 and 35 cm, Tables 2 and 3 and target selection.
+
+    Example: [bold]phonepose experiment exp1 --seed 1 --out exp1-s1[/bold]
+    """
     from phonepose.experiments.exp1 import exp1_tables, run_exp1
 
     _check_config(config)

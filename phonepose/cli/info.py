@@ -36,7 +36,10 @@ def info(
     as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
     verify: bool = typer.Option(False, "--verify", help="Also read every chunk and check its CRC."),
 ) -> None:
-    """Channels, schemas, message counts, duration and start time of a session."""
+    """Channels, schemas, message counts, duration and start time of a session.
+
+    Example: [bold]phonepose info s.mcap --verify[/bold]
+    """
     from phonepose.calibration.ground_truth import ground_truth_source
     with SessionReader(file) as reader:
         s = reader.summary()

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import typer
 
-from phonepose.cli.options import CorrectionMath, number
-from phonepose.cli.output import takes_unicode
+from phonepose.cli.options import QUIET, CorrectionMath, number
+from phonepose.cli.output import progress_lines, takes_unicode
 from phonepose.cli.record import record_app
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
@@ -66,6 +66,7 @@ def live(
                                                    help="Live trackers: paper (equations 1-6) or se3."),
     pose_host: str = typer.Option("127.0.0.1", "--pose-host", help=POSE_HOST_HELP),
     pose_port: int = typer.Option(8765, "--pose-port", help=POSE_PORT_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
 ) -> None:
     """Record a live session: webcam frames and, from a phone's browser page (WebXR on ARCore
     phones), its 6DoF pose, IMU and the anchor you set by tapping with the phone in view; and, from a
@@ -95,7 +96,7 @@ def live(
         result, wall = _record(session_out.tmp, out, camera, calibration, host=host, port=port, tls_dir=tls_dir,
                                dictionary=dictionary, marker_id=marker_id, marker_size=marker_size, duration=duration,
                                pace=pace, rerun=rrd.tmp if rrd is not None else None, spawn=spawn, qr=qr,
-                               gt_controller=gt_controller, tracking=tracking)
+                               gt_controller=gt_controller, tracking=tracking, quiet=quiet)
     r, c = result.record, result.counts
     from phonepose.schemas.topics import Topic
 
@@ -112,12 +113,11 @@ def live(
 
 def _record(path: Path, out: Path, camera: str, calibration: Path, *, host: str, port: int, tls_dir: Path | None,
             dictionary: str, marker_id: int, marker_size: float | None, duration: float | None, pace: bool,
-            rerun: Path | None, spawn: bool, qr: bool, gt_controller: str, tracking=None):
+            rerun: Path | None, spawn: bool, qr: bool, gt_controller: str, tracking=None, quiet: bool = False):
     """The recording into ``path`` (the output plan's file for ``out``, the name the user reads)."""
     from phonepose.record.live import LiveSession
 
-    def echo(line: str) -> None:
-        typer.echo(f"[{time.strftime('%H:%M:%S')}] {line}", err=True)
+    echo = progress_lines(quiet, stamp=True)
 
     session = LiveSession(path, camera, calibration, host=host, port=port, tls_dir=tls_dir, dictionary=dictionary,
                           marker_id=marker_id, marker_size_m=marker_size, duration_s=duration, pace=pace,

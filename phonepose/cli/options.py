@@ -39,6 +39,13 @@ SEED: dict[str, Any] = dict(callback=number(0, SEED_MAX, integer=True))
 SECONDS: dict[str, Any] = dict(callback=number(0, SECONDS_MAX, unit="s"))
 
 
+# every long-running command takes -q/--quiet with this meaning (tests/test_cli_options.py checks it)
+QUIET: dict[str, Any] = dict(help="No progress output (results, warnings and errors still print).")
+# a long-running command that prints no progress takes it too, so that a script can pass -q to any of them
+QUIET_ACCEPTED: dict[str, Any] = dict(help="Accepted as by every long-running command (this one prints no progress "
+                                           "output; results, warnings and errors still print).")
+
+
 # ----------------------------------------------------------------------------- choices
 class CorrectionMath(StrEnum):
     """phonepose.pipeline.corrections.CorrectionMath's values."""

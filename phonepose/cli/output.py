@@ -7,7 +7,10 @@ import codecs
 import errno
 import io
 import os
+import time
+from collections.abc import Callable
 
+import typer
 from rich.console import Console
 from rich.markup import escape
 from rich.measure import Measurement
@@ -171,3 +174,12 @@ class ReportStream(io.TextIOBase):
             os.dup2(null, fd)
         finally:
             os.close(null)
+
+
+def progress_lines(quiet: bool, stamp: bool = False) -> Callable[[str], None]:
+    """Where a command's progress lines go: standard error (``stamp``: after the wall-clock time), with --quiet
+    only the warnings among them (a step may prefix one with its name: ``  record live: warning: ...``)."""
+    def echo(line: str) -> None:
+        if not quiet or "warning: " in line:
+            typer.echo(f"[{time.strftime('%H:%M:%S')}] {line}" if stamp else line, err=True)
+    return echo

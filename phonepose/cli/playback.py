@@ -12,7 +12,7 @@ from rich.table import Table
 from rich.text import Text
 
 from phonepose.cli import app
-from phonepose.cli.options import SECONDS, TRACKER_HELP, CorrectionMath, number
+from phonepose.cli.options import QUIET, SECONDS, TRACKER_HELP, CorrectionMath, number
 from phonepose.cli.output import ProgressBar, print_table, stdout_console
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ, SECONDS_MAX
@@ -154,8 +154,8 @@ def playback(
     rerun: Path | None = typer.Option(None, "--rerun", help="Save a Rerun recording (.rrd) with a default layout."),
     spawn: bool = typer.Option(False, "--spawn", help="Stream to a new Rerun viewer."),
     realtime: bool = typer.Option(False, "--realtime", help="Pace ticks to real time (demos)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-    gt_calibration: Path | None = typer.Option(None, "--gt-calibration", "--hand-eye",
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
+    gt_calibration: Path | None = typer.Option(None, "--gt-calibration",
                                                   help="A file from `phonepose calibrate-gt` (or calibrate-hand-eye): "
                                                   "score against the ground truth in the phone's frame, clock and "
                                                   "display_vio (docs/calibration.md)."),
@@ -169,7 +169,10 @@ def playback(
                                     "-t) with playback's, tick by tick, bit for bit; writes nothing (exit 1 if any "
                                     "tick differs)."),
 ) -> None:
-    """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun."""
+    """Replay a session through trackers at a fixed rate; write trajectories, metrics, Rerun.
+
+    Example: [bold]phonepose playback s.mcap -t T1,T4 --rate 20 --out pb --rerun pb.rrd[/bold]
+    """
     if check_live:
         _check_live(session)
         return

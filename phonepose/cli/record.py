@@ -10,13 +10,13 @@ import typer
 from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
 from phonepose.cli import app
-from phonepose.cli.options import SECONDS, SEED, Scenario, SimPath, number
-from phonepose.cli.output import ProgressBar
+from phonepose.cli.options import QUIET, SECONDS, SEED, Scenario, SimPath, number
+from phonepose.cli.output import ProgressBar, progress_lines
 from phonepose.errors import ConfigError
 from phonepose.numbers import RATE_MAX_HZ, RATE_MIN_HZ
 
 record_app = typer.Typer(
-    help="Record a session to an MCAP file.",
+    help="Record a session to an MCAP file.\n\nExample: [bold]phonepose record sim --out s.mcap[/bold]",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -39,7 +39,7 @@ def sim(
                                           "parameters (see docs/simulation.md)."),
     rerun: Path | None = typer.Option(None, "--rerun", help="Also log what is recorded to this Rerun .rrd file."),
     spawn: bool = typer.Option(False, "--spawn", help="Also stream what is recorded to a Rerun viewer."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists (without it, an existing file "
                                "is an error and stays untouched)."),
     motion: Path | None = typer.Option(None, "--motion", help="A recorded 6DoF trajectory (TUM, or EuRoC .csv) "
@@ -119,6 +119,7 @@ def rehearse(
                                help="Live trackers' ticks per second."),
     pose_port: int = typer.Option(0, "--pose-port", help="Port of the live trackers' pose stream on loopback "
                                   "(0: any free port)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET),
 ) -> None:
     """Rehearse a real recording with no hardware: a simulated session's frames played as a video by
     [bold]record live[/bold], the real phone and headset pages in headless Chromium with emulated WebXR
@@ -136,7 +137,7 @@ def rehearse(
     tracking = live_tracking(tracker, rate, "paper", "127.0.0.1", pose_port)
     result = run_rehearsal(out, scenario=scenario.value, path=path.value if scenario == Scenario.exp2 else None,
                            trial=trial, seed=seed, config=config, lead_in_s=LEAD_IN_S if lead_in is None else lead_in,
-                           headset=headset, iwer=iwer, echo=lambda line: typer.echo(line, err=True),
+                           headset=headset, iwer=iwer, echo=progress_lines(quiet),
                            tracking=tracking)
     table = Table(title=f"{out}: the rehearsed recording against its source session", title_justify="left")
     for col in ("", "measured", "goal", "met"):

@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from phonepose.cli import app
+from phonepose.cli.options import QUIET_ACCEPTED
 from phonepose.cli.output import print_table, shown, stdout_console
 from phonepose.files import OutputPlan, check_input
 from phonepose.session.recover import RecoveryReport, salvage
@@ -61,10 +62,13 @@ def recover(
     out: Path = typer.Option(..., "--out", "-o", help="Where to write the recovered session (a new file)."),
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
     force: bool = typer.Option(False, "--force", help="Replace --out if it exists."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", **QUIET_ACCEPTED),
 ) -> None:
     """Salvage every intact chunk of a truncated or corrupted session into a valid, indexed file.
 
     Exit code 0 when something was recovered; 3 when nothing could be (see docs/reliability.md).
+
+    Example: [bold]phonepose recover damaged.mcap --out fixed.mcap[/bold]
     """
     check_input(file, "MCAP file")
     plan = OutputPlan(inputs=[file])

@@ -111,7 +111,7 @@ GT_NOTE = ("Ground truth calibrated from each session itself (`--calibrate-gt`, 
            "in display_vio and the rigid body on the phone from the marker sightings; inside-view errors are then measured "
            "against the marker's own sightings, so they read lower than against an independent calibration.")
 HAND_EYE_NOTE = ("Ground truth in the phone's frame and clock: each session's hand-eye rotation and mocap clock offset "
-                 "calibrated from itself (`--hand-eye`, docs/evaluation.md); the paper's r_ATE includes its offset.")
+                 "calibrated from itself (`--calibrate-hand-eye`, docs/evaluation.md); the paper's r_ATE includes its offset.")
 EXACT_GT_NOTE = ("Exact ground truth (`--exact-gt`: the simulator's `[mocap] exact = true`): the phone's true pose on the "
                  "display's clock, no hand-eye, clock or calibration error; the sensor data are the same.")
 

@@ -50,7 +50,7 @@ def paper_metrics(stamps_s: np.ndarray, gt: Pose | None, est: Pose | None, insid
 def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict], ground_truth: dict | None = None) -> dict:
     """The metrics.json document: ``{"session", "rate_hz", ["ground_truth",] "trackers": {name: {scope: {...}}}}``.
 
-    ``ground_truth`` (only with ``playback --hand-eye``) says how the ground truth was re-expressed."""
+    ``ground_truth`` (only with ``playback --gt-calibration``) says how the ground truth was re-expressed."""
     rate = int(rate_hz) if float(rate_hz).is_integer() else float(rate_hz)
     doc: dict[str, Any] = {"session": session, "rate_hz": rate}
     if ground_truth is not None:

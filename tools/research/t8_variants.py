@@ -5,7 +5,7 @@
 
 Plays every session of the given `experiment exp2` outputs back once, with T8 at its defaults and
 one T8 per variant side by side (the shared stages run once per session), scored against the
-ground truth the run used (its hand_eye/ files for a `--hand-eye` run). Prints, per cell of
+ground truth the run used (its hand_eye/ files for a `--calibrate-hand-eye` run). Prints, per cell of
 tools/exp2_cells.py, each variant's mean over the sequences divided by the best of T1-T7 and T7L in
 the runs' exp2.json (<= 1.02: best or tied), the number of cells met, r_ATE total against the best of
 T1-T7, and T8's largest boundary jump. A development tool (docs/pipeline.md, "T8 cell by cell on
