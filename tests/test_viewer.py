@@ -377,6 +377,7 @@ def test_a_spawned_viewer_listens_on_localhost_unless_asked_otherwise(monkeypatc
 
     monkeypatch.setenv("PATH", os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", ""))
     monkeypatch.delenv("_RERUN_TEST_FORCE_SAVE", raising=False)
+    monkeypatch.setenv("RUST_LOG", "info")   # the line read below; a command run in this process set it off
     if asked is None:
         monkeypatch.delenv(sink.VIEWER_BIND_ENV, raising=False)
     else:
