@@ -65,6 +65,31 @@ def _found(detector, image: np.ndarray, marker_id: int | None) -> int:
     return int(marker_id in ids.reshape(-1)) if marker_id is not None else len(ids)
 
 
+def _charuco_corners() -> dict:
+    """Our corners on the 68 ChArUco markers of the real photos against the corners projected from the board's pose
+    (tests/test_markers_real.py), and how many of those markers the coarse search finds at half size."""
+    import json
+
+    from phonepose.geometry import Pose
+    from phonepose.pipeline.markers import MarkerRecognizer
+    from phonepose.pipeline.types import CameraModel, MarkerModel
+
+    ref = json.loads((_PHOTOS.parent / "ground_truth" / "charuco_reference_poses.json").read_text())
+    camera = CameraModel(np.array(ref["camera_matrix"]), np.array(ref["dist_coeffs"]), 640, 480, Pose.identity())
+    errors, found_half = [], 0
+    for key, info in ref["images"].items():
+        data = np.fromfile(_PHOTOS / pathlib.Path(key).name, np.uint8)
+        full, half = cv2.imdecode(data, _FULL), cv2.imdecode(data, _HALF)
+        for marker_id, corners in info["marker_corners_px"].items():
+            recognizer = MarkerRecognizer(camera, MarkerModel("DICT_6X6_250", int(marker_id), 0.02, Pose.identity()))
+            seen = recognizer.recognize(full)
+            if seen is not None:
+                errors += np.linalg.norm(seen.corners_px - np.array(corners), axis=1).tolist()
+            found_half += _found(recognizer._fast, half, int(marker_id))
+    return {"charuco_found": len(errors) // 4, "charuco_median_px": float(np.median(errors)),
+            "charuco_p90_px": float(np.percentile(errors, 90)), "charuco_found_half": found_half}
+
+
 def main() -> dict:
     from phonepose.pipeline.markers import MarkerRecognizer
     from phonepose.record.sim import record_sim
@@ -123,10 +148,13 @@ def main() -> dict:
         data = np.fromfile(path, np.uint8)
         photo_full += _found(photo_detector, cv2.imdecode(data, _FULL), None)
         photo_half += _found(photo_detector, cv2.imdecode(data, _HALF), None)
-    out.update(photo_markers_full=photo_full, photo_markers_half=photo_half)
+    out.update(photo_markers_full=photo_full, photo_markers_half=photo_half, **_charuco_corners())
     print(f"decode: full-frame CONTOUR search {c_full:.3f} ms a frame, at half size {c_half:.3f} "
           f"({c_half / c_full:.2f}x); marker found in {found_full} / {found_half} of {len(frames)} frames; "
           f"real photos (tests/data/opencv_contrib): {photo_full} markers found at full size, {photo_half} at half")
+    print(f"decode: the 68 ChArUco markers of img_00-03: our corners' error against the board's {out['charuco_median_px']:.2f} "
+          f"px median (p90 {out['charuco_p90_px']:.2f}) on {out['charuco_found']} markers; the half-size search finds "
+          f"{out['charuco_found_half']} of them")
     return out
 
 

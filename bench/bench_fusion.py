@@ -3,8 +3,8 @@
 A simulated TRI2 session (trial 1, seed 0) is recorded once; its Observations (decode, marker
 recognition, anchor mapping, stamped VIO samples) are built once by the shared stages, then
 each tracker steps over all of them, three times, best run kept. Reported as ratios to T7 and to the
-shared stages of the same run (a loaded machine scales all of them). Target: T8 <= 0.4 ms per
-tick (docs/performance.md#per-tick-cost-of-the-trackers).
+shared stages of the same run (a loaded machine scales all of them). Target: T8 <= 0.2 ms CPU per
+tick, judged by `python -m bench ticks` (docs/performance.md#per-tick-cost-of-the-trackers).
 
 Where T8's time goes, in the same run: T8 with its accelerometer prediction off (``accel_prediction``
 False: the VIO fit alone), and the accelerometer fit itself (``fit_accel_motion``, the smoothing and
