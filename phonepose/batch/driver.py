@@ -112,7 +112,7 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
         if os.path.lexists(s):
             check_input(s, "session")
     outputs = OutputPlan(inputs=sessions)
-    table_output = outputs.file(out, "--out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
+    table_output = outputs.file(out, "out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
     outputs.check()
     table = ResultTable(out)
     plan = make_plan(sessions, names, combos, table.rows, refs)

@@ -73,7 +73,7 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
     cfg = rehearsal_config(config)
     iwer_js = find_iwer(iwer)
     plan = OutputPlan(inputs=[config] if config is not None else [])
-    out = plan.dir(out_dir, "--out", command="record rehearse")
+    out = plan.dir(out_dir, "out", command="record rehearse")
     with plan:
         assert out.tmp is not None
         folder = out.tmp

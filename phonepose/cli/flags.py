@@ -1,0 +1,42 @@
+"""The one place where the library's parameter names become command-line options.
+
+A library error names the keyword at fault (:class:`phonepose.errors.PhoneposeError`'s ``parameter``,
+``rate``); the CLI prints the same line with its option (``--rate``): ``align_frames`` is
+``--align-frames``, and :data:`FLAGS` lists the options whose name is not the keyword's.
+"""
+
+from __future__ import annotations
+
+from phonepose.errors import PhoneposeError
+
+#: keyword -> option, where the option is not ``--`` + the keyword with ``-`` for ``_``
+FLAGS: dict[str, str] = {
+    "params": "--param",
+    "replace": "--force",        # recover(path, out, replace=True)
+    "out_dir": "--out",
+    "rerun_path": "--rerun",
+    "delta_unit": "--delta-unit",
+    "gt_format": "--gt-format",
+    "fmt": "--format",
+    "trial": "--trial",
+    "tracker_names": "--tracker",
+    "calibrate_gt": "--calibrate-gt",
+    "exact_gt": "--exact-gt",
+}
+
+
+def flag(parameter: str) -> str:
+    """The command-line option of a library keyword."""
+    return FLAGS.get(parameter) or "--" + parameter.replace("_", "-")
+
+
+def option(parameter: str, _as_python: str = "") -> str:
+    """A placeholder of an error's message as the command line shows it (see PhoneposeError.render)."""
+    return flag(parameter)
+
+
+def message(exc: BaseException) -> str:
+    """An error's line as the command line says it: each keyword it names shown as its option."""
+    if isinstance(exc, PhoneposeError):
+        return exc.render(option)
+    return str(exc)
