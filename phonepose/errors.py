@@ -86,13 +86,19 @@ def show_parameters_as(name: Callable[[str, str], str] | None) -> None:
     _show_parameter = name
 
 
+def keyword(name: str) -> str:
+    """A parameter as a warning or status line names it: the keyword, or the CLI's option while a
+    command runs (:func:`show_parameters_as`)."""
+    return name if _show_parameter is None else _show_parameter(name, name)
+
+
 def shown(error: PhoneposeError) -> str:
     """The error's line for its reader: with the parameters named as :func:`show_parameters_as` set
     (the command line's options), else as Python spells them."""
     return error.render(_show_parameter)
 
 
-def _rebuild(cls: type, args: tuple, fields: dict) -> PhoneposeError:
+def _rebuild(cls: type[PhoneposeError], args: tuple, fields: dict) -> PhoneposeError:
     error = cls.__new__(cls)
     Exception.__init__(error, *args)
     error.__dict__.update(fields)

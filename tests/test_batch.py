@@ -21,6 +21,7 @@ import pytest
 from phonepose.batch import RUNTIME_COLUMNS, run_batch
 from phonepose.batch.run import flatten_tracker_metrics
 from phonepose.batch.table import to_arrow
+from phonepose.cli import flags
 from phonepose.errors import ConfigError
 from phonepose.pipeline.trackers import PAPER_TRACKERS
 from phonepose.playback import run_playback
@@ -447,7 +448,7 @@ def test_a_unit_past_its_time_budget_becomes_error_rows(sessions, where):
         t.join(timeout=300)
     assert [r["tracker"] for r in rows] == ["T1", "T4"]
     assert {r["status"] for r in rows} == {"error"}
-    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (--unit-timeout)"}
+    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (unit_timeout_s)"}
     assert run_unit(unit, budget_s=600)[0]["status"] == "ok"
 
 
@@ -600,6 +601,6 @@ def test_a_dask_cluster_left_without_workers_is_said_and_waited_for_a_bound(sess
     left = re.fullmatch(rf"--scheduler {re.escape(cluster.scheduler_address)}: the cluster has had no worker for 1 s, "
                         rf"so (\d+) playbacks cannot run; {rows} finished rows? (are|is) in {re.escape(str(out))} "
                         rf"\(start a `dask worker {re.escape(cluster.scheduler_address)}` and run the same command "
-                        rf"again, or add --keep-waiting\)", str(e.value))
+                        rf"again, or add --keep-waiting\)", flags.message(e.value))
     assert left is not None, str(e.value)
     assert int(left[1]) == 6 - rows

@@ -12,16 +12,14 @@ from phonepose.errors import PhoneposeError
 #: keyword -> option, where the option is not ``--`` + the keyword with ``-`` for ``_``
 FLAGS: dict[str, str] = {
     "params": "--param",
+    "unit_timeout_s": "--unit-timeout",
+    "no_worker_timeout_s": "--keep-waiting",   # execute_batch(no_worker_timeout_s=None): wait for ever
     "replace": "--force",        # recover(path, out, replace=True)
-    "out_dir": "--out",
-    "rerun_path": "--rerun",
-    "delta_unit": "--delta-unit",
-    "gt_format": "--gt-format",
-    "fmt": "--format",
-    "trial": "--trial",
-    "tracker_names": "--tracker",
-    "calibrate_gt": "--calibrate-gt",
-    "exact_gt": "--exact-gt",
+    "fmt": "--format",                 # evaluate(fmt=...)
+    "trackers": "--tracker",
+    "marker_size_m": "--marker-size",
+    "duration_s": "--duration",
+    "lead_in_s": "--lead-in",
 }
 
 
