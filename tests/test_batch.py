@@ -220,9 +220,9 @@ def test_param_sweep_is_the_cross_product(sessions, in_process, tmp_path):
 @pytest.mark.parametrize("params,message", [
     (["speed=1"], "unknown key 'speed'"),
     (["rate_hz=fast"], "'fast' is not a number"),
-    (["rate_hz=0"], r"^--param rate_hz=0: expected a finite number in \[0\.1, 1000\] Hz$"),
-    (["rate_hz=inf"], r"^--param rate_hz=inf: expected a finite number in \[0\.1, 1000\] Hz$"),
-    (["start_s=nan"], r"^--param start_s=nan: expected a finite number in \[0, 1000000\] s$"),
+    (["rate_hz=0"], r"^params rate_hz=0: expected a finite number in \[0\.1, 1000\] Hz$"),
+    (["rate_hz=inf"], r"^params rate_hz=inf: expected a finite number in \[0\.1, 1000\] Hz$"),
+    (["start_s=nan"], r"^params start_s=nan: expected a finite number in \[0, 1000000\] s$"),
     (["correction_math=quat"], "unknown correction math 'quat'"),
     (["rate_hz=10", "rate_hz=20"], "given twice"),
     (["start_s=5", "end_s=3"], "must be after start_s"),
@@ -471,8 +471,8 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
         try:
             rows = read_rows(p)
         except OutputError as exc:
-            assert "\n" not in str(exc) and str(exc).startswith(f"--out {p} ")
-            assert str(exc).endswith("; move it away or choose another --out")
+            assert "\n" not in str(exc) and str(exc).startswith(f"out {p} ")
+            assert str(exc).endswith("; move it away or choose another out")
             refused += 1
         else:
             assert rows == clean, f"flipping a bit of byte {i} changed the rows"
@@ -485,8 +485,8 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
     pq.write_table(t.replace_schema_metadata(meta), p)
     with pytest.raises(OutputError) as err:
         read_rows(p)
-    assert str(err.value) == (f"--out {p} does not match its checksum: it changed on the disk after phonepose wrote it; "
-                              "move it away or choose another --out")
+    assert str(err.value) == (f"out {p} does not match its checksum: it changed on the disk after phonepose wrote it; "
+                              "move it away or choose another out")
 
 
 def test_the_columns_hash_survives_parquet_and_sees_each_value(tmp_path):
