@@ -93,7 +93,7 @@ def test_play_names_rate(tmp_path):
 @pytest.mark.parametrize(("kwargs", "parameter", "cli_start"), [
     (dict(align="nope"), "align", "--align 'nope': expected one of"),
     (dict(align_frames=0), "align_frames", "--align-frames 0: expected"),
-    (dict(fmt="xyz"), "fmt", "--format 'xyz': expected one of"),
+    (dict(fmt="xyz"), "fmt", "--gt-format 'xyz': expected one of"),
     (dict(delta_unit="q"), "delta_unit", "--delta-unit 'q': expected one of"),
     (dict(delta=-1.0), "delta", "--delta -1: expected"),
 ])
@@ -161,3 +161,50 @@ def test_a_warning_names_the_keyword_outside_the_cli(cli, tmp_path):
     assert keyword("marker_size_m") == "marker_size_m"
     assert cli("playback", tmp_path / "missing.mcap", "--rate", "0").stderr.startswith("phonepose: error: --rate 0")
     assert keyword("marker_size_m") == "marker_size_m"
+
+
+def _keywords_named() -> set[str]:
+    """Every keyword a library message names: parameter=/also= constants, check_number's and keyword()'s
+    first word, and the outputs' parameter names."""
+    found: set[str] = set()
+    for path in LIBRARY:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.Call):
+                continue
+            for k in node.keywords:
+                if k.arg in ("parameter", "force_parameter") and isinstance(k.value, ast.Constant) and k.value.value:
+                    found.add(k.value.value)
+                if k.arg == "also" and isinstance(k.value, (ast.List, ast.Tuple)):
+                    found |= {e.value for e in k.value.elts if isinstance(e, ast.Constant)}
+            name = node.func.id if isinstance(node.func, ast.Name) else getattr(node.func, "attr", "")
+            args = [a.value for a in node.args if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+            if name in ("keyword", "check_number") and args and args[0].split()[0].isidentifier():
+                found.add(args[0].split()[0])
+            if name in ("file", "dir", "check_output", "write_text_output") and len(node.args) >= 2 \
+                    and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str):
+                found.add(node.args[1].value)
+    return found
+
+
+def _options() -> set[str]:
+    """Every long option some command defines (click's own list, from the app)."""
+    import click
+    import typer
+
+    from phonepose.cli import app
+
+    def walk(cmd: click.Command) -> set[str]:
+        opts = {o for p in cmd.params for o in p.opts if o.startswith("--")}
+        for sub in getattr(cmd, "commands", {}).values():
+            opts |= walk(sub)
+        return opts
+    return walk(typer.main.get_command(app))
+
+
+def test_every_keyword_a_library_message_names_is_an_option_of_the_command_line():
+    options = _options()
+    named = _keywords_named()
+    assert {"rate", "out", "align_frames", "params", "trackers"} <= named   # the scan finds them
+    assert {k: flags.flag(k) for k in named if flags.flag(k) not in options} == {}
+    for command, table in flags.COMMAND_FLAGS.items():
+        assert set(table.values()) <= options, command

@@ -190,10 +190,12 @@ def command():
 def _run(argv: list[str] | None) -> int:
     """The command, its every error one line on stderr: the exit code."""
     errors.show_parameters_as(flags.option)   # a line that the library writes itself names options too
+    flags.set_command(sys.argv[1:] if argv is None else argv)
     try:
         return _run_command(argv)
     finally:
         errors.show_parameters_as(None)      # the library called in this process later speaks Python again
+        flags.set_command([])
 
 
 def _run_command(argv: list[str] | None) -> int:

@@ -2,7 +2,8 @@
 
 A library error names the keyword at fault (:class:`phonepose.errors.PhoneposeError`'s ``parameter``,
 ``rate``); the CLI prints the same line with its option (``--rate``): ``align_frames`` is
-``--align-frames``, and :data:`FLAGS` lists the options whose name is not the keyword's.
+``--align-frames``, :data:`FLAGS` lists the options whose name is not the keyword's, and
+:data:`COMMAND_FLAGS` those that differ in one command.
 """
 
 from __future__ import annotations
@@ -15,16 +16,39 @@ FLAGS: dict[str, str] = {
     "unit_timeout_s": "--unit-timeout",
     "no_worker_timeout_s": "--keep-waiting",   # execute_batch(no_worker_timeout_s=None): wait for ever
     "replace": "--force",        # recover(path, out, replace=True)
-    "fmt": "--format",                 # evaluate(fmt=...)
+    "fmt": "--gt-format",              # evaluate(fmt=...)
     "trackers": "--tracker",
+    "device": "--camera",                # calibrate_camera(device=N)
     "marker_size_m": "--marker-size",
     "duration_s": "--duration",
     "lead_in_s": "--lead-in",
 }
 
 
+#: command (its words after ``phonepose``) -> keyword -> option, where that command names it otherwise
+COMMAND_FLAGS: dict[str, dict[str, str]] = {
+    "experiment": {"trackers": "--add-tracker"},   # the experiments always run T1-T8: a tracker is added
+}
+
+_command: list[str] = []   # the running command's words (set_command)
+
+
+def set_command(argv: list[str]) -> None:
+    """The command the next lines are for: its leading words (``experiment exp1``), options excluded."""
+    words = []
+    for arg in argv:
+        if arg.startswith("-"):
+            break
+        words.append(arg)
+    _command[:] = words[:2]
+
+
 def flag(parameter: str) -> str:
-    """The command-line option of a library keyword."""
+    """The command-line option of a library keyword (in the running command, see set_command)."""
+    for n in range(len(_command), 0, -1):
+        found = COMMAND_FLAGS.get(" ".join(_command[:n]), {}).get(parameter)
+        if found:
+            return found
     return FLAGS.get(parameter) or "--" + parameter.replace("_", "-")
 
 
