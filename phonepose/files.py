@@ -6,8 +6,8 @@ regular file. A FIFO, socket or device is refused at once (reading one can wait 
 Outputs are planned, checked, written and committed by an :class:`OutputPlan`::
 
     plan = OutputPlan(inputs=[session])
-    out = plan.dir(out_dir, "--out")
-    rrd = plan.file(rerun_path, "--rerun", suffixes=(".rrd",), what="a Rerun recording")
+    out = plan.dir(out_dir, "out")
+    rrd = plan.file(rerun_path, "rerun", suffixes=(".rrd",), what="a Rerun recording")
     with plan:                   # every check, then the temporaries are created and locked
         work(out.tmp, rrd.tmp)   # write into the temporaries
     # leaving the block without an exception renames each into place; with one, removes them
@@ -328,9 +328,22 @@ def _inside(child: Path, folder: Path) -> bool:
 @dataclass
 class _Output:
     path: Path
-    option: str
+    parameter: str   # the keyword that gave the path ("out"), or a name to show as is
     tmp: Path | None = field(default=None, init=False)   # the temporary to write into (inside the plan's block)
     _fd: int | None = field(default=None, init=False, repr=False)
+
+    @property
+    def name(self) -> str:
+        """The output's parameter in a message: a placeholder for a keyword (shown as the CLI's option there)."""
+        return "{" + self.parameter + "}" if self.parameter.isidentifier() else self.parameter
+
+    @property
+    def keywords(self) -> tuple[str, ...]:
+        return (self.parameter,) if self.parameter.isidentifier() else ()
+
+    def fields(self, *also: str) -> dict:
+        """An error's structured fields for this output (``also``: other keywords its message names)."""
+        return dict(parameter=self.keywords[0] if self.keywords else None, value=self.path, also=also)
 
     @property
     def target(self) -> Path:
@@ -344,24 +357,24 @@ class _Output:
         parent = self._parent()
         shown = self.path.parent if str(self.path.parent) not in ("", ".") or self.path.is_absolute() else Path(".")
         if os.path.islink(self.path) and not parent.is_dir():    # the link's target is what gets written
-            raise OutputError(f"{self.option} {self.path}: a symlink to {self.target}, whose directory "
-                              f"{'is not a directory' if os.path.lexists(parent) else 'does not exist'}")
+            raise OutputError(f"{self.name} {self.path}: a symlink to {self.target}, whose directory "
+                              f"{'is not a directory' if os.path.lexists(parent) else 'does not exist'}", **self.fields())
         if not parent.is_dir():
             why = f"{shown} is not a directory" if os.path.lexists(parent) else f"directory {shown} does not exist"
-            raise OutputError(f"{self.option} {self.path}: {why}")
+            raise OutputError(f"{self.name} {self.path}: {why}", **self.fields())
         if not os.access(parent, os.W_OK | os.X_OK):
             try:
                 read_only = hasattr(os, "statvfs") and bool(os.statvfs(parent).f_flag & os.ST_RDONLY)
             except OSError:
                 read_only = False
-            raise OutputError(f"{self.option} {self.path}: directory {shown} is "
-                              f"{'on a read-only file system' if read_only else 'not writable'}")
+            raise OutputError(f"{self.name} {self.path}: directory {shown} is "
+                              f"{'on a read-only file system' if read_only else 'not writable'}", **self.fields())
 
     def _check_not_input(self, inputs: Sequence[Path]) -> None:
         for inp in inputs:
             if _same_file(self.path, inp):
-                raise InputFileError(f"{self.option} {self.path} is the input {inp}: writing it would destroy the "
-                                     f"input; choose another name")
+                raise InputFileError(f"{self.name} {self.path} is the input {inp}: writing it would destroy the "
+                                     f"input; choose another name", **self.fields())
 
     # -- temporaries
     def _tmp_name(self) -> Path:
@@ -391,8 +404,8 @@ class _Output:
             try:
                 if not _lock(fd, wait=False) or (fcntl is None and _pid_alive(int(found.group(1)))):
                     pid = found.group(1)
-                    raise OutputError(f"{self.option} {self.path}: another phonepose (pid {pid}) is writing it; "
-                                      f"wait for it to finish or choose another {self.option}") from None
+                    raise OutputError(f"{self.name} {self.path}: another phonepose (pid {pid}) is writing it; "
+                                      f"wait for it to finish or choose another {self.name}", **self.fields()) from None
                 _remove(cand)
             finally:
                 os.close(fd)
@@ -429,28 +442,28 @@ class OutputFile(_Output):
             except OSError:
                 st = None
             if st is not None and stat.S_ISDIR(st.st_mode):
-                raise OutputError(f"{self.option} {self.path}: is a directory; {self.option} takes a file name")
+                raise OutputError(f"{self.name} {self.path}: is a directory; {self.name} takes a file name", **self.fields())
             if st is not None and not stat.S_ISREG(st.st_mode):
-                raise OutputError(f"{self.option} {self.path}: not a regular file (a device, FIFO or socket); "
-                                  f"give a file name")
+                raise OutputError(f"{self.name} {self.path}: not a regular file (a device, FIFO or socket); "
+                                  f"give a file name", **self.fields())
             if st is not None and being_written(self.target):   # a recording in progress: --force or not
-                raise OutputError(f"{self.option} {self.path}: another phonepose is writing it (a recording in "
-                                  f"progress); wait for it to finish or choose another {self.option}")
+                raise OutputError(f"{self.name} {self.path}: another phonepose is writing it (a recording in "
+                                  f"progress); wait for it to finish or choose another {self.name}", **self.fields())
         if self.suffixes and self.path.suffix.lower() not in self.suffixes:
-            raise ConfigError(f"{self.option} {self.path}: writes {self.what}; give a name ending in "
-                              f"{_one_of(self.suffixes)}")
+            raise ConfigError(f"{self.name} {self.path}: writes {self.what}; give a name ending in "
+                              f"{_one_of(self.suffixes)}", **self.fields())
         if self.suffixes and os.path.islink(self.path) and self.target.suffix.lower() not in self.suffixes:
             # written through the link: the file replaced is its target, whose name is what the user reads
-            raise ConfigError(f"{self.option} {self.path}: a symlink to {self.target}, which does not end in "
-                              f"{_one_of(self.suffixes)}; give the file's own name")
+            raise ConfigError(f"{self.name} {self.path}: a symlink to {self.target}, which does not end in "
+                              f"{_one_of(self.suffixes)}; give the file's own name", **self.fields())
         self._check_parent()
         if self.session and not self.force and st is not None:
-            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
-                              f"replace it")
+            raise OutputError(f"{self.path} already exists: choose another {self.name}, or add {{force=True}} to "
+                              f"replace it", **self.fields("force"))
         if not self.session and st is not None and _is_recording(self.target):
             what = f"points to {self.target}, " if os.path.islink(self.path) else "is "
-            raise OutputError(f"{self.option} {self.path}: {what}a recording (MCAP), which only a recording "
-                              f"replaces; choose another name")
+            raise OutputError(f"{self.name} {self.path}: {what}a recording (MCAP), which only a recording "
+                              f"replaces; choose another name", **self.fields())
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._direct = self.in_place and not os.path.lexists(self.target)
@@ -462,8 +475,8 @@ class OutputFile(_Output):
         try:
             self._fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_RDWR | _CLOEXEC, 0o666)
         except FileExistsError:
-            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
-                              f"replace it") from None
+            raise OutputError(f"{self.path} already exists: choose another {self.name}, or add {{force=True}} to "
+                              f"replace it", **self.fields("force")) from None
         except OSError as exc:
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
         _lock(self._fd)
@@ -490,7 +503,7 @@ class OutputFile(_Output):
         try:
             os.fsync(fd)
             if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
-                raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+                raise OutputError(f"{self.name} {self.path}: not a regular file; not replaced", **self.fields())
             _keep_mode(tmp, target)
             os.rename(tmp, target)
             _fsync_dir(target.parent)
@@ -527,17 +540,17 @@ class OutputFile(_Output):
                 os.unlink(tmp)
             else:
                 if os.path.lexists(target) and not stat.S_ISREG(os.lstat(target).st_mode):
-                    raise OutputError(f"{self.option} {self.path}: not a regular file; not replaced")
+                    raise OutputError(f"{self.name} {self.path}: not a regular file; not replaced", **self.fields())
                 if being_written(target):     # it may have begun since the check: a recording is never replaced
-                    raise OutputError(f"{self.option} {self.path}: another phonepose began writing it (a recording "
-                                      f"in progress); not replaced")
+                    raise OutputError(f"{self.name} {self.path}: another phonepose began writing it (a recording "
+                                      f"in progress); not replaced", **self.fields())
                 _keep_mode(tmp, target)
                 os.rename(tmp, target)
             _fsync_dir(target.parent)
         except FileExistsError:
             self.abort()
-            raise OutputError(f"{self.path} already exists: choose another {self.option}, or add --force to "
-                              f"replace it") from None
+            raise OutputError(f"{self.path} already exists: choose another {self.name}, or add {{force=True}} to "
+                              f"replace it", **self.fields("force")) from None
         except OSError as exc:
             self.abort()
             raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from None
@@ -554,13 +567,13 @@ class OutputDir(_Output):
         target = self.target
         cwd = os.path.realpath(os.getcwd())
         if os.path.realpath(target) == cwd or _inside(Path(cwd), target):
-            raise OutputError(f"{self.option} {self.path}: is the current directory (or holds it) and would be "
-                              f"replaced whole; name a new folder")
+            raise OutputError(f"{self.name} {self.path}: is the current directory (or holds it) and would be "
+                              f"replaced whole; name a new folder", **self.fields())
         self._check_parent()
         for inp in inputs:
             if _inside(inp, target) or _same_file(inp, target):
-                raise InputFileError(f"{self.option} {self.path}: holds the input {inp} and would be replaced "
-                                     f"whole; choose another {self.option}")
+                raise InputFileError(f"{self.name} {self.path}: holds the input {inp} and would be replaced "
+                                     f"whole; choose another {self.name}", **self.fields())
         self._check_replaceable()
 
     def final(self, path: str | os.PathLike) -> Path:
@@ -574,23 +587,23 @@ class OutputDir(_Output):
         if not os.path.lexists(target):
             return
         if not target.is_dir():
-            raise OutputError(f"{self.option} {self.path}: exists and is not a directory")
+            raise OutputError(f"{self.name} {self.path}: exists and is not a directory", **self.fields())
         entries = os.listdir(target)
         if not entries:
             return
         if MANIFEST not in entries:
-            raise OutputError(f"{self.option} {self.path}: holds files phonepose did not write; choose a new "
-                              f"folder, or empty it")
+            raise OutputError(f"{self.name} {self.path}: holds files phonepose did not write; choose a new "
+                              f"folder, or empty it", **self.fields())
         written = _listed_in_manifest(target / MANIFEST)
         if written is None:
-            raise OutputError(f"{self.option} {self.path}: its {MANIFEST} does not list what phonepose wrote (an "
+            raise OutputError(f"{self.name} {self.path}: its {MANIFEST} does not list what phonepose wrote (an "
                               f"older phonepose, or edited), so files of yours in it cannot be told apart; choose a "
-                              f"new folder, or empty it")
+                              f"new folder, or empty it", **self.fields())
         foreign = sorted(_tree_entries(target) - written - {MANIFEST})
         if foreign:
             named = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
-            raise OutputError(f"{self.option} {self.path}: holds {named}, which phonepose did not write there; "
-                              f"move {'it' if len(foreign) == 1 else 'them'} away, or choose a new folder")
+            raise OutputError(f"{self.name} {self.path}: holds {named}, which phonepose did not write there; "
+                              f"move {'it' if len(foreign) == 1 else 'them'} away, or choose a new folder", **self.fields())
 
     def _set_aside(self, tmp: Path) -> Path:
         """The finished folder under a new name beside the one it could not replace (a file of the user's arrived
@@ -602,7 +615,7 @@ class OutputDir(_Output):
                 self.tmp = None
                 self._release()
                 return self.path.parent / name
-        raise OutputError(f"{self.option} {self.path}: no free name beside it to keep this run's output")
+        raise OutputError(f"{self.name} {self.path}: no free name beside it to keep this run's output", **self.fields())
 
     def begin(self, inputs: Sequence[Path]) -> Path:
         self._clear_stale(inputs)
@@ -664,18 +677,18 @@ class OutputPlan:
         self.outputs: list[OutputFile | OutputDir] = []
         self._open = False
 
-    def file(self, path: str | os.PathLike, option: str, *, suffixes: Sequence[str] = (), what: str = "this file",
+    def file(self, path: str | os.PathLike, parameter: str, *, suffixes: Sequence[str] = (), what: str = "this file",
              session: bool = False, force: bool = False, in_place: bool = False,
              rewritten: bool = False) -> OutputFile:
         """A file output; ``session``: never replaced without ``force``; ``in_place``: a new recording;
         ``rewritten``: the command puts each complete version in place with ``checkpoint()``."""
-        out = OutputFile(Path(path), option, suffixes=tuple(s.lower() for s in suffixes), what=what,
+        out = OutputFile(Path(path), parameter, suffixes=tuple(s.lower() for s in suffixes), what=what,
                          session=session or in_place, force=force, in_place=in_place, rewritten=rewritten)
         self.outputs.append(out)
         return out
 
-    def dir(self, path: str | os.PathLike, option: str, *, command: str = "") -> OutputDir:
-        out = OutputDir(Path(path), option, command=command)
+    def dir(self, path: str | os.PathLike, parameter: str, *, command: str = "") -> OutputDir:
+        out = OutputDir(Path(path), parameter, command=command)
         self.outputs.append(out)
         return out
 
@@ -686,11 +699,12 @@ class OutputPlan:
         for i, a in enumerate(self.outputs):
             for b in self.outputs[i + 1:]:
                 if os.path.realpath(a.target) == os.path.realpath(b.target) or _same_file(a.path, b.path):
-                    raise ConfigError(f"{a.option} and {b.option} name the same file {a.path}: give two names")
+                    raise ConfigError(f"{a.name} and {b.name} name the same file {a.path}: give two names",
+                                      **a.fields(*b.keywords))
                 for x, y in ((a, b), (b, a)):
                     if isinstance(y, OutputDir) and _inside(x.target, y.target):
-                        raise ConfigError(f"{x.option} {x.path} lies inside {y.option} {y.path}, which is replaced "
-                                          f"whole: write it elsewhere")
+                        raise ConfigError(f"{x.name} {x.path} lies inside {y.name} {y.path}, which is replaced "
+                                          f"whole: write it elsewhere", **x.fields(*y.keywords))
 
     def __enter__(self) -> OutputPlan:
         self.check()
@@ -739,22 +753,22 @@ class OutputPlan:
 
 
 
-def check_output(path: str | os.PathLike, option: str, *, inputs: Iterable[str | os.PathLike] = (),
+def check_output(path: str | os.PathLike, parameter: str, *, inputs: Iterable[str | os.PathLike] = (),
                  suffixes: Sequence[str] = (), what: str = "this file") -> None:
     """Rule 1 for one file output, now: a command that works minutes before it writes (a camera
     capture) fails before the work, not after. Writing it later checks again."""
     plan = OutputPlan(inputs)
-    plan.file(path, option, suffixes=suffixes, what=what)
+    plan.file(path, parameter, suffixes=suffixes, what=what)
     plan.check()
 
 
-def write_text_output(path: str | os.PathLike, text: str | bytes, option: str, *,
+def write_text_output(path: str | os.PathLike, text: str | bytes, parameter: str, *,
                       inputs: Iterable[str | os.PathLike] = (), suffixes: Sequence[str] = (),
                       what: str = "this file") -> Path:
     """One small output held in memory (a calibration YAML, a PNG, a JSON report) by the rule above;
     disk full is an error. ``text`` may be bytes."""
     plan = OutputPlan(inputs)
-    out = plan.file(path, option, suffixes=suffixes, what=what)
+    out = plan.file(path, parameter, suffixes=suffixes, what=what)
     data = text.encode() if isinstance(text, str) else bytes(text)
     with plan:
         assert out.tmp is not None   # the plan's block made it

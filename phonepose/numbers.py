@@ -61,7 +61,10 @@ def check_number(name: str, value, lo=None, hi=None, *, lo_open: bool = False, h
             not (hi is not None and (value > hi or (hi_open and value == hi)))
     if not ok:
         extra = " or " + " or ".join(show_number(a) for a in also) if also else ""
-        sep = "" if name.endswith("=") else " "     # "--rate inf", "--param rate_hz=inf"
-        raise ConfigError(f"{name}{sep}{show_number(value)}: expected {_range_text(lo, hi, lo_open, hi_open, integer)}"
-                          f"{extra}{' ' + unit if unit else ''}")
+        sep = "" if name.endswith("=") else " "     # "rate inf", "params rate_hz=inf"
+        expected = f"{_range_text(lo, hi, lo_open, hi_open, integer)}{extra}{' ' + unit if unit else ''}"
+        keyword = name.split()[0] if name.split() and name.split()[0].isidentifier() else None
+        shown = "{" + keyword + "}" + name[len(keyword):] if keyword else name   # the keyword, shown per caller
+        raise ConfigError(f"{shown}{sep}{show_number(value)}: expected {expected}", parameter=keyword, value=value,
+                          expected=expected)
     return value

@@ -21,6 +21,7 @@ import pytest
 from phonepose.batch import RUNTIME_COLUMNS, run_batch
 from phonepose.batch.run import flatten_tracker_metrics
 from phonepose.batch.table import to_arrow
+from phonepose.cli import flags
 from phonepose.errors import ConfigError
 from phonepose.pipeline.trackers import PAPER_TRACKERS
 from phonepose.playback import run_playback
@@ -219,9 +220,9 @@ def test_param_sweep_is_the_cross_product(sessions, in_process, tmp_path):
 @pytest.mark.parametrize("params,message", [
     (["speed=1"], "unknown key 'speed'"),
     (["rate_hz=fast"], "'fast' is not a number"),
-    (["rate_hz=0"], r"^--param rate_hz=0: expected a finite number in \[0\.1, 1000\] Hz$"),
-    (["rate_hz=inf"], r"^--param rate_hz=inf: expected a finite number in \[0\.1, 1000\] Hz$"),
-    (["start_s=nan"], r"^--param start_s=nan: expected a finite number in \[0, 1000000\] s$"),
+    (["rate_hz=0"], r"^params rate_hz=0: expected a finite number in \[0\.1, 1000\] Hz$"),
+    (["rate_hz=inf"], r"^params rate_hz=inf: expected a finite number in \[0\.1, 1000\] Hz$"),
+    (["start_s=nan"], r"^params start_s=nan: expected a finite number in \[0, 1000000\] s$"),
     (["correction_math=quat"], "unknown correction math 'quat'"),
     (["rate_hz=10", "rate_hz=20"], "given twice"),
     (["start_s=5", "end_s=3"], "must be after start_s"),
@@ -447,7 +448,7 @@ def test_a_unit_past_its_time_budget_becomes_error_rows(sessions, where):
         t.join(timeout=300)
     assert [r["tracker"] for r in rows] == ["T1", "T4"]
     assert {r["status"] for r in rows} == {"error"}
-    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (--unit-timeout)"}
+    assert {r["error"] for r in rows} == {"stopped after its time budget of 0.01 s (unit_timeout_s)"}
     assert run_unit(unit, budget_s=600)[0]["status"] == "ok"
 
 
@@ -470,8 +471,8 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
         try:
             rows = read_rows(p)
         except OutputError as exc:
-            assert "\n" not in str(exc) and str(exc).startswith(f"--out {p} ")
-            assert str(exc).endswith("; move it away or choose another --out")
+            assert "\n" not in str(exc) and str(exc).startswith(f"out {p} ")
+            assert str(exc).endswith("; move it away or choose another out")
             refused += 1
         else:
             assert rows == clean, f"flipping a bit of byte {i} changed the rows"
@@ -484,8 +485,8 @@ def test_a_flipped_bit_in_the_table_is_found_on_resume(one_worker, tmp_path):
     pq.write_table(t.replace_schema_metadata(meta), p)
     with pytest.raises(OutputError) as err:
         read_rows(p)
-    assert str(err.value) == (f"--out {p} does not match its checksum: it changed on the disk after phonepose wrote it; "
-                              "move it away or choose another --out")
+    assert str(err.value) == (f"out {p} does not match its checksum: it changed on the disk after phonepose wrote it; "
+                              "move it away or choose another out")
 
 
 def test_the_columns_hash_survives_parquet_and_sees_each_value(tmp_path):
@@ -600,6 +601,6 @@ def test_a_dask_cluster_left_without_workers_is_said_and_waited_for_a_bound(sess
     left = re.fullmatch(rf"--scheduler {re.escape(cluster.scheduler_address)}: the cluster has had no worker for 1 s, "
                         rf"so (\d+) playbacks cannot run; {rows} finished rows? (are|is) in {re.escape(str(out))} "
                         rf"\(start a `dask worker {re.escape(cluster.scheduler_address)}` and run the same command "
-                        rf"again, or add --keep-waiting\)", str(e.value))
+                        rf"again, or add --keep-waiting\)", flags.message(e.value))
     assert left is not None, str(e.value)
     assert int(left[1]) == 6 - rows

@@ -274,7 +274,7 @@ def test_loaders_read_the_fixture_formats():
     ("0 1 2 3 0 0 0 1\n1 1 2 3 0 0 0 1 9\n", ":2: 9 values, the lines before have 8"),
     # commas: refused, not guessed (an 8-column EuRoC row, t[ns] and w first, would read as TUM without an error)
     ("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n", ":2: values separated by commas in '0,1,2,3,0,0,0,1': TUM 't tx ty tz "
-                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is --gt-format euroc)"),
+                                             "qx qy qz qw' is separated by spaces (an EuRoC csv is fmt euroc)"),
     ("timestamp tx ty tz qx qy qz qw\n0 1 2 3 0 0 0 1\ntimestamp tx ty tz qx qy qz qw\n", ":3: not a number"),
 ])
 def test_malformed_tum_is_one_clear_line(tmp_path, text, where):

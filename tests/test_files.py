@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from conftest import DEADLINE_S
 
+from phonepose.cli import flags
 from phonepose.errors import ConfigError, InputFileError, OutputError
 from phonepose.files import MANIFEST, TMP_SUFFIX, OutputPlan, check_input, write_text_output
 
@@ -376,14 +377,15 @@ def test_a_session_is_not_replaced_without_force(tmp_path):
     s = tmp_path / "s.mcap"
     s.write_bytes(b"old recording")
     plan = OutputPlan()
-    plan.file(s, "--out", session=True)
+    plan.file(s, "out", session=True)
     with pytest.raises(OutputError) as e:
         with plan:
             pass
-    assert str(e.value) == f"{s} already exists: choose another --out, or add --force to replace it"
+    assert str(e.value) == f"{s} already exists: choose another out, or add force=True to replace it"
+    assert flags.message(e.value) == f"{s} already exists: choose another --out, or add --force to replace it"
     assert s.read_bytes() == b"old recording"
     plan = OutputPlan()
-    f = plan.file(s, "--out", session=True, force=True)
+    f = plan.file(s, "out", session=True, force=True)
     with plan:
         f.tmp.write_bytes(b"new recording")
     assert s.read_bytes() == b"new recording"

@@ -334,7 +334,7 @@ def test_a_page_repeating_marker_and_xrsession_messages_gets_a_few_lines_and_cou
                                 "reports of another marker": n - 1, "marker side changes": n - 3}
         assert any(f"the session's marker side: {(0.04 + (n - 1) * 1e-4) * 1000:.1f} mm" in t for t in logs)
     else:                  # --marker-size: one line, the count is the existing "marker size" summary line
-        assert sum("the session uses --marker-size 50.0 mm" in t for t in logs) == 1
+        assert sum("the session uses marker_size_m 50.0 mm" in t for t in logs) == 1   # no CLI: the keyword
         assert rec.unlogged == {"immersive session starts": n // 2 - 3, "immersive session ends": n // 2 - 3,
                                 "reports of another marker": n - 1}
         ignored = sum(abs(0.04 + i * 1e-4 - 0.05) > 0.05 * SIZE_MISMATCH for i in range(n))

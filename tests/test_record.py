@@ -317,7 +317,7 @@ def test_unwritable_rerun_path_is_an_output_error(tmp_path):
     (tmp_path / "x.mcap").unlink(missing_ok=True)
     with pytest.raises(OutputError) as e:       # record_sim checks first (phonepose.files) and creates nothing
         record_sim(tmp_path / "x.mcap", rerun_path=tmp_path / "missing" / "x.rrd")
-    assert str(e.value) == f"--rerun {tmp_path / 'missing' / 'x.rrd'}: directory {tmp_path / 'missing'} does not exist"
+    assert str(e.value) == f"rerun {tmp_path / 'missing' / 'x.rrd'}: directory {tmp_path / 'missing'} does not exist"
     assert list(tmp_path.iterdir()) == []
 
 

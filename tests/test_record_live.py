@@ -514,7 +514,7 @@ def test_bad_camera_or_calibration_fail_before_anything_is_written(media, tmp_pa
         LiveSession(tmp_path / "a.mcap", str(video), other, port=0, tls_dir=tmp_path / "tls")
     with pytest.raises(InputFileError, match="no such video file"):
         LiveSession(tmp_path / "a.mcap", str(tmp_path / "nope.avi"), calib, port=0, tls_dir=tmp_path / "tls")
-    with pytest.raises(ConfigError, match="--marker-size"):
+    with pytest.raises(ConfigError, match="marker_size_m 5: "):
         LiveSession(tmp_path / "a.mcap", str(video), calib, port=0, tls_dir=tmp_path / "tls", marker_size_m=5.0)
     assert not (tmp_path / "a.mcap").exists()
 
@@ -639,7 +639,7 @@ def test_start_errors_are_one_line_and_leave_no_file(media, tmp_path):
     busy.listen()
     try:
         s = LiveSession(out, str(video), calib, host="127.0.0.1", port=busy.getsockname()[1], tls_dir=tmp_path / "tls")
-        with pytest.raises(ConfigError, match="choose another --port"):
+        with pytest.raises(ConfigError, match=r"\(choose another port\)"):
             s.start()
     finally:
         busy.close()

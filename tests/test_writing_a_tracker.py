@@ -111,11 +111,17 @@ def test_a_wrong_reference_is_one_line_before_any_work(on_path):
 
 
 def test_experiments_refuse_a_builtin_as_an_extra_tracker_before_any_work(tmp_path):
+    from phonepose.cli import flags
     from phonepose.experiments.exp1 import run_exp1
 
-    with pytest.raises(ConfigError, match=r"^--add-tracker T4: the experiments always run T1-T8; --add-tracker adds your own"):
+    with pytest.raises(ConfigError, match=r"^trackers T4: the experiments always run T1-T8; trackers adds your own") as e:
         run_exp1(tmp_path / "e1", trackers=["T4"])
     assert not (tmp_path / "e1").exists()
+    flags.set_command(["experiment", "exp1"])
+    try:                          # the command line's line names its option
+        assert flags.message(e.value).startswith("--add-tracker T4: the experiments always run T1-T8; --add-tracker ")
+    finally:
+        flags.set_command([])
 
 
 @pytest.mark.slow

@@ -249,7 +249,8 @@ def _choice(name: str, value: Any, choices: Any) -> str:
     text = str(value)
     match = next((c for c in allowed if c.lower() == text.lower()), None)
     if match is None:
-        raise ConfigError(f"{name} {value!r}: expected one of {', '.join(allowed)}")
+        raise ConfigError(f"{{{name}}} {value!r}: expected one of {', '.join(allowed)}", parameter=name, value=value,
+                          expected=f"one of {', '.join(allowed)}")
     return match
 
 

@@ -94,11 +94,12 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
     a session, in a folder that exists); each version of it is renamed into place whole."""
     t0 = time.perf_counter()
     if scheduler is not None and workers is not None:
-        raise ConfigError("--workers and --scheduler are exclusive: the cluster's workers are set by `dask worker`")
+        raise ConfigError("{workers} and {scheduler} are exclusive: the cluster's workers are set by `dask worker`",
+                          parameter="workers", value=workers, also=["scheduler"])
     if workers is not None:
-        check_number("--workers", workers, 1, WORKERS_MAX, integer=True)
+        check_number("workers", workers, 1, WORKERS_MAX, integer=True)
     if unit_timeout_s is not None:
-        check_number("--unit-timeout", unit_timeout_s, 0, SECONDS_MAX, lo_open=True, unit="s")
+        check_number("unit_timeout_s", unit_timeout_s, 0, SECONDS_MAX, lo_open=True, unit="s")
     if not sessions:
         raise ConfigError("no session given")
     names, refs = resolve_trackers(trackers)
@@ -112,7 +113,7 @@ def prepare_batch(sessions: Sequence[str | os.PathLike], out: str | os.PathLike,
         if os.path.lexists(s):
             check_input(s, "session")
     outputs = OutputPlan(inputs=sessions)
-    table_output = outputs.file(out, "--out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
+    table_output = outputs.file(out, "out", suffixes=(".parquet",), what="a Parquet table", rewritten=True)
     outputs.check()
     table = ResultTable(out)
     plan = make_plan(sessions, names, combos, table.rows, refs)
@@ -166,10 +167,12 @@ def execute_batch(batch: PreparedBatch, progress: Callable[[int, int, list[dict]
                         if watch is not None and remaining and watch.check():
                             n = len(table.rows)
                             raise PhoneposeError(
-                                f"--scheduler {batch.scheduler}: the cluster has had no worker for "
+                                f"{{scheduler}} {batch.scheduler}: the cluster has had no worker for "
                                 f"{no_worker_timeout_s:g} s, so {len(remaining)} playbacks cannot run; {n} finished "
                                 f"row{'s are' if n != 1 else ' is'} in {batch.out} (start a `dask worker "
-                                f"{batch.scheduler}` and run the same command again, or add --keep-waiting)")
+                                f"{batch.scheduler}` and run the same command again, or add "
+                                "{no_worker_timeout_s=None})", parameter="scheduler", value=batch.scheduler,
+                                also=["no_worker_timeout_s"])
                 finally:
                     for fut in futures:
                         fut.cancel()

@@ -90,7 +90,8 @@ def check_scheduler_address(address: str) -> None:
     if ok and scheme in ("tcp", "tls"):
         ok = bool(host) and port.isdigit() and 0 < int(port) < 65536
     if not ok:
-        raise ConfigError(f"--scheduler {address!r}: expected a Dask scheduler address such as tcp://host:8786")
+        raise ConfigError(f"{{scheduler}} {address!r}: expected a Dask scheduler address such as tcp://host:8786",
+                          parameter="scheduler", value=address, expected="a Dask scheduler address")
 
 
 @contextmanager
@@ -98,17 +99,20 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
     """``(executor, description)``; ``scheduler`` (``tcp://host:8786``) selects Dask, else a local pool."""
     if scheduler is not None:
         if workers is not None:
-            raise ConfigError("--workers and --scheduler are exclusive: the cluster's workers are set by `dask worker`")
+            raise ConfigError("{workers} and {scheduler} are exclusive: the cluster's workers are set by `dask worker`",
+                              parameter="workers", value=workers, also=["scheduler"])
         try:
             from distributed import Client
         except ImportError:
-            raise ConfigError("--scheduler needs Dask: pip install 'phonepose[cluster]'") from None
+            raise ConfigError("{scheduler} needs Dask: pip install 'phonepose[cluster]'", parameter="scheduler",
+                              value=scheduler) from None
         check_scheduler_address(scheduler)
         try:
             client = Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
-            raise ConfigError(f"--scheduler {scheduler}: cannot connect within {CONNECT_TIMEOUT_S} s "
-                              f"({' '.join(str(exc).split()) or type(exc).__name__})") from None
+            raise ConfigError(f"{{scheduler}} {scheduler}: cannot connect within {CONNECT_TIMEOUT_S} s "
+                              f"({' '.join(str(exc).split()) or type(exc).__name__})", parameter="scheduler",
+                              value=scheduler) from None
         try:
             n = len(client.scheduler_info().get("workers", {}))
             # pure=False: a rerun of the same unit is a new task, never a cached result
@@ -120,6 +124,6 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
         return
     n = default_workers() if workers is None else workers
     if n < 1:
-        raise ConfigError(f"--workers must be >= 1 (got {n})")
+        raise ConfigError(f"{{workers}} must be >= 1 (got {n})", parameter="workers", value=n, expected=">= 1")
     with worker_pool(n, init_worker) as pool:    # workers die with the batch (phonepose.workers)
         yield pool, f"{n} local worker process{'es' if n != 1 else ''}"

@@ -24,17 +24,18 @@ def _float(key: str, text: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f"--param {key}: {text!r} is not a number") from None
+        raise ConfigError(f"{{params}} {key}: {text!r} is not a number", parameter="params", value=text,
+                          expected="a number") from None
 
 
 def _rate(key: str, text: str) -> float:
-    return check_number(f"--param {key}=", _float(key, text), RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz")
+    return check_number(f"params {key}=", _float(key, text), RATE_MIN_HZ, RATE_MAX_HZ, unit="Hz")
 
 
 def _seconds_or_none(key: str, text: str) -> float | None:
     if text.strip().lower() in ("none", "null", ""):
         return None
-    return check_number(f"--param {key}=", _float(key, text), 0, SECONDS_MAX, unit="s")
+    return check_number(f"params {key}=", _float(key, text), 0, SECONDS_MAX, unit="s")
 
 
 def _choice(enum_name: str) -> Callable[[str, str], str]:
@@ -45,7 +46,7 @@ def _choice(enum_name: str) -> Callable[[str, str], str]:
         try:
             return cls.parse(text.strip()).value
         except ConfigError as exc:
-            raise ConfigError(f"--param {key}: {exc}") from None
+            raise ConfigError(f"{{params}} {key}: {exc}", parameter="params", value=text) from None
     return parse
 
 
@@ -78,12 +79,15 @@ def parse_param_options(options: Iterable[str]) -> dict[str, list]:
         key, sep, values = opt.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise ConfigError(f"--param {opt!r}: expected KEY=V1[,V2...]; keys: {', '.join(PARAMS)}")
+            raise ConfigError(f"{{params}} {opt!r}: expected KEY=V1[,V2...]; keys: {', '.join(PARAMS)}",
+                              parameter="params", value=opt, expected="KEY=V1[,V2...]")
         spec = PARAMS.get(key)
         if spec is None:
-            raise ConfigError(f"--param: unknown key {key!r}; valid: {', '.join(PARAMS)}")
+            raise ConfigError(f"{{params}}: unknown key {key!r}; valid: {', '.join(PARAMS)}", parameter="params",
+                              value=key, expected=f"one of {', '.join(PARAMS)}")
         if key in out:
-            raise ConfigError(f"--param {key} given twice; list its values in one option: {key}=V1,V2")
+            raise ConfigError(f"{{params}} {key} given twice; list its values in one option: {key}=V1,V2",
+                              parameter="params", value=key)
         parsed: dict = {}   # a dict keeps the order and drops repeats in O(1) each (a list: O(n^2))
         for text in values.split(","):
             parsed.setdefault(spec.parse(key, text.strip()), None)
@@ -114,9 +118,10 @@ def check_unit_count(n_sessions: int, sweep: dict[str, list], limit: int = MAX_U
     if n > limit:
         counts = " x ".join([f"{n_sessions} session{'s' if n_sessions != 1 else ''}"]
                             + [f"{len(sweep[k])} {k}" for k in PARAMS if len(sweep.get(k, ())) > 1])
-        raise ConfigError(f"--param: {counts} = {n:,} playbacks, more than a batch's limit of {limit:,}; "
-                          "split it into several batches (fewer sessions or --param values each, "
-                          "one --out per batch)")
+        raise ConfigError(f"{{params}}: {counts} = {n:,} playbacks, more than a batch's limit of {limit:,}; "
+                          "split it into several batches (fewer sessions or {params} values each, "
+                          "one {out} per batch)", parameter="params", value=n, expected=f"<= {limit:,} playbacks",
+                          also=["out"])
     return n
 
 
@@ -129,7 +134,7 @@ def param_combinations(sweep: dict[str, list]) -> list[dict]:
         combo = dict(zip(PARAMS, values, strict=True))
         s, e = combo["start_s"], combo["end_s"]
         if s is not None and e is not None and e <= s:
-            raise ConfigError(f"--param end_s ({e}) must be after start_s ({s})")
+            raise ConfigError(f"{{params}} end_s ({e}) must be after start_s ({s})", parameter="params", value=e)
         combos.append(combo)
     return combos
 

@@ -88,7 +88,7 @@ class UnitTimeout(StopRequest):
     through its guard unchanged)."""
 
     def __init__(self, budget_s: float):
-        super().__init__(f"stopped after its time budget of {budget_s:g} s (--unit-timeout)")
+        super().__init__(f"stopped after its time budget of {budget_s:g} s (unit_timeout_s)")
 
 
 @contextlib.contextmanager

@@ -154,7 +154,7 @@ def to_arrow(rows: list[dict]) -> pa.Table:
 
 
 def _refuse(path: Path, why: str) -> OutputError:
-    return OutputError(f"--out {path} {why}; move it away or choose another --out")
+    return OutputError(f"{{out}} {path} {why}; move it away or choose another {{out}}", parameter="out", value=path)
 
 
 def read_rows(path: Path) -> dict[tuple[str, str, str], dict]:

@@ -159,7 +159,7 @@ def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = 
     check with a ruler that the printer did not scale the page.
     """
     if not 50 <= dpi <= 1200:
-        raise ConfigError(f"--dpi {dpi}: expected 50..1200")
+        raise ConfigError(f"{{dpi}} {dpi}: expected 50..1200", parameter="dpi", value=dpi, expected="50..1200")
     scale = px_per_mm(dpi)
     bw_mm, bh_mm = board.size_mm
     if paper == "fit":
@@ -167,7 +167,8 @@ def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = 
     elif paper in PAPER_MM:
         page_w_mm = PAPER_MM[paper][0]
     else:
-        raise ConfigError(f"--paper {paper!r}: expected one of {', '.join([*PAPER_MM, 'fit'])}")
+        raise ConfigError(f"{{paper}} {paper!r}: expected one of {', '.join([*PAPER_MM, 'fit'])}", parameter="paper",
+                          value=paper, expected=f"one of {', '.join([*PAPER_MM, 'fit'])}")
 
     # The text under the board, wrapped to the board's width (at least the width the bar needs).
     font, thick = cv2.FONT_HERSHEY_SIMPLEX, max(1, round(0.25 * scale))
@@ -184,16 +185,17 @@ def render_board(board: BoardSpec = DEFAULT_BOARD, dpi: int = 300, paper: str = 
     text_x_mm = (page_w_mm - text_w_px / scale) / 2
     if min(text_x_mm, margin_y) < 5.0:
         raise ConfigError(f"a {bw_mm:g} x {bh_mm:g} mm board does not fit {paper} paper with margins; "
-                          "use --paper a3, --paper fit or smaller squares")
+                          "use {paper} a3, {paper} fit or smaller squares", parameter="paper", value=paper)
     page_px = (round(page_h_mm * scale), round(page_w_mm * scale))
     if page_px[0] * page_px[1] > MAX_PAGE_PIXELS:
         raise ConfigError(f"the page would be {page_px[1]} x {page_px[0]} px ({page_w_mm:.0f} x {page_h_mm:.0f} mm at "
-                          f"{dpi} dpi), more than the {MAX_PAGE_PIXELS / 1e6:g} Mpx phonepose draws: use a lower --dpi, "
-                          "smaller squares or fewer of them")
+                          f"{dpi} dpi), more than the {MAX_PAGE_PIXELS / 1e6:g} Mpx phonepose draws: use a lower {{dpi}}, "
+                          "smaller squares or fewer of them", parameter="dpi", value=dpi)
     bits = _dictionary(board.dictionary).markerSize + 2       # the marker's cells and its black border
     if board.marker_mm * scale < bits:
         raise ConfigError(f"board marker_mm={board.marker_mm:g} is {board.marker_mm * scale:.2g} px at {dpi} dpi, "
-                          f"less than its {bits} cells: use markers of at least {bits / scale:.2g} mm or a higher --dpi")
+                          f"less than its {bits} cells: use markers of at least {bits / scale:.2g} mm or a higher {{dpi}}",
+                          parameter="dpi", value=dpi)
     page = np.full(page_px, 255, np.uint8)
     # OpenCV draws the board; we only place it. Its size is rounded to whole pixels: at 300 dpi a
     # 30 mm square is 354.33 px, drawn as 354 px (0.03 mm short), far below what a printer holds.

@@ -134,7 +134,8 @@ def views_from_images(directory: str | Path, finder: BoardFinder, progress: Prog
     if not directory.exists():
         raise InputFileError(f"{directory}: no such directory")
     if not directory.is_dir():
-        raise InputFileError(f"{directory}: not a directory (--images takes a directory of images)")
+        raise InputFileError(f"{directory}: not a directory ({{images}} takes a directory of images)",
+                             parameter="images", value=directory)
     files = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.is_dir())
     if not files:
         raise InputFileError(f"{directory}: no images ({', '.join(IMAGE_SUFFIXES)})")
@@ -302,8 +303,8 @@ def views_from_device(index: int, finder: BoardFinder, max_views: int = 40, inte
     got = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     if size is not None and got != tuple(size):
         cap.release()
-        raise ConfigError(f"--size {size[0]}x{size[1]}: camera device {index} gives {got[0]}x{got[1]}; "
-                          "use a size the camera supports")
+        raise ConfigError(f"{{size}} {size[0]}x{size[1]}: camera device {index} gives {got[0]}x{got[1]}; "
+                          "use a size the camera supports", parameter="size", value=size)
     if progress:
         progress(f"camera {index}: move the board through the whole image, tilted in every direction; "
                  f"stops after {max_views} views or {seconds:g} s (Ctrl-C to stop earlier)")
@@ -345,13 +346,15 @@ def calibrate_camera(*, images: str | Path | None = None, video: str | Path | No
                      progress: Progress | None = None) -> CalibrationResult:
     """Calibrate from exactly one source. Too few views is a SessionContentError (exit 4) saying how
     many frames showed the board; unreadable inputs are InputFileErrors (exit 2)."""
-    given = [name for name, value in (("--camera", device), ("--video", video), ("--images", images))
+    given = [name for name, value in (("device", device), ("video", video), ("images", images))
              if value is not None]
     if len(given) != 1:
-        raise ConfigError("give exactly one of --camera N, --video FILE, --images DIR"
-                          + (f" (got {' and '.join(given)})" if given else ""))
+        raise ConfigError("give exactly one of {device} N, {video} FILE, {images} DIR"
+                          + (f" (got {' and '.join('{' + name + '}' for name in given)})" if given else ""),
+                          parameter="device", also=["video", "images"], expected="exactly one source")
     if max_views < min_views:
-        raise ConfigError(f"--max-views {max_views}: must be >= {min_views}")
+        raise ConfigError(f"{{max_views}} {max_views}: must be >= {min_views}", parameter="max_views",
+                          value=max_views, expected=f">= {min_views}")
     finder = BoardFinder(board, min_corners)
     if images is not None:
         got, what = views_from_images(images, finder, progress), f"{images}: of {{n}} images"
@@ -365,7 +368,8 @@ def calibrate_camera(*, images: str | Path | None = None, video: str | Path | No
     where = what.format(n=got.examined)
     if got.with_board == 0:
         raise SessionContentError(f"{where}, none shows the board with >= {finder.min_corners} corners "
-                                  f"({board_spec(board)}); check --board and that the whole board is sharp and lit")
+                                  f"({board_spec(board)}); check {{board}} and that the whole board is sharp and lit",
+                                  parameter="board", value=board_spec(board))
     if len(got.views) < min_views:
         raise SessionContentError(f"{where}, {got.with_board} show the board with >= {finder.min_corners} corners "
                                   f"({len(got.views)} distinct views); need at least {min_views} "

@@ -61,12 +61,12 @@ def calibration_text(calib: CameraCalibrationFile, suffix: str = ".yaml") -> str
     return opencv_text(write, suffix)
 
 
-def save_calibration(path: str | Path, calib: CameraCalibrationFile, option: str = "--out",
+def save_calibration(path: str | Path, calib: CameraCalibrationFile, parameter: str = "out",
                      inputs: Sequence[str | Path] = ()) -> None:
     """Write the file by the output rule (phonepose.files): the extension chooses YAML, XML or JSON."""
     from phonepose.files import write_text_output
 
-    write_text_output(path, calibration_text(calib, Path(path).suffix), option, inputs=inputs,
+    write_text_output(path, calibration_text(calib, Path(path).suffix), parameter, inputs=inputs,
                       suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)
 
 

@@ -62,7 +62,8 @@ def gt_format_of(path: str | os.PathLike, fmt: str | None = None) -> str:
     if fmt is None:
         return "euroc" if Path(path).suffix.lower() == ".csv" else "tum"
     if fmt not in GT_FORMATS:
-        raise ConfigError(f"--gt-format {fmt!r}: expected one of {', '.join(GT_FORMATS)}")
+        raise ConfigError(f"{{gt_format}} {fmt!r}: expected one of {', '.join(GT_FORMATS)}", parameter="gt_format",
+                          value=fmt, expected=f"one of {', '.join(GT_FORMATS)}")
     return fmt
 
 
@@ -90,7 +91,7 @@ def session_ground_truth(path: str | os.PathLike) -> GroundTruthSeries:
     with SessionReader(path) as reader:
         if not reader.summary().has(Topic.GT_CONTROLLER_POSE):
             raise SessionContentError(f"{path}: no ground truth ({Topic.GT_CONTROLLER_POSE}); "
-                                      "give a motion-capture trajectory with --gt FILE")
+                                      "give a motion-capture trajectory with {gt} FILE", parameter="gt")
         for m in reader.messages([Topic.GT_CONTROLLER_POSE]):
             try:
                 raws.append(codec.raw_pose(m.msg.pose))

@@ -113,12 +113,12 @@ def calibration_text(cal: GtCalibration) -> str:
     return opencv_text(write, ".yaml")
 
 
-def save_gt_calibration(path: str | os.PathLike, cal: GtCalibration, option: str = "--out",
+def save_gt_calibration(path: str | os.PathLike, cal: GtCalibration, parameter: str = "out",
                         inputs: Sequence[str | os.PathLike] = ()) -> None:
     """Written by the output rule (phonepose.files: checked, temporary name, atomic rename)."""
     from phonepose.files import write_text_output
 
-    write_text_output(path, calibration_text(cal), option, inputs=inputs, suffixes=SUFFIXES, what=WHAT)
+    write_text_output(path, calibration_text(cal), parameter, inputs=inputs, suffixes=SUFFIXES, what=WHAT)
 
 
 def _pose(path: Path, fs: cv2.FileStorage, key: str, required: bool) -> Pose | None:

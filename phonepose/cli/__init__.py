@@ -17,8 +17,8 @@ import threading
 
 import typer
 
-from phonepose import __version__, logs
-from phonepose.cli import process
+from phonepose import __version__, errors, logs
+from phonepose.cli import flags, process
 from phonepose.cli.output import ReportStream
 from phonepose.errors import OutputError, PhoneposeError
 from phonepose.files import forget_outputs, outputs_committed
@@ -189,13 +189,22 @@ def command():
 
 def _run(argv: list[str] | None) -> int:
     """The command, its every error one line on stderr: the exit code."""
-    ClickException = _click_exceptions().ClickException
+    errors.show_parameters_as(flags.option)   # a line that the library writes itself names options too
+    flags.set_command(sys.argv[1:] if argv is None else argv)
+    try:
+        return _run_command(argv)
+    finally:
+        errors.show_parameters_as(None)      # the library called in this process later speaks Python again
+        flags.set_command([])
 
+
+def _run_command(argv: list[str] | None) -> int:
+    ClickException = _click_exceptions().ClickException
     try:
         process.check_before_any_work(sys.argv[1:] if argv is None else argv)
         rv = command()(args=argv, prog_name="phonepose", standalone_mode=False)
     except PhoneposeError as exc:
-        error(str(exc), exc.exit_code)
+        error(flags.message(exc), exc.exit_code)
     except ClickException as exc:
         _usage_error(exc)
     except Interrupted as exc:

@@ -47,8 +47,8 @@ def board(
     from phonepose.calibration.board import board_png, board_spec, parse_board_spec, px_per_mm
 
     b = parse_board_spec(spec)
-    check_output(out, "--out", **PNG)
-    write_text_output(out, board_png(b, dpi, paper.value), "--out", **PNG)
+    check_output(out, "out", **PNG)
+    write_text_output(out, board_png(b, dpi, paper.value), "out", **PNG)
     typer.echo(f"{out}: {board_spec(b)}, {b.size_mm[0]:g} x {b.size_mm[1]:g} mm on {paper.value} at {dpi} dpi "
                f"(square = {b.square_mm * px_per_mm(dpi):.1f} px); print at 100 % and check a square measures "
                f"{b.square_mm:g} mm")
@@ -74,7 +74,7 @@ def marker(
 
     image = marker_image(dictionary.upper(), marker_id, pixels, 1, quiet_zone)
     ok, buf = cv2.imencode(".png", image)
-    write_text_output(out, buf.tobytes(), "--out", **PNG)
+    write_text_output(out, buf.tobytes(), "out", **PNG)
     margin = (image.shape[0] - pixels) // 2
     typer.echo(f"{out}: {dictionary.upper()} id {marker_id}, marker {pixels} px + {margin} px white margin "
                f"({image.shape[1]}x{image.shape[0]} px); its black square is what the session's marker size measures")
@@ -127,7 +127,7 @@ def calibrate_camera(
             raise ConfigError("--size applies to --camera only (a video or photos have their own size)")
         device_size = (w, h)
     inputs = [video] if video is not None else []
-    check_output(out, "--out", inputs=inputs, suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)  # before the capture
+    check_output(out, "out", inputs=inputs, suffixes=tuple(OPENCV_FORMATS), what=OPENCV_WHAT)  # before the capture
     t0 = time.perf_counter()
     result = run(images=images, video=video, device=device, board=b, max_views=max_views,
                  min_corners=min_corners, device_seconds=seconds, device_size=device_size,
@@ -198,7 +198,7 @@ def calibrate_hand_eye(
     from phonepose.calibration.gt_calibration import SUFFIXES, WHAT
 
     check_input(session, "session")
-    check_output(out, "--out", inputs=[session], suffixes=SUFFIXES, what=WHAT)
+    check_output(out, "out", inputs=[session], suffixes=SUFFIXES, what=WHAT)
     he = hand_eye_from_session(session, translation=lever)
     save_hand_eye(out, he, inputs=[session], session=session.name)
     rv = he.T_controller_mocap.rotation.as_rotvec(degrees=True)
@@ -271,7 +271,7 @@ def calibrate_gt(
         gt_format_of(gt, gt_format)
     elif gt_format is not None:
         raise ConfigError("--gt-format applies to --gt FILE only")
-    check_output(out, "--out", inputs=inputs, suffixes=SUFFIXES, what=WHAT)
+    check_output(out, "out", inputs=inputs, suffixes=SUFFIXES, what=WHAT)
     t0 = time.perf_counter()
     cal = calibrate_gt_session(session, gt, gt_format=gt_format, max_offset_s=max_offset, bootstrap=bootstrap)
     save_gt_calibration(out, cal, inputs=inputs)

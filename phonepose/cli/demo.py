@@ -35,7 +35,7 @@ def demo(
 
     console = stdout_console()
     plan = OutputPlan()
-    folder = plan.dir(out, "--out", command="demo")
+    folder = plan.dir(out, "out", command="demo")
     with plan:
         work = folder.tmp
         assert work is not None   # the plan's block made it

@@ -89,8 +89,8 @@ def live(
     # temporary that replaces it only when this recording is complete
     video = [Path(camera)] if not camera.isdigit() and Path(camera).is_file() else []
     plan = OutputPlan(inputs=[calibration, *video])
-    session_out = plan.file(out, "--out", what="an MCAP session", in_place=True, force=force)
-    rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
+    session_out = plan.file(out, "out", what="an MCAP session", in_place=True, force=force)
+    rrd = plan.file(rerun, "rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
     with plan:                          # every check first, before the server starts
         assert session_out.tmp is not None   # the plan's block made it
         result, wall = _record(session_out.tmp, out, camera, calibration, host=host, port=port, tls_dir=tls_dir,

@@ -195,8 +195,8 @@ def playback(
         if p is not None:
             check_input(p, what)   # before any side effect: a missing file, a FIFO or a device is one line at once
     plan = OutputPlan(inputs=inputs)
-    folder = plan.dir(out if out is not None else default_out_dir(session), "--out", command="playback")
-    rrd = plan.file(rerun, "--rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
+    folder = plan.dir(out if out is not None else default_out_dir(session), "out", command="playback")
+    rrd = plan.file(rerun, "rerun", suffixes=(".rrd",), what="a Rerun recording") if rerun is not None else None
     console = Console(stderr=True)
     with plan, ProgressBar(TextColumn("playback"), BarColumn(), MofNCompleteColumn(), TextColumn("ticks"),
                            TimeRemainingColumn(), console=console, quiet=quiet) as bar:

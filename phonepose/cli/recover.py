@@ -72,7 +72,7 @@ def recover(
     """
     check_input(file, "MCAP file")
     plan = OutputPlan(inputs=[file])
-    fixed = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", session=True, force=force)
+    fixed = plan.file(out, "out", suffixes=(".mcap",), what="an MCAP session", session=True, force=force)
     with plan:   # checked before reading; written to a temporary; renamed only when complete
         assert fixed.tmp is not None   # the plan's block made it
         r = salvage(file, fixed.tmp, replace=True, staged=False)

@@ -62,7 +62,7 @@ def best_yaw(c: np.ndarray) -> float:
 
 
 DEGENERATE = ("the matched positions lie at one point or on one line, so they do not determine the alignment's "
-              "rotation (any value fits): use --align none, or --align-frames 1 (first-pose alignment)")
+              "rotation (any value fits): use {align} none, or {align_frames} 1 (first-pose alignment)")
 
 
 def check_determined(gt_positions: np.ndarray, est_positions: np.ndarray, yaw_only: bool = False) -> None:
@@ -79,7 +79,7 @@ def check_determined(gt_positions: np.ndarray, est_positions: np.ndarray, yaw_on
     else:
         determined = np.count_nonzero(np.linalg.svd(c, compute_uv=False) > eps) >= 2
     if not determined:
-        raise ConfigError(DEGENERATE)
+        raise ConfigError(DEGENERATE, parameter="align", also=["align_frames"])
 
 
 def umeyama(model: np.ndarray, data: np.ndarray, with_scale: bool = False, yaw_only: bool = False):
@@ -113,7 +113,8 @@ def umeyama(model: np.ndarray, data: np.ndarray, with_scale: bool = False, yaw_o
 def align(gt: Pose, est: Pose, method: str = "posyaw", num_frames: int = -1) -> Alignment:
     """Alignment of ``est`` to ``gt`` (already associated, same length) with the first ``num_frames``."""
     if method not in METHODS:
-        raise ConfigError(f"--align {method!r}: expected one of {', '.join(METHODS)}")
+        raise ConfigError(f"{{align}} {method!r}: expected one of {', '.join(METHODS)}", parameter="align",
+                          value=method, expected=f"one of {', '.join(METHODS)}")
     n_total = len(gt)
     if method == "none":
         return Alignment("none", num_frames)
@@ -123,7 +124,8 @@ def align(gt: Pose, est: Pose, method: str = "posyaw", num_frames: int = -1) -> 
     else:
         n = int(num_frames)
         if n < 1 or n > n_total:
-            raise ConfigError(f"--align-frames {num_frames}: expected -1 or 1..{n_total} (matched poses)")
+            raise ConfigError(f"{{align_frames}} {num_frames}: expected -1 or 1..{n_total} (matched poses)",
+                              parameter="align_frames", value=num_frames, expected=f"-1 or 1..{n_total}")
     if n_total == 0:
         raise ConfigError("nothing to align: no matched poses")
     p_gt = np.atleast_2d(gt.translation)[:n]
@@ -137,7 +139,8 @@ def align(gt: Pose, est: Pose, method: str = "posyaw", num_frames: int = -1) -> 
             r = rot_z(best_yaw(r_es @ r_gt.T))
         return Alignment(method, num_frames, 1.0, r, p_gt[0] - r @ p_es[0])
     if method == "sim3" and n < 2:
-        raise ConfigError("--align sim3 needs --align-frames -1 or >= 2")
+        raise ConfigError("{align} sim3 needs {align_frames} -1 or >= 2", parameter="align_frames", value=num_frames,
+                          expected="-1 or >= 2", also=["align"])
     check_determined(p_gt, p_es, yaw_only=(method == "posyaw"))
     s, r, t = umeyama(p_gt, p_es, with_scale=(method == "sim3"), yaw_only=(method == "posyaw"))
     return Alignment(method, num_frames, s, r, t)

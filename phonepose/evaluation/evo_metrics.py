@@ -59,7 +59,8 @@ def relation(name: str | PoseRelation) -> PoseRelation:
     if isinstance(name, PoseRelation):
         return name
     if name not in RELATION_NAMES:
-        raise ConfigError(f"--pose-relation {name!r}: expected one of {', '.join(RELATION_NAMES)}")
+        raise ConfigError(f"{{pose_relation}} {name!r}: expected one of {', '.join(RELATION_NAMES)}",
+                          parameter="pose_relation", value=name, expected=f"one of {', '.join(RELATION_NAMES)}")
     return RELATION_NAMES[name]
 
 
@@ -155,7 +156,7 @@ def id_pairs_from_delta(poses: Pose, delta: float, delta_unit: Unit, rel_tol: fl
     if delta_unit == Unit.frames:
         step = int(delta)
         if step < 1:
-            raise ConfigError(f"--delta {delta}: frames must be >= 1")
+            raise ConfigError(f"{{delta}} {delta}: frames must be >= 1", parameter="delta", value=delta, expected=">= 1")
         if all_pairs:
             i = np.arange(max(n - step, 0))
             pairs = np.stack([i, i + step], axis=1)
@@ -175,7 +176,8 @@ def id_pairs_from_delta(poses: Pose, delta: float, delta_unit: Unit, rel_tol: fl
     elif delta_unit in (Unit.degrees, Unit.radians):
         degrees = delta_unit == Unit.degrees
         if not (0 <= delta <= (180.0 if degrees else np.pi)):
-            raise ConfigError(f"--delta {delta}: an angle must be within [0, {180 if degrees else 'pi'}]")
+            raise ConfigError(f"{{delta}} {delta}: an angle must be within [0, {180 if degrees else 'pi'}]",
+                              parameter="delta", value=delta, expected=f"within [0, {180 if degrees else 'pi'}]")
         d_rad = np.deg2rad(delta) if degrees else delta
         tol = np.deg2rad(delta * rel_tol) if degrees else delta * rel_tol
         rot = poses.rotation
@@ -198,7 +200,8 @@ def id_pairs_from_delta(poses: Pose, delta: float, delta_unit: Unit, rel_tol: fl
         raise ConfigError(f"unsupported delta unit {delta_unit}")
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if pairs.shape[0] == 0:
-        raise ConfigError(f"--delta {delta} ({delta_unit.value}) produced no pairs: try a lower value")
+        raise ConfigError(f"{{delta}} {delta} ({delta_unit.value}) produced no pairs: try a lower value",
+                          parameter="delta", value=delta)
     return pairs
 
 
@@ -207,9 +210,10 @@ class RPE(_PE):
                  delta_unit: Unit = Unit.frames, rel_delta_tol: float = 0.1, all_pairs: bool = False,
                  pairs_from_reference: bool = False):
         if delta < 0:
-            raise ConfigError("--delta must be a positive number")
+            raise ConfigError("{delta} must be a positive number", parameter="delta", value=delta, expected="> 0")
         if delta_unit == Unit.frames and not float(delta).is_integer():
-            raise ConfigError(f"--delta {delta}: must be an integer for frames")
+            raise ConfigError(f"{{delta}} {delta}: must be an integer for frames", parameter="delta", value=delta,
+                              expected="an integer")
         self.pose_relation = relation(pose_relation)
         self.delta = int(delta) if delta_unit == Unit.frames else float(delta)
         self.delta_unit = delta_unit
@@ -253,10 +257,12 @@ def evo_align(ref: Pose, est: Pose, method: str = "none", n_to_align: int = -1) 
     """evo's ``-a`` (se3) / ``-as`` (sim3) Umeyama on the first n poses; also posyaw/none (ours)."""
     if method in ("se3", "sim3"):
         if len(ref) < 2:
-            raise ConfigError(f"--align {method} needs at least 2 matched poses, there is {len(ref)}: use --align none")
+            raise ConfigError(f"{{align}} {method} needs at least 2 matched poses, there is {len(ref)}: use {{align}} "
+                              "none", parameter="align", value=method)
         n = len(ref) if n_to_align in (-1, None) else int(n_to_align)
         if n < 2 or n > len(ref):
-            raise ConfigError(f"--align-frames {n_to_align}: evo's Umeyama needs -1 or 2..{len(ref)} poses")
+            raise ConfigError(f"{{align_frames}} {n_to_align}: evo's Umeyama needs -1 or 2..{len(ref)} poses",
+                              parameter="align_frames", value=n_to_align, expected=f"-1 or 2..{len(ref)}")
         p_ref = np.atleast_2d(ref.translation)[:n]
         p_est = np.atleast_2d(est.translation)[:n]
         check_determined(p_ref, p_est)     # evo's "degenerate covariance rank"
@@ -302,7 +308,8 @@ def evaluate_rpe(gt: Trajectory, est: Trajectory, pose_relation="trans", delta: 
                  max_diff: float = 0.01, matches=None) -> dict:
     unit = delta_unit if isinstance(delta_unit, Unit) else UNIT_NAMES.get(delta_unit)
     if unit is None:
-        raise ConfigError(f"--delta-unit {delta_unit!r}: expected one of {', '.join(UNIT_NAMES)}")
+        raise ConfigError(f"{{delta_unit}} {delta_unit!r}: expected one of {', '.join(UNIT_NAMES)}",
+                          parameter="delta_unit", value=delta_unit, expected=f"one of {', '.join(UNIT_NAMES)}")
     i_est, i_gt = associate(gt, est, max_diff) if matches is None else matches
     ref, e = _matched(gt.poses, i_gt), _matched(est.poses, i_est)
     al = evo_align(ref, e, align_method, align_frames)

@@ -43,10 +43,12 @@ def evaluate_rpg(gt: Trajectory, est: Trajectory, align_method: str = "posyaw", 
         if not all(x > 0 for x in lengths):     # what is wrong is the trajectory, not a --lengths the user gave
             raise SessionContentError(
                 f"{gt.source or 'the ground truth'}: its path is {gt.path_length():.3g} m long, too short for the "
-                "default RE lengths (10-50 % of it, whole cm): give --lengths in m, or use --metric ape")
+                "default RE lengths (10-50 % of it, whole cm): give {lengths} in m, or use {metric} ape",
+                parameter="lengths", also=["metric"])
     lengths = [float(x) for x in lengths]
     if any(not (x > 0) for x in lengths):
-        raise ConfigError(f"--lengths {lengths}: sub-trajectory lengths must be > 0 m")
+        raise ConfigError(f"{{lengths}} {lengths}: sub-trajectory lengths must be > 0 m", parameter="lengths",
+                          value=lengths, expected="> 0 m")
     g, e = gt.poses[i_gt], est.poses[i_est]
     al = align(g, e, align_method, align_frames)
     e_al = al.apply(e)

@@ -162,7 +162,7 @@ def _parse_rows(path, delimiter: str | None, ncols: int, what: str, bounds, rows
         except ValueError:
             if delimiter is None and "," in s:
                 raise InputFileError(f"{path}:{lineno}: values separated by commas in {s[:60]!r}: {what} is "
-                                     "separated by spaces (an EuRoC csv is --gt-format euroc)") from None
+                                     "separated by spaces (an EuRoC csv is {fmt} euroc)", parameter="fmt") from None
             raise InputFileError(f"{path}:{lineno}: not a number in {s[:60]!r} (expected {what})") from None
         if len(vals) < ncols:
             raise InputFileError(f"{path}:{lineno}: {len(vals)} values, expected {ncols} ({what})")
@@ -280,7 +280,8 @@ def load_kitti(path) -> Trajectory:
 def load_trajectory(path, fmt: str = "tum") -> Trajectory:
     loaders = {"tum": load_tum, "euroc": load_euroc, "kitti": load_kitti}
     if fmt not in loaders:
-        raise ConfigError(f"--gt-format {fmt!r}: expected one of {', '.join(FORMATS)}")
+        raise ConfigError(f"{{fmt}} {fmt!r}: expected one of {', '.join(FORMATS)}", parameter="fmt", value=fmt,
+                          expected=f"one of {', '.join(FORMATS)}")
     return loaders[fmt](path)
 
 

@@ -39,8 +39,9 @@ def user_trackers(refs: Iterable[str]) -> tuple[tuple[str, ...], list[str]]:
     refs = tuple(split_names(list(refs)))
     builtin = [r for r in refs if not is_user_tracker(r)]
     if builtin:
-        raise ConfigError(f"--add-tracker {builtin[0]}: the experiments always run T1-T8; --add-tracker adds your own "
-                          "(package.module:ClassName or an installed entry point)")
+        raise ConfigError(f"{{trackers}} {builtin[0]}: the experiments always run T1-T8; {{trackers}} adds your own "
+                          "(package.module:ClassName or an installed entry point)", parameter="trackers",
+                          value=builtin[0])
     names = [make_tracker(r).name for r in refs]   # each name checked (docs/writing-a-tracker.md)
     check_unique_names(names, refs)
     return refs, names

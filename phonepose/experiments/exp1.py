@@ -138,7 +138,7 @@ def run_exp1(out_dir: str | Path, seed: int = 0, config: str | None = None, corr
     from phonepose.files import OutputPlan
 
     plan = OutputPlan(inputs=[config] if config else [])
-    folder = plan.dir(out_dir, "--out", command="experiment exp1")
+    folder = plan.dir(out_dir, "out", command="experiment exp1")
     refs, extra = user_trackers(trackers)
     names = paper.REPORTED + extra
     with plan:

@@ -210,7 +210,7 @@ def run_exp2(out_dir: str | Path, trials: int = 3, seed: int = 0, config: str | 
     from phonepose.files import OutputPlan
 
     plan = OutputPlan(inputs=[config] if config else [])
-    folder = plan.dir(out_dir, "--out", command="experiment exp2")
+    folder = plan.dir(out_dir, "out", command="experiment exp2")
     refs, extra = user_trackers(trackers)
     with plan:
         out = folder.tmp

@@ -166,7 +166,8 @@ class PlaybackEngine:
         try:
             return tracker.step(obs)
         except StepTimeout as exc:
-            raise TrackerError(str(exc), tracker.name) from None
+            raise TrackerError(str(exc), tracker.name, parameter="tick_timeout",
+                               value=self.watchdog.timeout_s) from None
         finally:
             self.watchdog.disarm()
 

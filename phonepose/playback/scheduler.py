@@ -159,10 +159,12 @@ def _check_task_overlap(context: SessionContext, start_ns: int, first: int, last
     t0, t1 = context.task_start_ns, context.task_end_ns
     if t0 is None or t1 is None or (last >= t0 and first <= t1):
         return
-    given = " ".join(f"{name} {v:g}" for name, v in (("--start", start_s), ("--end", end_s)) if v is not None)
+    named = [(name, v) for name, v in (("start", start_s), ("end", end_s)) if v is not None]
+    given = " ".join(f"{{{name}}} {v:g}" for name, v in named)
     raise ConfigError(f"{given} selects {(first - start_ns) / 1e9:.2f}-{(last - start_ns) / 1e9:.2f} s, which misses "
                       f"the task window {(t0 - start_ns) / 1e9:.2f}-{(t1 - start_ns) / 1e9:.2f} s (where trajectories "
-                      "and metrics are computed): choose a range that overlaps it")
+                      "and metrics are computed): choose a range that overlaps it", parameter=named[0][0],
+                      value=named[0][1], also=[name for name, _ in named[1:]])
 
 
 class TickScheduler:
@@ -199,7 +201,7 @@ class TickScheduler:
                    gt_calibration, gt_series, has_camera: bool, gt_topic: bool) -> None:
         """What a pass needs besides the grid: the same for a file and for a live feed."""
         if not rate_hz > 0:
-            raise ConfigError(f"--rate must be > 0 (got {rate_hz})")
+            raise ConfigError(f"{{rate}} must be > 0 (got {rate_hz})", parameter="rate", value=rate_hz, expected="> 0")
         self.context = context
         self.rate_hz = float(rate_hz)
         self.period_ns = int(round(1e9 / self.rate_hz))
@@ -253,8 +255,9 @@ class TickScheduler:
             last_limit = min(last_limit, start_ns + int(round(end_s * 1e9)))
         last = first + max(-1, (last_limit - first) // self.period_ns) * self.period_ns
         if last < first and (start_s is not None or end_s is not None):
-            raise ConfigError(f"--start/--end select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and its "
-                              f"first tick is at {(t0 - start_ns) / 1e9:.2f} s")
+            raise ConfigError(f"{{start}}/{{end}} select no tick: the session runs {(end_ns - start_ns) / 1e9:.2f} s and "
+                              f"its first tick is at {(t0 - start_ns) / 1e9:.2f} s", parameter="start", value=start_s,
+                              also=["end"])
         if start_s is not None or end_s is not None:
             _check_task_overlap(self.context, start_ns, first, last, start_s, end_s)
         return first, last

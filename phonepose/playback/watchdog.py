@@ -17,7 +17,7 @@ import signal
 import threading
 import time
 
-from phonepose.errors import StopRequest, TrackerError
+from phonepose.errors import StopRequest, TrackerError, shown
 
 GRACE_S = 5.0    # how long a stopped step may take to unwind before the process ends without it
 _SIGNAL = getattr(signal, "SIGUSR1", None)
@@ -56,12 +56,12 @@ class StepWatchdog:
 
     def message(self, armed: tuple[float, str, int]) -> str:
         _, who, tick = armed
-        return f"{who} did not return from step() at tick {tick} within --tick-timeout {self.timeout_s:g} s: stopped"
+        return f"{who} did not return from step() at tick {tick} within {{tick_timeout}} {self.timeout_s:g} s: stopped"
 
     def _on_signal(self, signum, frame) -> None:
         overdue = self._overdue
         if overdue is not None and self._armed is overdue:    # still in that step (else it returned meanwhile)
-            raise StepTimeout(self.message(overdue))
+            raise StepTimeout(self.message(overdue))   # a template: the engine's TrackerError names tick_timeout
 
     def _watch(self) -> None:
         while not self._closed.is_set():
@@ -91,7 +91,8 @@ class StepWatchdog:
         from phonepose.files import abort_open_plans
 
         try:
-            os.write(2, f"phonepose: error: {message}\n".encode("utf-8", "replace"))
+            line = shown(TrackerError(message, "", parameter="tick_timeout"))
+            os.write(2, f"phonepose: error: {line}\n".encode("utf-8", "replace"))
         finally:
             abort_open_plans()
             os._exit(TrackerError.exit_code)

@@ -396,8 +396,9 @@ def salvage(path: str | os.PathLike, out: str | os.PathLike, replace: bool = Tru
     src, dst = os.fspath(path), os.fspath(out)
     check_input(src, "MCAP file")      # a FIFO, socket or device: refused before open() could wait forever
     if os.path.exists(dst) and os.path.samefile(src, dst) or Path(src).resolve() == Path(dst).resolve():
-        raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another --out)")
-    refuse_to_replace(dst, replace)
+        raise InputFileError(f"{dst}: is the input file; recover writes a new file (choose another {{out}})",
+                             parameter="out", value=dst)
+    refuse_to_replace(dst, replace, force_parameter="replace")
     report = RecoveryReport(path=src, out=dst)
     try:
         f = open(src, "rb")

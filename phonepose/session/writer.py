@@ -22,16 +22,21 @@ CHUNK_SIZE = 1 << 20
 FLUSH_EVERY_NS = 1_000_000_000
 
 
-def refuse_to_replace(path: str | os.PathLike, force: bool = False, option: str = "--out") -> None:
-    """Stop a command before it replaces an existing file at ``path`` unless ``force``.
+def refuse_to_replace(path: str | os.PathLike, force: bool = False, parameter: str = "out",
+                      force_parameter: str = "force") -> None:
+    """Stop a command before it replaces an existing file at ``path`` unless ``force``; the errors name the
+    caller's keywords ``parameter`` (the path's) and ``force_parameter``.
 
     A live recording cannot be made again and a simulated one costs minutes, so the commands that
     create a session (record sim, record live, recover) call this before they start.
     """
     if os.path.isdir(path):
-        raise OutputError(f"{os.fspath(path)}: is a directory; {option} takes a file name")
+        raise OutputError(f"{os.fspath(path)}: is a directory; {{{parameter}}} takes a file name", parameter=parameter,
+                          value=path)
     if os.path.lexists(path) and not force:
-        raise OutputError(f"{os.fspath(path)} already exists: choose another {option}, or add --force to replace it")
+        raise OutputError(f"{os.fspath(path)} already exists: choose another {{{parameter}}}, or add "
+                          f"{{{force_parameter}=True}} to replace it", parameter=parameter, value=path,
+                          also=[force_parameter])
 
 
 class SessionWriter:

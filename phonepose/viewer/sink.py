@@ -92,8 +92,8 @@ def open_recording(application_id: str, recording_id: str, *, name: str, rrd_pat
     except (RuntimeError, OSError) as exc:   # rerun reports sink failures as RuntimeError
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if spawn:
-            raise OutputError(f"cannot spawn the Rerun viewer ({first}); save a recording with --rerun FILE.rrd "
-                              "instead") from None
+            raise OutputError(f"cannot spawn the Rerun viewer ({first}); save a recording with {{rerun}} FILE.rrd "
+                              "instead", parameter="spawn", value=True, also=["rerun"]) from None
         raise OutputError(f"cannot write {rrd_path}: {first}") from None
     rec.send_recording_name(name)
     if start_time_ns is not None:

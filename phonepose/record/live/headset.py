@@ -20,6 +20,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from phonepose.errors import keyword
 from phonepose.record.live.webxr import xr_to_gt_world
 from phonepose.schemas.topics import Frame as F
 from phonepose.schemas.topics import Topic
@@ -97,7 +98,8 @@ class HeadsetGroundTruth:
         if gt_hand not in GT_HANDS:
             from phonepose.errors import ConfigError
 
-            raise ConfigError(f"--gt-controller {gt_hand!r}: expected right or left")
+            raise ConfigError(f"{{gt_controller}} {gt_hand!r}: expected right or left", parameter="gt_controller",
+                              value=gt_hand, expected="right or left")
         self.rec = recording
         self.gt_hand = gt_hand
         self.board_hand = other_hand(gt_hand)
@@ -176,8 +178,9 @@ class HeadsetGroundTruth:
         elif self.hands_seen and "hand" not in self.warned:
             self.warned.add("hand")
             self.rec.log(f"{who}: no {self.gt_hand} controller in the XR session (only "
-                         f"{', '.join(sorted(self.hands_seen))}): the phone's controller is --gt-controller "
-                         f"{self.gt_hand}; turn it on, or record with --gt-controller {other_hand(self.gt_hand)}",
+                         f"{', '.join(sorted(self.hands_seen))}): the phone's controller is {keyword('gt_controller')} "
+                         f"{self.gt_hand}; turn it on, or record with {keyword('gt_controller')} "
+                         f"{other_hand(self.gt_hand)}",
                          level="warning")
 
     # ------------------------------------------------------------------ end

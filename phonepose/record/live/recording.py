@@ -19,6 +19,7 @@ import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.Log_pb2 import Log
 
+from phonepose.errors import keyword
 from phonepose.geometry import Pose
 from phonepose.pipeline.markers import MarkerRecognizer, aruco_dictionary
 from phonepose.pipeline.types import CameraModel, MarkerModel
@@ -153,7 +154,8 @@ class LiveRecording:
         self.stats["marker size changes ignored"] += 1
         if self.marker_size_from_cli:
             self.limited(who, "other marker sizes", f"the page reports a marker side of {detail}; the session uses "
-                         f"--marker-size {self.marker_size_m * 1000:.1f} mm", level="warning", count=False)
+                         f"{keyword('marker_size_m')} {self.marker_size_m * 1000:.1f} mm", level="warning",
+                         count=False)
             return None
         text = (f"the marker's size changed to {size * 1000:.1f} mm after the anchor; the session keeps "
                 f"{self.marker_size_m * 1000:.1f} mm, so marker poses from now on are off: restore the layout "

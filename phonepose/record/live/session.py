@@ -65,7 +65,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 
 from phonepose import __version__
 from phonepose.calibration.camera_file import CameraCalibrationFile, load_calibration
-from phonepose.errors import ConfigError
+from phonepose.errors import ConfigError, keyword
 from phonepose.pipeline.markers import aruco_dictionary
 from phonepose.pipeline.types import CameraModel
 from phonepose.playback.livereport import METADATA_NAME as TRACKING_METADATA
@@ -183,7 +183,8 @@ class LiveSource:
             except OSError as exc:
                 self._stop_loop()
                 raise ConfigError(f"cannot listen on {self.pose_server.host}:{self.pose_server.port} for the pose "
-                                  f"stream: {exc.strerror or exc} (choose another --pose-port)") from None
+                                  f"stream: {exc.strerror or exc} (choose another {{pose_port}})", parameter="pose_port",
+                                  value=self.pose_server.port) from None
         return port
 
     def _start_server(self) -> int:
@@ -199,7 +200,7 @@ class LiveSource:
         except OSError as exc:
             self._stop_loop()
             raise ConfigError(f"cannot listen on {self.host}:{self.server.port}: {exc.strerror or exc} "
-                              f"(choose another --port)") from None
+                              "(choose another {port})", parameter="port", value=self.server.port) from None
 
     def _run_loop(self, ready: threading.Event) -> None:
         loop = self._loop
@@ -321,7 +322,7 @@ class LiveSource:
                 pass
             now = self.clock.now_ns()
             if self.max_duration_ns is not None and now - t_begin >= self.max_duration_ns:
-                self.request_stop(f"--duration {self.max_duration_ns / 1e9:g} s reached")
+                self.request_stop(f"{keyword('duration_s')} {self.max_duration_ns / 1e9:g} s reached")
             if self._stop.is_set():
                 break
             watermark = now - HOLD_NS
@@ -395,8 +396,9 @@ class LiveSource:
         if self.camera.reencoded:
             lines.append(f"camera frames encoded as JPEG by the recorder: {self.camera.reencoded} of {self.camera.frames}")
         if rec.marker_size_m is None:
-            lines.append("no marker size: the page never reported it and --marker-size was not given; playback needs it "
-                         "(record again, or pass --marker-size)")
+            size = keyword("marker_size_m")
+            lines.append(f"no marker size: the page never reported it and {size} was not given; playback needs it "
+                         f"(record again, or pass {size})")
         if not rec.anchor_set:
             lines.append("no anchor was set: trackers cannot map the phone's VIO into the display's frame")
         self.summary = lines
@@ -462,13 +464,16 @@ class LiveSession:
 
         aruco_dictionary(dictionary)
         if marker_size_m is not None and not 0.0 < marker_size_m < 1.0:
-            raise ConfigError(f"--marker-size {marker_size_m:g}: expected the marker's side in metres, in (0, 1)")
+            raise ConfigError(f"{{marker_size_m}} {marker_size_m:g}: expected the marker's side in metres, in (0, 1)",
+                              parameter="marker_size_m", value=marker_size_m, expected="in (0, 1) m")
         if duration_s is not None and not duration_s > 0:
-            raise ConfigError(f"--duration {duration_s:g}: expected > 0 s")
+            raise ConfigError(f"{{duration_s}} {duration_s:g}: expected > 0 s", parameter="duration_s", value=duration_s,
+                              expected="> 0 s")
         if gt_controller not in GT_HANDS:
-            raise ConfigError(f"--gt-controller {gt_controller!r}: expected right or left")
+            raise ConfigError(f"{{gt_controller}} {gt_controller!r}: expected right or left", parameter="gt_controller",
+                              value=gt_controller, expected="right or left")
         if not 0 <= port <= 65535:
-            raise ConfigError(f"--port {port}: expected 0..65535")
+            raise ConfigError(f"{{port}} {port}: expected 0..65535", parameter="port", value=port, expected="0..65535")
         out = Path(out)
         parent = out.resolve().parent
         if not parent.is_dir() or not os.access(parent, os.W_OK):

@@ -184,5 +184,5 @@ def ensure_certificate(tls_dir: str | os.PathLike | None, hosts) -> Certificate:
         _write_atomic(cert_path, cert.public_bytes(serialization.Encoding.PEM), 0o644)
     except OSError as exc:
         raise OutputError(f"cannot write the TLS certificate to {d}: {exc.strerror or exc} (choose another "
-                          f"directory with --tls-dir)") from None
+                          "directory with {tls_dir})", parameter="tls_dir", value=d) from None
     return Certificate(cert_path, key_path, _fingerprint(cert), created=True, broken=broken)

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from phonepose.errors import PhoneposeError
+from phonepose.errors import PhoneposeError, keyword
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Stages, Tracker
 from phonepose.playback.livereport import summary_lines
@@ -262,7 +262,7 @@ class LiveTracker:
 
     def _waiting_for(self) -> str:
         if self.has_camera and Topic.CONTROLLER_MARKER not in self.static:
-            return "no marker size yet: give --marker-size"
+            return f"no marker size yet: give {keyword('marker_size_m')}"
         return "no camera frame" if self.has_camera else "no controller VIO"
 
     def _take(self, topic: str, msg: Any, t: int) -> None:

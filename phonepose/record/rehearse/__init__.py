@@ -55,7 +55,7 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
     (with the headset), rehearsal.json (the scores). ``tracking`` (a record.live.session.LiveTracking) runs
     trackers live during the recording (``record live -t``)."""
     from phonepose.calibration.calibrate import opencv_path
-    from phonepose.errors import OutputError
+    from phonepose.errors import OutputError, keyword
     from phonepose.files import OutputPlan, check_input
     from phonepose.record.rehearse.browser import find_iwer
     from phonepose.record.rehearse.scene import build_scene, rehearsal_config
@@ -66,14 +66,15 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
     check_choice(scenario, path, trial)
     check_seed(seed)
     # OpenCV writes camera.avi into the folder (a name that is not UTF-8 crashes it: SIGSEGV)
-    opencv_path(Path(out_dir), "a --out folder (camera.avi is written there by OpenCV)", "choose another --out",
-                OutputError)
+    out_name = keyword("out")
+    opencv_path(Path(out_dir), f"a {out_name} folder (camera.avi is written there by OpenCV)",
+                f"choose another {out_name}", OutputError)
     if config is not None:
         check_input(config, "TOML file")
     cfg = rehearsal_config(config)
     iwer_js = find_iwer(iwer)
     plan = OutputPlan(inputs=[config] if config is not None else [])
-    out = plan.dir(out_dir, "--out", command="record rehearse")
+    out = plan.dir(out_dir, "out", command="record rehearse")
     with plan:
         assert out.tmp is not None
         folder = out.tmp

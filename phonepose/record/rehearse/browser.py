@@ -38,13 +38,14 @@ def find_iwer(path: str | os.PathLike | None = None) -> Path:
     """iwer.min.js: the given file, else $PHONEPOSE_IWER, else the repository's tests/js/node_modules."""
     if path is not None:
         if not os.path.lexists(path):
-            raise ConfigError(f"--iwer {path}: no such file (expected IWER's build/iwer.min.js)")
+            raise ConfigError(f"{{iwer}} {path}: no such file (expected IWER's build/iwer.min.js)", parameter="iwer",
+                              value=path, expected="IWER's build/iwer.min.js")
         return check_input(path, "the file IWER's build/iwer.min.js")   # a FIFO or device: refused, never read
     for candidate in (os.environ.get("PHONEPOSE_IWER"), IWER_IN_REPO):
         if candidate and Path(candidate).is_file():
             return Path(candidate)
     raise ConfigError("IWER (the npm package iwer) is not installed: run `npm ci --prefix tests/js` in the "
-                      "phonepose repository, or give --iwer PATH/TO/iwer.min.js")
+                      "phonepose repository, or give {iwer} PATH/TO/iwer.min.js", parameter="iwer")
 
 
 def find_chromium() -> str | None:

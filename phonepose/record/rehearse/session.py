@@ -119,7 +119,8 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         late = (clock.now_ns() - sim0_ns) / 1e9 + ANCHOR_BEFORE_S
         if late > 0:
             raise ConfigError(f"rehearsal: the browser took {run_info.setup_s:.1f} s to open the pages ({', '.join(steps)}), "
-                              f"{late:.1f} s too long for the {scene.lead_in_s:g} s lead-in: give a longer --lead-in")
+                              f"{late:.1f} s too long for the {scene.lead_in_s:g} s lead-in: give a longer "
+                              "{lead_in_s}", parameter="lead_in_s", value=scene.lead_in_s)
         wait_for(lambda: clock.now_ns() >= sim0_ns - int(ANCHOR_BEFORE_S * 1e9), "the anchor's moment", timeout_s)
         phone.page.click("#btn-anchor")
         echo(f"  pages ready ({', '.join(steps)}); tapped Anchor at sim time "

@@ -47,8 +47,8 @@ def record_sim(out: str | os.PathLike, *, scenario: str = "exp2", path: str | No
     config_file = config if isinstance(config, (str, os.PathLike)) else config_file
     # the files read (the config, a recorded --motion): inputs no output may replace, --force or not
     plan = OutputPlan(inputs=[f for f in (config_file, motion.file if motion is not None else None) if f is not None])
-    session_out = plan.file(out, "--out", suffixes=(".mcap",), what="an MCAP session", in_place=True, force=force)
-    rrd = plan.file(rerun_path, "--rerun", suffixes=(".rrd",), what="a Rerun recording") \
+    session_out = plan.file(out, "out", suffixes=(".mcap",), what="an MCAP session", in_place=True, force=force)
+    rrd = plan.file(rerun_path, "rerun", suffixes=(".rrd",), what="a Rerun recording") \
         if rerun_path is not None else None
     session = SimSession(scenario, path if scenario == "exp2" else None, trial, seed, cfg, motion=motion)
     with plan:

@@ -74,19 +74,21 @@ def load_window(spec: MotionSpec) -> RecordedWindow:
     fmt = spec.fmt or ("euroc" if spec.file.lower().endswith(".csv") else "tum")
     traj = load_trajectory(spec.file, fmt)
     if traj.stamps is None or traj.poses is None or len(traj.poses) < 2:
-        raise ConfigError(f"--motion {spec.file}: needs a timestamped trajectory with 2 or more poses")
+        raise ConfigError(f"{{motion}} {spec.file}: needs a timestamped trajectory with 2 or more poses",
+                          parameter="motion", value=spec.file)
     t = np.asarray(traj.stamps, dtype=float)
     # a duplicate or out-of-order stamp (fr2_desk has one) is dropped: the motion needs increasing times
     keep = np.flatnonzero(newer_than_before(t))
     t, traj_poses = t[keep] - t[keep][0], traj.poses[keep]
     use = (t >= spec.start_s) & (t <= spec.start_s + spec.duration_s)
     if use.sum() < 2 or t[use][-1] - t[use][0] < 0.9 * spec.duration_s:
-        raise ConfigError(f"--motion {spec.file}: the window {spec.start_s:g}-{spec.start_s + spec.duration_s:g} s "
-                          f"is not inside the file's {t[-1]:.1f} s")
+        raise ConfigError(f"{{motion}} {spec.file}: the window {spec.start_s:g}-{spec.start_s + spec.duration_s:g} s "
+                          f"is not inside the file's {t[-1]:.1f} s", parameter="motion", value=spec.file)
     t, poses = t[use], traj_poses[np.flatnonzero(use)]
     gap = float(np.diff(t).max())
     if gap > MAX_GAP_S:
-        raise ConfigError(f"--motion {spec.file}: a {gap:.1f} s gap in the window (choose another --motion-start)")
+        raise ConfigError(f"{{motion}} {spec.file}: a {gap:.1f} s gap in the window (choose another {{motion_start}})",
+                          parameter="motion", value=spec.file, also=["motion_start"])
     t, poses = low_passed(t - t[0], poses, CUTOFF_HZ)
     first = poses[0]
     p = first.rotation.inv().apply(poses.translation - poses.translation.mean(axis=0)) * spec.scale

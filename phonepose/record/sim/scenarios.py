@@ -90,15 +90,17 @@ def check_choice(scenario: str, path: str | None, trial: int) -> None:
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r}: choose one of {', '.join(SCENARIOS)}")
     if scenario == "exp2" and path not in PATHS:
-        raise ConfigError(f"--path must be one of {', '.join(PATHS)} for exp2, got {path!r}")
+        raise ConfigError(f"{{path}} must be one of {', '.join(PATHS)} for exp2, got {path!r}", parameter="path",
+                          value=path, expected=f"one of {', '.join(PATHS)}")
     if trial not in TRIALS:
-        raise ConfigError(f"--trial must be 1, 2 or 3, got {trial!r}")
+        raise ConfigError(f"{{trial}} must be 1, 2 or 3, got {trial!r}", parameter="trial", value=trial,
+                          expected="1, 2 or 3")
 
 
 def check_seed(seed: int) -> None:
     """A seed the session can record and numpy accepts (a negative one is numpy's ValueError)."""
     from phonepose.numbers import SEED_MAX, check_number
-    check_number("--seed", seed, 0, SEED_MAX, integer=True)
+    check_number("seed", seed, 0, SEED_MAX, integer=True)
 
 
 class _Posing:
