@@ -243,6 +243,11 @@ def test_rehearsed_recording_tracks_live_as_playback_does(tmp_path):
     for c in check_live(live):
         assert c.compared == report["ticks"] and c.identical == c.compared, c
     assert any(line.startswith("live T8: ") for line in result.tracking)
+    # the rehearsal's own summary: identity per tracker, and what an application reading the stream received
+    n = report["ticks"]
+    assert f"live T8 vs playback: {n} of {n} ticks identical" in result.tracking
+    assert f"live T4 vs playback: {n} of {n} ticks identical" in result.tracking
+    assert f"pose stream: an application client received {2 * n} estimate(s)" in result.tracking
 
 
 def _damaged_reports(good: dict) -> list[str]:

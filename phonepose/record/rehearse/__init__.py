@@ -86,6 +86,13 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
         run = record_rehearsal(scene, folder / "live.mcap", iwer=iwer_js, headset=headset, timeout_s=timeout_s,
                                echo=echo, tracking=tracking)
         scores = score(scene, run, calibration_out=folder / "gt-calibration.yaml" if headset else None, echo=echo)
+        if tracking is not None and run.tracking:
+            from phonepose.playback.livecheck import check_live
+
+            echo("playback --check-live of the rehearsed session ...")
+            for c in check_live(folder / "live.mcap"):
+                run.tracking.append(f"live {c.tracker} vs playback: {c.identical} of {c.compared} ticks identical"
+                                    + (f", {c.different} different" if c.different else ""))
         doc = {"scenario": scenario, "path": path, "trial": trial, "seed": seed, "lead_in_s": scene.lead_in_s,
                "headset": headset, "sim0_ns": run.sim0_ns,
                "page_clocks": {k: asdict(v) for k, v in run.clocks.items()}, "pages": run.page_states,

@@ -67,8 +67,10 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         live.source.close()
         raise
     headset_url = live.headset_url
+    client = None
     if live.source.pose_server is not None:
         echo(f"  live trackers: pose stream at {live.source.pose_server.url}")
+        client = PoseStreamClient(live.source.pose_server.url)
     result: dict = {}
 
     def run() -> None:
@@ -145,9 +147,60 @@ def _record(scene: Scene, out: Path, tls: Path, browser: RehearsalBrowser, *, he
         if thread.is_alive():
             live.stop("rehearsal ended")
             thread.join(timeout_s)
+        if client is not None:
+            client.stop(timeout_s)
     if "error" in result:
         raise result["error"]
     res = result["live"]
     run_info.summary, run_info.counts, run_info.stop_reason = res.summary, res.counts, res.stop_reason
-    run_info.tracking = res.tracking
+    run_info.tracking = list(res.tracking)
+    if client is not None:
+        run_info.tracking.append(f"pose stream: an application client received {client.received} estimate(s)"
+                                 + (f" ({client.error})" if client.error else ""))
     return run_info
+
+
+class PoseStreamClient:
+    """An application reading the live trackers' pose stream during the rehearsal (as examples/pose_client.py
+    does), in a thread of its own: it counts the estimates it receives."""
+
+    def __init__(self, url: str):
+        import asyncio
+
+        self.url = url
+        self.received = 0
+        self.error = ""
+        self._loop = asyncio.new_event_loop()
+        self._stop: asyncio.Event | None = None
+        self._thread = threading.Thread(target=self._loop.run_until_complete, args=(self._read(),),
+                                        name="phonepose-rehearsal-pose-client", daemon=True)
+        self._thread.start()
+
+    async def _read(self) -> None:
+        import asyncio
+
+        import aiohttp
+
+        self._stop = asyncio.Event()
+        try:
+            async with aiohttp.ClientSession() as session, session.ws_connect(self.url) as ws:
+                reading = asyncio.ensure_future(self._count(ws))
+                stopping = asyncio.ensure_future(self._stop.wait())
+                await asyncio.wait({reading, stopping}, return_when=asyncio.FIRST_COMPLETED)
+                for task in (reading, stopping):
+                    task.cancel()
+        except (aiohttp.ClientError, OSError) as exc:
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    async def _count(self, ws) -> None:
+        import aiohttp
+
+        async for msg in ws:
+            if msg.type != aiohttp.WSMsgType.TEXT:
+                break
+            self.received += 1
+
+    def stop(self, timeout_s: float) -> None:
+        if self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout_s)
