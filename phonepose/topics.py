@@ -55,7 +55,13 @@ class Topic:
     PIPELINE_MARKERS = "/pipeline/markers"
     PIPELINE_MARKER_ANNOTATIONS = "/pipeline/markers/annotations"   # the same detections for Foxglove's Image panel
     TRACKER_POSE = "/trackers/{name}/pose"
+    TF_TRACKERS = "/tf/trackers"                       # display_vio -> tracker/<name>: every estimate as a frame
 
 
 def tracker_pose_topic(name: str) -> str:
     return Topic.TRACKER_POSE.format(name=name)
+
+
+def tracker_frame(name: str) -> str:
+    """The frame of tracker ``name``'s estimate on ``/tf/trackers`` (child of display_vio)."""
+    return f"tracker/{name}"

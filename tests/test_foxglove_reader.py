@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from phonepose.schemas.topics import Frame, Topic
+from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
+from phonepose.topics import tracker_frame
 
 JS = Path(__file__).parent / "js"
 NODE = shutil.which("node")
@@ -55,8 +56,15 @@ def test_mcap_core_decodes_the_frame_tree_and_the_image_annotations(tmp_path):
         assert [f["name"] for f in cloud["fields"]] == ["x", "y", "z"] and cloud["point_stride"] == 12
 
     out = tmp_path / "pb"
-    run_playback(session, trackers=["T7"], out_dir=out)
-    got = read_with_mcap_core(out / "trackers.mcap", Topic.PIPELINE_MARKERS, Topic.PIPELINE_MARKER_ANNOTATIONS)
+    trackers = ["T1", "T7", "T8"]
+    run_playback(session, trackers=trackers, out_dir=out)
+    got = read_with_mcap_core(out / "trackers.mcap", Topic.PIPELINE_MARKERS, Topic.PIPELINE_MARKER_ANNOTATIONS,
+                              Topic.TF_TRACKERS, *(tracker_pose_topic(n) for n in trackers))
+    # every tracker's estimate is a frame of its own under display_vio, one transform per pose message
+    tf = got[Topic.TF_TRACKERS]
+    assert tf["schema"] == "foxglove.FrameTransform" and tf["first"]["parent_frame_id"] == Frame.DISPLAY_VIO
+    assert tf["children"] == {tracker_frame(n): got[tracker_pose_topic(n)]["count"] for n in trackers}
+    assert all(c > 0 for c in tf["children"].values())
     ann, det = got[Topic.PIPELINE_MARKER_ANNOTATIONS], got[Topic.PIPELINE_MARKERS]
     assert ann["schema"] == "foxglove.ImageAnnotations" and ann["count"] == det["count"] > 0
     from phonepose.session import SessionReader

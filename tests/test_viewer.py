@@ -14,14 +14,17 @@ import numpy as np
 import pytest
 import rerun as rr
 import rerun.chunk as rc
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from phonepose.playback.engine import run_playback
-from phonepose.playback.rerun_log import recording_id
+from phonepose.playback.rerun_log import METRIC_COLUMNS, axis_colors, metrics_markdown, recording_id
 from phonepose.schemas.topics import Frame, Topic
 from phonepose.session import SessionReader
 from phonepose.testing.playback_session import write_test_session
 from phonepose.viewer import entities as E
-from phonepose.viewer.style import GT_COLOR, TASK_COLOR, TRACKER_COLORS, tracker_color
+from phonepose.viewer.scene import WORKING_DEPTH_M
+from phonepose.viewer.style import GT_COLOR, TASK_COLOR, TRACKER_COLORS, color_name, tracker_color
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 TRACKERS = ["T1", "T7", "T8"]
@@ -106,7 +109,7 @@ def test_recording_name_and_no_wall_clock_timeline(played):
     names = _values(found.get(rr.RECORDING_PROPERTIES_PATH, []), "RecordingInfo:name")
     assert names == ["s.mcap · T1 T7 T8 · 20 Hz"]
     timelines = {t for entity in found.values() for chunk, _ in entity for t in chunk.timeline_names}
-    assert timelines == {"tick", "time"}          # no log_time: the recording lasts as long as the session
+    assert timelines == {"tick", "time", "session_time"}   # no log_time: the recording lasts as long as the session
 
 
 def test_each_tracker_has_one_colour_on_every_entity(played):
@@ -115,6 +118,13 @@ def test_each_tracker_has_one_colour_on_every_entity(played):
     for name in TRACKERS:
         dots = {_rgb(c) for c in _values(found[E.tracker_pose(name)], "Points3D:colors")}
         labels = set(_values(found[E.tracker_pose(name)], "Points3D:labels"))
+        # the axes in the tracker's colour (x as is, y lighter, z darker), never the plain RGB of every pose
+        axes = [_rgb(c) for c in _values(found[E.tracker_pose(name)], "Arrows3D:colors")]
+        assert axes and len(axes) % 3 == 0
+        assert {tuple(axes[i:i + 3]) for i in range(0, len(axes), 3)} == {tuple(map(tuple, axis_colors(tracker_color(name))))}
+        assert axis_colors(tracker_color(name))[0].tolist() == list(tracker_color(name))
+        # the name is data on the dot, not drawn: nine labels at one place would cover the scene
+        assert set(_values(found[E.tracker_pose(name)], "Points3D:show_labels")) == {False}
         lines = {_rgb(c) for path in found if path.startswith(E.tracker_trajectory(name) + "/")
                  for c in _values(found[path], "LineStrips3D:colors")}
         series = {_rgb(c) for path in (E.position_error(name), E.rotation_error(name))
@@ -179,13 +189,140 @@ def _blueprint_rows(rrd) -> dict[str, list]:
     return rows
 
 
+def test_the_3d_view_draws_the_frustum_at_the_working_depth_and_the_image_only_in_2d(played, tmp_path):
+    _, rrd, found = played
+    assert _values(found[E.IMAGE], "Pinhole:image_plane_distance") == [pytest.approx(WORKING_DEPTH_M)]
+    assert _values(found[E.IMAGE], "EncodedImage:blob")                   # the images are there, for the 2D view
+    reader = rc.RrdReader(str(rrd))
+    (store,) = reader.blueprints()
+    overrides: dict[str, list] = {}
+    for chunk in reader.stream(store=store).to_chunks():
+        batch = chunk.to_record_batch()
+        if "/ViewContents/overrides/" in chunk.entity_path and "VisualizerInstruction:visualizer_type" in batch.schema.names:
+            entity = "/" + chunk.entity_path.split("/ViewContents/overrides/", 1)[1].rsplit("/visualizers", 1)[0]
+            overrides.setdefault(entity, []).extend(_values([(chunk, batch)], "VisualizerInstruction:visualizer_type"))
+    # in the 3D view the camera entity has its Pinhole's visualizer only: no image plane over the scene
+    assert overrides == {E.IMAGE: ["Cameras"]}
+
+
+def test_session_time_counts_from_the_sessions_first_message(played, session):
+    result, rrd, found = played
+    with SessionReader(session) as r:
+        first = min(m.log_time_ns for m in r.messages())
+    for path in (E.tracker_pose("T8"), E.position_error("T8"), E.DISPLAY):
+        for _, batch in found[path]:
+            if "session_time" in batch.schema.names:
+                since = batch.column("session_time").cast("int64").to_numpy()
+                t = batch.column("time").cast("int64").to_numpy()
+                assert np.array_equal(since, t - first), path
+    rows = _blueprint_rows(rrd)
+    assert [str(v) for v in rows["TimePanelBlueprint:timeline"]] == ["session_time"]
+    (selection,) = rows["TimePanelBlueprint:time_selection"]
+    info = result.metrics   # the task window, in seconds since the first message
+    assert info is not None
+    gt = result.gt_stamps_ns
+    assert selection["min"] <= gt[0] - first and gt[-1] - first <= selection["max"]
+
+
+def _table(markdown: str) -> dict[str, list[str]]:
+    """tracker -> its cells after the colour, from the metrics panel's markdown table."""
+    rows = [line.strip("|").split("|") for line in markdown.splitlines() if line.startswith("| T")]
+    return {cells[0].strip(): [c.strip() for c in cells[1:]] for cells in rows}
+
+
+def test_the_metrics_panel_holds_the_metrics_and_the_colour_legend(played):
+    result, _, found = played
+    (chunk, batch), *_ = found[E.METRICS]
+    assert chunk.is_static
+    (text,) = _values(found[E.METRICS], "TextDocument:text")
+    assert _values(found[E.METRICS], "TextDocument:media_type") == ["text/markdown"]
+    assert text == metrics_markdown(result.metrics)
+    table = _table(text)
+    assert list(table) == TRACKERS
+    for name in TRACKERS:
+        assert table[name][0] == color_name(name)
+        for (_, key, scope, factor), cell in zip(METRIC_COLUMNS, table[name][1:], strict=True):
+            v = result.metrics["trackers"][name][scope][key]
+            assert cell.strip("*") == ("–" if v is None else f"{v * factor:.2f}")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.lists(st.one_of(st.none(), st.floats(0, 10, allow_nan=False)), min_size=9, max_size=9),
+                min_size=1, max_size=9))
+def test_the_best_of_each_metrics_column_is_bold(values):
+    names = [f"T{i + 1}" for i in range(len(values))]
+    doc = {"session": "s.mcap", "rate_hz": 20, "trackers": {
+        n: {scope: {key: None for _, key, *_ in METRIC_COLUMNS} for scope in ("inside", "outside", "total")}
+        for n in names}}
+    for n, row in zip(names, values, strict=True):
+        for (_, key, scope, _f), v in zip(METRIC_COLUMNS, row, strict=True):
+            doc["trackers"][n][scope][key] = v
+    table = _table(metrics_markdown(doc))
+    for j in range(len(METRIC_COLUMNS)):
+        column = [row[j] for row in values]
+        best = min((v for v in column if v is not None), default=None)
+        for n, v in zip(names, column, strict=True):
+            cell = table[n][1 + j]
+            assert cell.startswith("**") == (v is not None and v == best)
+            assert (cell == "–") == (v is None)
+
+
+def test_trackers_mcap_has_every_estimate_as_a_frame_transform(played):
+    result, _, _ = played
+    from phonepose.topics import tracker_frame, tracker_pose_topic
+
+    with SessionReader(result.out_dir / "trackers.mcap") as r:
+        tf = [(m.log_time_ns, m.msg) for m in r.messages([Topic.TF_TRACKERS])]
+        poses = {name: [(m.log_time_ns, m.msg) for m in r.messages([tracker_pose_topic(name)])] for name in TRACKERS}
+    assert {m.parent_frame_id for _, m in tf} == {Frame.DISPLAY_VIO}
+    assert {m.child_frame_id for _, m in tf} == {tracker_frame(n) for n in TRACKERS}
+    for name in TRACKERS:
+        mine = [(t, m) for t, m in tf if m.child_frame_id == tracker_frame(name)]
+        assert len(mine) == len(poses[name]) > 0
+        for (t, m), (tp, p) in zip(mine, poses[name], strict=True):
+            assert t == tp
+            assert [m.translation.x, m.translation.y, m.translation.z] == [p.pose.position.x, p.pose.position.y,
+                                                                            p.pose.position.z]
+            assert [m.rotation.x, m.rotation.y, m.rotation.z, m.rotation.w] == [
+                p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w]
+
+
+def test_errors_csv_holds_the_errors_the_metrics_are_the_rms_of(played):
+    import csv
+
+    from phonepose.evaluation.stats import rmse
+
+    result, _, _ = played
+    with open(result.out_dir / "errors.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["timestamp", "tracker", "position_error_m", "rotation_error_deg", "in_view"]
+    assert [r["tracker"] for r in rows] == sorted((r["tracker"] for r in rows), key=TRACKERS.index)
+    gt_t = set(result.gt_stamps_ns.tolist())
+    for name in TRACKERS:
+        mine = [r for r in rows if r["tracker"] == name]
+        stamps = [int(r["timestamp"].replace(".", "")) for r in mine]
+        assert stamps == sorted(set(stamps) & gt_t & set(result.trajectories[name].stamps_ns.tolist()))
+        p = np.array([float(r["position_error_m"]) for r in mine])
+        rot = np.array([float(r["rotation_error_deg"]) for r in mine])
+        inside = np.array([r["in_view"] == "1" for r in mine])
+        for scope, mask in (("inside", inside), ("outside", ~inside), ("total", np.ones(len(mine), bool))):
+            m = result.metrics["trackers"][name][scope]
+            assert m["frames"] == (int(mask.sum()) or None) or (m["frames"] in (0, None) and not mask.any())
+            if mask.any():
+                # the metrics' own RMS of the column gives the metric exactly; numpy's mean to a few ulps
+                assert (rmse(p[mask]), rmse(rot[mask])) == (m["p_ate_m"], m["r_ate_deg"])
+                assert np.sqrt(np.mean(p[mask] ** 2)) == pytest.approx(m["p_ate_m"], rel=8 * np.finfo(float).eps, abs=0)
+                assert np.sqrt(np.mean(rot[mask] ** 2)) == pytest.approx(m["r_ate_deg"], rel=8 * np.finfo(float).eps,
+                                                                         abs=0)
+
+
 def test_blueprint_holds_the_documented_views_and_an_eye_on_the_task(played):
     _, rrd, found = played
     rows = _blueprint_rows(rrd)
     views = dict(zip([str(v) for v in rows["ViewBlueprint:space_origin"]], rows["ViewBlueprint:class_identifier"],
                      strict=True))
     expected = {E.WORLD: "3D", E.IMAGE: "2D", E.STATUS: "StateTimeline", E.POSITION_ERRORS: "TimeSeries",
-                E.ROTATION_ERRORS: "TimeSeries"}
+                E.ROTATION_ERRORS: "TimeSeries", E.METRICS: "TextDocument"}
     assert {o: str(views.get(o, "")) for o in expected} == expected
     doc = (DOCS / "playback.md").read_text()
     for origin in expected:

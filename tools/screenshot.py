@@ -70,7 +70,8 @@ def shoot(source: Path, outputs: dict[str, Path], *, width: int, height: int, ti
     env = dict(os.environ, RERUN_ANALYTICS="0")
     server = subprocess.Popen([_rerun_cli(), "--serve-web", str(source), "--bind", "127.0.0.1",
                                "--web-viewer-port", str(web_port), "--port", str(grpc_port)],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=os.name == "posix")   # `rerun` is a wrapper: stop its viewer too
     try:
         deadline = time.monotonic() + timeout_s
         base = f"http://127.0.0.1:{web_port}"
@@ -101,11 +102,33 @@ def shoot(source: Path, outputs: dict[str, Path], *, width: int, height: int, ti
             finally:
                 browser.close()
     finally:
+        _stop(server)
+
+
+def _stop(server: subprocess.Popen) -> None:
+    """Stop the server and the viewer binary the ``rerun`` wrapper started (its process group on POSIX)."""
+    if os.name != "posix":
         server.terminate()
         try:
             server.wait(timeout=10)
         except subprocess.TimeoutExpired:
             server.kill()
+        return
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(server.pid, sig)
+        except ProcessLookupError:     # the whole group is gone
+            return
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            server.poll()
+            try:
+                os.killpg(server.pid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.2)
 
 
 def main(argv: list[str] | None = None) -> None:

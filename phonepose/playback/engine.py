@@ -13,7 +13,9 @@ in_view)`` and the associated ground truth, then writes (docs/playback.md):
 * ``DIR/in_view.txt``: at those ticks, whether the marker was recognised (for ``evaluate --metric paper``);
 * ``DIR/metrics.json``: per tracker p_ATE / r_ATE / p_RE inside / outside the FoV and total
   (``null`` where not computable, e.g. no GT);
-* ``DIR/trackers.mcap``: ``/pipeline/markers`` (per new camera frame) and ``/trackers/<name>/pose``.
+* ``DIR/errors.csv``: per tracker and tick the position and rotation error the metrics are computed from;
+* ``DIR/trackers.mcap``: ``/pipeline/markers`` (per new camera frame), ``/trackers/<name>/pose`` and
+  ``/tf/trackers`` (each estimate as a FrameTransform, child ``tracker/<name>``).
 
 Nothing depends on the wall clock unless ``realtime`` paces the ticks.
 """
@@ -42,13 +44,20 @@ from phonepose.pipeline.shared import SharedStages, warn_damaged, warn_wrong_siz
 from phonepose.pipeline.trackers import NAME_RULE, check_unique_names, is_safe_name, make_trackers, split_names
 from phonepose.pipeline.types import Observation, SessionContext, Stages, Tick, Tracker
 from phonepose.playback.collector import TrackerTrajectory, Trajectories, TrajectoryCollector
-from phonepose.playback.outputs import detections_message, metrics_document, paper_metrics, write_metrics
+from phonepose.playback.outputs import (
+    detections_message,
+    metrics_document,
+    paper_metrics,
+    write_errors,
+    write_metrics,
+)
 from phonepose.playback.scheduler import DEFAULT_RATE_HZ, TickScheduler
 from phonepose.playback.watchdog import StepTimeout, StepWatchdog
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session import SessionReader, SessionWriter
-from phonepose.session.codec import pose_in_frame
+from phonepose.session.codec import frame_transform, pose_in_frame
 from phonepose.session.context import has_camera, read_context, session_tag
+from phonepose.topics import tracker_frame
 from phonepose.viewer.annotations import marker_annotations
 
 if TYPE_CHECKING:
@@ -184,6 +193,9 @@ class PlaybackEngine:
                     msg = pose_in_frame(pose, Frame.DISPLAY_VIO, tick.t_ns)
                     hit = encoded[id(pose)] = (msg, msg.SerializeToString())
                 self.writer.write_bytes(self._topics[name], hit[0], hit[1], tick.t_ns)
+                # the same estimate as a frame, so Foxglove's 3D panel draws every tracker's axes
+                self.writer.write(Topic.TF_TRACKERS, frame_transform(pose, Frame.DISPLAY_VIO, tracker_frame(name),
+                                                                     tick.t_ns), tick.t_ns)
 
     def trajectories(self) -> Trajectories:
         """Every tracker's trajectory, each read back from its collector when looked up."""
@@ -268,7 +280,7 @@ def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
 
 
 def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContext, names: list[str],
-                  math: str, gt_setup: GroundTruthSetup) -> PlaybackRerunLogger | None:
+                  math: str, gt_setup: GroundTruthSetup, start_ns: int) -> PlaybackRerunLogger | None:
     if options.rerun_path is None and not options.spawn:
         return None
     from phonepose.playback.rerun_log import PlaybackRerunLogger
@@ -276,7 +288,7 @@ def _rerun_logger(options: PlaybackOptions, session: str, context: SessionContex
                                params={"rate_hz": options.rate_hz, "correction_math": math, "start_s": options.start_s,
                                        "end_s": options.end_s, "hand_eye": gt_setup.calibration_path,
                                        **gt_setup.rerun_params},
-                               rrd_path=options.rerun_path, spawn=options.spawn)
+                               rrd_path=options.rerun_path, spawn=options.spawn, session_start_ns=start_ns)
 
 
 # Ticks whose recognition runs ahead of the trackers (SharedStages.prefetch): enough to keep the
@@ -371,7 +383,8 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             stack.callback(engine.watchdog.close)
         # side effects from here on: the Rerun sink first (a --rerun path that cannot be written fails
         # before any file is opened), then the output folder and trackers.mcap
-        engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math, gt_setup)
+        engine.rerun_logger = _rerun_logger(options, session, context, [t.name for t in tracker_objs], math, gt_setup,
+                                            scheduler.span_ns[0])
         if engine.rerun_logger is not None:
             stack.callback(engine.rerun_logger.close)
         if out is not None:
@@ -380,6 +393,12 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
             engine.writer = SessionWriter(out / "trackers.mcap")
             stack.callback(engine.writer.finish)
         _play(scheduler, engine, options)
+        trajs = engine.trajectories()
+        gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
+        per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))
+        if engine.rerun_logger is not None:   # the recording's metrics panel: before its sink closes
+            engine.rerun_logger.log_metrics(metrics_document(Path(session).name, options.rate_hz, per_tracker,
+                                                             ground_truth=gt_note))
     if context.session_id is None:    # e.g. a session cut by a tool that keeps only some topics
         log.warning("%s: no %s, so no task window: the metrics cover the whole session",
                     session, Topic.SESSION_INFO)
@@ -388,9 +407,6 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
                     Topic.CAMERA_IMAGE, stages.frames_undecodable)
     warn_wrong_size(stages.frames_wrong_size, stages.wrong_size)
     warn_damaged(stages.frames_damaged, stages.damaged)
-    trajs = engine.trajectories()
-    gt_stamps, gt_poses = engine.gt.stamps(), engine.gt.poses()
-    per_tracker = engine.metrics(trajs, (gt_stamps, gt_poses))
     session_name = Path(session).name
     metrics_doc = metrics_document(session_name, options.rate_hz, per_tracker, ground_truth=gt_note)
     if out is not None:
@@ -398,6 +414,9 @@ def run_playback(session: str | os.PathLike, options: PlaybackOptions | None = N
         metrics_doc = write_metrics(out / "metrics.json", session_name, options.rate_hz, per_tracker,
                                     ground_truth=gt_note)
         files["metrics.json"] = str(out / "metrics.json")
+        if gt_poses is not None:
+            write_errors(out / "errors.csv", trajs, gt_stamps, gt_poses)
+            files["errors.csv"] = str(out / "errors.csv")
     rerun_path = options.rerun_path
     return PlaybackResult(
         session=session, out_dir=out, rate_hz=options.rate_hz, n_ticks=engine.n_ticks,

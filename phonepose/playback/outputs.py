@@ -1,15 +1,18 @@
-"""Playback outputs: metrics.json, the call into the evaluation module's paper metrics, and the
-/pipeline/markers message of trackers.mcap.
+"""Playback outputs: metrics.json, errors.csv, the call into the evaluation module's paper metrics,
+and the /pipeline/markers message of trackers.mcap.
 
 TUM trajectories are written by :func:`phonepose.evaluation.trajectory.write_tum` (one writer,
 fixed format). metrics.json has a fixed layout, 2-space indent and ``null`` for every value that
-cannot be computed, so the same playback gives byte-identical files.
+cannot be computed, so the same playback gives byte-identical files. errors.csv holds the
+per-tick errors the metrics are the RMS of, every double written exactly (``repr``).
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +61,44 @@ def metrics_document(session: str, rate_hz: float, trackers: dict[str, dict], gr
     doc["trackers"] = {name: normalise_metrics(trackers[name]) for name in trackers}
     return doc
 
+
+
+ERRORS_HEADER = ["timestamp", "tracker", "position_error_m", "rotation_error_deg", "in_view"]
+
+
+def tick_errors(stamps_ns: np.ndarray, poses: Pose | None, gt_stamps_ns: np.ndarray,
+                gt: Pose | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(stamps_ns, e_trans [m], e_rot [deg], index into the tracker's ticks)`` at the ticks where
+    the tracker and the GT both have a pose: the association and errors the paper metrics use."""
+    from phonepose.evaluation.ate import absolute_errors
+
+    if gt is None or poses is None:
+        empty = np.zeros(0)
+        return np.zeros(0, np.int64), empty, empty, np.zeros(0, np.int64)
+    common, i_est, i_gt = np.intersect1d(stamps_ns, gt_stamps_ns, assume_unique=True, return_indices=True)
+    if common.size == 0:
+        empty = np.zeros(0)
+        return common, empty, empty, i_est
+    e_trans, e_rot = absolute_errors(gt[i_gt], poses[i_est])
+    return common, e_trans, e_rot, i_est
+
+
+def write_errors(path: str | os.PathLike, trajectories: Mapping, gt_stamps_ns: np.ndarray, gt: Pose | None) -> None:
+    """errors.csv: per tracker (in order) and task-window tick with GT, its position error (m),
+    rotation error (degrees) and whether the marker was in view; ``timestamp`` as in the TUM files."""
+    try:
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f, lineterminator="\n")
+            w.writerow(ERRORS_HEADER)
+            for name in trajectories:
+                traj = trajectories[name]     # one at a time, as the TUM files are written
+                t, e_trans, e_rot, i_est = tick_errors(traj.stamps_ns, traj.poses, gt_stamps_ns, gt)
+                inside = np.asarray(traj.inside, dtype=bool)[i_est]
+                w.writerows((f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}", name, repr(float(p)), repr(float(r)),
+                             int(v)) for ns, p, r, v in zip(t.tolist(), e_trans, e_rot, inside, strict=True))
+                del traj
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 def write_metrics(path: str | os.PathLike, session: str, rate_hz: float, trackers: dict[str, dict],

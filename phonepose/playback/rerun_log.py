@@ -1,7 +1,8 @@
 """Rerun logging of a playback: one logger per stage, each owning its entity paths.
 
-The engine owns the clock: :class:`PlaybackRerunLogger` sets the timelines ``tick`` (sequence)
-and ``time`` (timestamp, display clock) once per tick, then every stage logger logs its part.
+The engine owns the clock: :class:`PlaybackRerunLogger` sets the timelines ``session_time``
+(duration since the session's first message, the blueprint's), ``tick`` (sequence) and ``time``
+(timestamp, display clock) once per tick, then every stage logger logs its part.
 A stage with nothing to show clears its path (``rr.Clear``) so the viewer never shows a stale
 marker or pose. Entity paths, colours and the sink are those of :mod:`phonepose.viewer`
 (docs/playback.md, "Rerun", shows the tree and the layout).
@@ -9,9 +10,11 @@ marker or pose. Entity paths, colours and the sink are those of :mod:`phonepose.
 A recording reads without the docs: its id is derived from the session's content and the
 playback's parameters (two different runs never merge in the viewer, the same run twice gives
 the same id), its name says session, trackers and rate; every tracker has one colour on its
-pose, its labelled dot, its trajectory and its error series; errors are in cm and degrees over
-the task window, as the tables are; the task window and the marker's in/out of view are lanes of
-a state timeline; the 3D view is framed on the display camera and the task, and stays put.
+pose's axes, its dot, its trajectory and its error series, and the metrics panel (the table of
+metrics.json, static) names the colours; errors are in cm and degrees over the task window, as
+the tables are; the task window and the marker's in/out of view are lanes of a state timeline;
+the 3D view is framed on the display camera and the task, and stays put; the camera image is
+drawn in the 2D camera view only (the 3D view shows the camera's frustum out to the working depth).
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from phonepose.evaluation.ate import rotation_errors_deg, translation_errors
 from phonepose.geometry import Pose
 from phonepose.pipeline.types import Observation, SessionContext, Tick
 from phonepose.viewer import entities as E
-from phonepose.viewer.scene import log_camera, log_task
+from phonepose.viewer.scene import WORKING_DEPTH_M, log_camera, log_task
 from phonepose.viewer.sink import (
     Columns,
     close_recording,
@@ -43,6 +46,7 @@ from phonepose.viewer.style import (
     GT_COLOR,
     MARKER_COLOR,
     TASK_COLOR,
+    color_name,
     line_width,
     tracker_color,
 )
@@ -56,7 +60,8 @@ COLUMNS_EVERY_TICKS_FILE = 100
 COLUMNS_EVERY_TICKS_LIVE = 5
 BLUEPRINT_WAIT_TICKS = 20     # the 3D eye is framed on the display camera: wait this long for its pose
 AXIS_LENGTH_M = 0.05
-DOT_RADIUS_M = 0.006          # the labelled dot at each estimate (the axes alone look alike)
+AXIS_RADIUS_M = 0.0012
+DOT_RADIUS_M = 0.006          # the dot at each estimate, in its tracker's colour
 TRAJECTORY_RADIUS_M = 0.0015
 GT_TRAJECTORY_RADIUS_M = 0.003
 
@@ -146,17 +151,20 @@ def _eye(context: SessionContext, camera_position: np.ndarray | None) -> rrb.Eye
 
 
 def default_blueprint(tracker_names: list[str], context: SessionContext | None = None,
-                      camera_position: np.ndarray | None = None) -> rrb.Blueprint:
-    """3D scene | camera image over the state timeline; the two error plots along the bottom.
+                      camera_position: np.ndarray | None = None, start_ns: int = 0) -> rrb.Blueprint:
+    """3D scene | camera image over the state timeline; the two error plots and the metrics table
+    along the bottom.
 
     Every tracker is in both plots (a comparison needs one axis), each series in its tracker's
-    colour, ours (T7L, T8) drawn thicker; the plots are wide and tall enough (about half the
-    window's width and a third of its height) that the legend lists all nine trackers.
+    colour, ours (T7L, T8) drawn thicker; the plots are tall enough (a third of the window's
+    height) that the legend lists all nine trackers, the table wide enough for its ten columns. The 3D
+    view draws the camera's frustum but not its image (an opaque plane in front of the scene);
+    the image is the 2D view's. Times are on ``session_time`` (``start_ns``: the session's start).
     """
     eye = _eye(context, camera_position) if context is not None else None
     task = None
     if context is not None and context.task_start_ns is not None and context.task_end_ns is not None:
-        task = (int(context.task_start_ns), int(context.task_end_ns))
+        task = (int(context.task_start_ns) - int(start_ns), int(context.task_end_ns) - int(start_ns))
     axis_x = None
     if task is not None:
         axis_x = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.absolute(nanos=task[0]),
@@ -165,7 +173,9 @@ def default_blueprint(tracker_names: list[str], context: SessionContext | None =
         rrb.Vertical(
             rrb.Horizontal(
                 rrb.Spatial3DView(name="3D (display_vio): GT grey, task teal, trackers in colour", origin=E.WORLD,
-                                  eye_controls=eye),
+                                  eye_controls=eye,
+                                  # the camera entity's Pinhole only: its frustum, not the image
+                                  overrides={E.IMAGE: rr.Pinhole.from_fields().visualizer()}),
                 rrb.Vertical(
                     rrb.Spatial2DView(name="display camera", origin=E.IMAGE),
                     rrb.StateTimelineView(name="task window · marker in view", origin=E.STATUS),
@@ -178,29 +188,63 @@ def default_blueprint(tracker_names: list[str], context: SessionContext | None =
                                    plot_legend=rrb.PlotLegend(corner="LeftTop"), axis_x=axis_x),
                 rrb.TimeSeriesView(name="rotation error vs GT (deg)", origin=E.ROTATION_ERRORS,
                                    plot_legend=rrb.PlotLegend(corner="LeftTop"), axis_x=axis_x),
+                rrb.TextDocumentView(name="metrics (metrics.json) · colours", origin=E.METRICS),
+                column_shares=[3, 3, 4],
             ),
             row_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline=E.TIME, state="collapsed",
+        rrb.TimePanel(timeline=E.SESSION_TIME, state="collapsed",
                       time_selection=rrb.components.AbsoluteTimeRange(*task) if task is not None else None),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
     )
 
 
+# ------------------------------------------------------------------ the metrics panel
+# (column header, metric key, scope, factor to the shown unit)
+METRIC_COLUMNS = [(f"{head} {scope_head}", key, scope, factor)
+                  for head, key, factor in (("p", "p_ate_m", 100.0), ("r", "r_ate_deg", 1.0), ("RE", "p_re_m", 100.0))
+                  for scope_head, scope in (("in", "inside"), ("out", "outside"), ("all", "total"))]
+
+
+def metrics_markdown(metrics: dict) -> str:
+    """The metrics.json document as a markdown table: a row per tracker with its colour, p_ATE and
+    p_RE in cm and r_ATE in degrees inside / outside the marker's view and in total; the best
+    (smallest) value of each column in bold, ``–`` where metrics.json has ``null``."""
+    trackers: dict[str, dict] = metrics.get("trackers", {})
+    best = {}
+    for _, key, scope, _f in METRIC_COLUMNS:
+        values = [m[scope][key] for m in trackers.values() if m.get(scope, {}).get(key) is not None]
+        best[(key, scope)] = min(values) if values else None
+    lines = [f"**{metrics.get('session', '')}** · {metrics.get('rate_hz', '')} Hz · p: p_ATE (cm), r: r_ATE (deg), "
+             "RE: p_RE (cm); in / out: marker in / out of view; **bold**: the best of the column", "",
+             "| tracker | colour | " + " | ".join(h for h, *_ in METRIC_COLUMNS) + " |",
+             "|---|---|" + "---:|" * len(METRIC_COLUMNS)]
+    for name, m in trackers.items():
+        cells = []
+        for _, key, scope, factor in METRIC_COLUMNS:
+            v = m.get(scope, {}).get(key)
+            text = "–" if v is None else f"{v * factor:.2f}"
+            cells.append(f"**{text}**" if v is not None and v == best[(key, scope)] else text)
+        lines.append(f"| {name} | {color_name(name)} | " + " | ".join(cells) + " |")
+    lines += ["", "Ground truth: grey (thicker); the task: teal."]
+    return "\n".join(lines) + "\n"
+
+
 # ------------------------------------------------------------------ stage loggers
 class CameraLogger:
     """Display pose, camera (static Pinhole), the recorded JPEG bytes (buffered, sent as columns)."""
 
-    def __init__(self, rec: rr.RecordingStream, context: SessionContext):
+    def __init__(self, rec: rr.RecordingStream, context: SessionContext, start_ns: int):
         self.rec = rec
         cam = context.camera
         self.enabled = cam is not None
         if cam is not None:
-            log_camera(rec, cam.T_display_camera, cam.K, cam.width, cam.height)
+            log_camera(rec, cam.T_display_camera, cam.K, cam.width, cam.height, image_plane_distance=WORKING_DEPTH_M)
         rec.log(E.DISPLAY, rr.TransformAxes3D(AXIS_LENGTH_M * 1.5), static=True)
-        self.poses = Columns(rec, E.DISPLAY, transform_columns)
-        self.images = Columns(rec, E.IMAGE, lambda f: rr.EncodedImage.columns(blob=f["blob"], media_type=f["media"]))
+        self.poses = Columns(rec, E.DISPLAY, transform_columns, start_ns=start_ns)
+        self.images = Columns(rec, E.IMAGE, lambda f: rr.EncodedImage.columns(blob=f["blob"], media_type=f["media"]),
+                              start_ns=start_ns)
 
     def log(self, tick: Tick) -> None:
         # the display pose is the one at the frame's stamp: it changes with the frame
@@ -236,10 +280,10 @@ class MarkerLogger:
     solution's reprojection error over the chosen one's). Logged once per new camera frame; a
     frame without the marker clears the path."""
 
-    def __init__(self, rec: rr.RecordingStream):
+    def __init__(self, rec: rr.RecordingStream, start_ns: int):
         self.rec = rec
         self.shown = False
-        self.rows = Columns(rec, E.MARKER, _marker_columns)
+        self.rows = Columns(rec, E.MARKER, _marker_columns, start_ns=start_ns)
 
     def log(self, tick: Tick, obs: Observation) -> None:
         if tick.new_frame is None:
@@ -262,9 +306,15 @@ class MarkerLogger:
         self.rows.flush()
 
 
+def axis_colors(color) -> np.ndarray:
+    """The x, y, z axes of a pose in its tracker's colour: x as is, y lighter, z darker (told
+    apart from each other, never mistaken for another tracker's)."""
+    c = np.asarray(color, dtype=float)
+    return np.array([c, c + (255.0 - c) * 0.5, c * 0.55], dtype=np.uint8)
+
+
 class _PoseTrackLogger:
-    """A pose (axes and a dot labelled with the name, in its colour) and its trajectory so far
-    (one tracker, or the GT).
+    """A pose (axes and a dot, in its colour) and its trajectory so far (one tracker, or the GT).
 
     Poses are buffered and sent as columns by the owner, which is many times cheaper than one
     ``log`` per tick; a missing pose clears the entity at once.
@@ -273,12 +323,13 @@ class _PoseTrackLogger:
     are re-logged at ``<trajectory>/open`` (every ``TRAJECTORY_EVERY_TICKS``); then they are
     logged once, for good, as ``<trajectory>/NNNN`` and the open part starts again from the last
     point. At any time the viewer's latest-at shows the closed parts logged so far plus the open
-    one: the trajectory so far, without re-sending it all every second. Trajectories carry no
-    label: the name is on the dot, once per tracker.
+    one: the trajectory so far, without re-sending it all every second. The name is the dot's
+    label, kept as data (hover, selection) but not drawn: nine estimates lie within centimetres of
+    each other and their labels would cover the scene; the metrics panel names the colours.
     """
 
     def __init__(self, rec: rr.RecordingStream, pose_path: str, trajectory_path: str, color, label: str,
-                 radius: float = TRAJECTORY_RADIUS_M):
+                 radius: float = TRAJECTORY_RADIUS_M, start_ns: int = 0):
         self.rec = rec
         self.pose_path = pose_path
         self.trajectory_path = trajectory_path
@@ -291,13 +342,19 @@ class _PoseTrackLogger:
         self.shown = False
         self.dirty = 0
         rgb = np.array([color], np.uint8)
-        self.rows = Columns(rec, pose_path, lambda f: [
-            *transform_columns(f),
-            *rr.TransformAxes3D.columns(axis_length=np.full(len(f["translation"]), AXIS_LENGTH_M, np.float32)),
-            *rr.Points3D.columns(positions=np.zeros((len(f["translation"]), 3), np.float32),
-                                 colors=np.repeat(rgb, len(f["translation"]), axis=0),
-                                 radii=np.full(len(f["translation"]), DOT_RADIUS_M, np.float32),
-                                 labels=[label] * len(f["translation"]))])
+        axes = np.eye(3, dtype=np.float32) * AXIS_LENGTH_M
+        shades = axis_colors(color)
+
+        def make(f: dict[str, list]) -> list:
+            n = len(f["translation"])
+            return [*transform_columns(f),
+                    *rr.Arrows3D.columns(vectors=np.tile(axes, (n, 1)), colors=np.tile(shades, (n, 1)),
+                                         radii=np.full(3 * n, AXIS_RADIUS_M, np.float32)).partition([3] * n),
+                    *rr.Points3D.columns(positions=np.zeros((n, 3), np.float32), colors=np.repeat(rgb, n, axis=0),
+                                         radii=np.full(n, DOT_RADIUS_M, np.float32), labels=[label] * n,
+                                         show_labels=[False] * n)]
+
+        self.rows = Columns(rec, pose_path, make, start_ns=start_ns)
 
     def log(self, tick: Tick, pose: Pose | None) -> None:
         self.open_ticks += 1
@@ -351,8 +408,9 @@ class ErrorLogger:
     """Per-tracker position (cm) and rotation (deg) error against GT, over the task window (the
     metrics' window, no alignment, as p_ATE / r_ATE are computed), as scalars sent in columns."""
 
-    def __init__(self, rec: rr.RecordingStream, names: list[str]):
+    def __init__(self, rec: rr.RecordingStream, names: list[str], start_ns: int):
         self.rec = rec
+        self.start_ns = start_ns
         self.rows: dict[str, list] = {name: [] for name in names}
         for name in names:
             style = rr.SeriesLines(colors=[tracker_color(name)], names=[name], widths=[line_width(name)])
@@ -374,7 +432,7 @@ class ErrorLogger:
             t = [r[1] for r in rows]
             gt = Pose.from_xyzw(np.vstack([r[2].translation for r in rows]), np.vstack([r[2].quat_xyzw for r in rows]))
             est = Pose.from_xyzw(np.vstack([r[3].translation for r in rows]), np.vstack([r[3].quat_xyzw for r in rows]))
-            index = time_columns(t, idx)
+            index = time_columns(t, idx, self.start_ns)
             self.rec.send_columns(E.position_error(name), indexes=index,
                                   columns=rr.Scalars.columns(scalars=translation_errors(gt, est) * 100.0))
             self.rec.send_columns(E.rotation_error(name), indexes=index,
@@ -414,16 +472,19 @@ class PlaybackRerunLogger:
     ``session`` and ``params`` (the playback's options that change its result: ``rate_hz``,
     ``correction_math``, ``start_s``, ``end_s``, ``hand_eye``) make the recording id and name.
     ``rrd_path`` is written as given (the caller checks it and may pass a temporary name).
+    ``session_start_ns``: where ``session_time`` is zero (the session's first message; default the
+    task's start).
     """
 
     def __init__(self, context: SessionContext, tracker_names: list[str], *, session: str | os.PathLike | None = None,
-                 params: dict | None = None, session_name: str | None = None,
+                 params: dict | None = None, session_name: str | None = None, session_start_ns: int | None = None,
                  rrd_path: str | os.PathLike | None = None, spawn: bool = False,
                  trajectory_every: int = TRAJECTORY_EVERY_TICKS, columns_every: int | None = None,
                  recording: rr.RecordingStream | None = None):
         params = dict(params or {}, trackers=list(tracker_names))
         self.context = context
         self.tracker_names = list(tracker_names)
+        self.start_ns = int(session_start_ns if session_start_ns is not None else context.task_start_ns or 0)
         self.blueprint_sent = False
         self.rrd_path = rrd_path if recording is None and not spawn else None
         if recording is not None:
@@ -439,14 +500,16 @@ class PlaybackRerunLogger:
                                       start_time_ns=context.task_start_ns)
         rec = self.rec
         rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self.camera = CameraLogger(rec, context)
-        self.markers = MarkerLogger(rec)
+        start = self.start_ns
+        self.camera = CameraLogger(rec, context, start)
+        self.markers = MarkerLogger(rec, start)
         self.task = TaskLogger(rec, context)
         self.status = StatusLogger(rec)
-        self.gt = _PoseTrackLogger(rec, E.GT_CONTROLLER, E.GT_TRAJECTORY, GT_COLOR, "GT", radius=GT_TRAJECTORY_RADIUS_M)
+        self.gt = _PoseTrackLogger(rec, E.GT_CONTROLLER, E.GT_TRAJECTORY, GT_COLOR, "GT", radius=GT_TRAJECTORY_RADIUS_M,
+                                   start_ns=start)
         self.trackers = {name: _PoseTrackLogger(rec, E.tracker_pose(name), E.tracker_trajectory(name),
-                                                tracker_color(name), name) for name in tracker_names}
-        self.errors = ErrorLogger(rec, tracker_names)
+                                                tracker_color(name), name, start_ns=start) for name in tracker_names}
+        self.errors = ErrorLogger(rec, tracker_names, start)
         if columns_every is None:
             columns_every = COLUMNS_EVERY_TICKS_LIVE if spawn else COLUMNS_EVERY_TICKS_FILE
         self.columns_every = max(1, int(columns_every))
@@ -458,7 +521,7 @@ class PlaybackRerunLogger:
     @property
     def blueprint(self) -> rrb.Blueprint:
         """The layout without the eye framing (that needs the display's pose, see :meth:`send_blueprint`)."""
-        return default_blueprint(self.tracker_names, self.context)
+        return default_blueprint(self.tracker_names, self.context, start_ns=self.start_ns)
 
     def send_blueprint(self, T_dvio_display: Pose | None) -> None:
         """The default blueprint, its 3D eye framed on the display camera (at ``T_dvio_display``) and the task."""
@@ -468,12 +531,14 @@ class PlaybackRerunLogger:
         elif T_dvio_display is not None:
             cam_pos = T_dvio_display.translation
         self.rec.send_blueprint(default_blueprint(self.tracker_names, self.context,
-                                                  None if cam_pos is None else np.asarray(cam_pos).reshape(3)),
+                                                  None if cam_pos is None else np.asarray(cam_pos).reshape(3),
+                                                  start_ns=self.start_ns),
                                 make_active=True, make_default=True)
         self.blueprint_sent = True
 
     def set_time(self, tick: Tick) -> None:
         self.rec.set_time(E.TICK, sequence=tick.index)
+        self.rec.set_time(E.SESSION_TIME, duration=np.timedelta64(int(tick.t_ns) - self.start_ns, "ns"))
         self.rec.set_time(E.TIME, timestamp=np.datetime64(int(tick.t_ns), "ns"))
 
     def log_tick(self, tick: Tick, obs: Observation, poses: dict[str, Pose | None], gt: Pose | None = None) -> None:
@@ -515,6 +580,11 @@ class PlaybackRerunLogger:
     def flush(self) -> None:
         self.flush_columns()
         self.flush_trajectories()
+
+    def log_metrics(self, metrics: dict) -> None:
+        """The metrics table (the metrics.json document) and the colour legend, static at ``/metrics``."""
+        self.rec.log(E.METRICS, rr.TextDocument(metrics_markdown(metrics), media_type=rr.MediaType.MARKDOWN),
+                     static=True)
 
     def close(self) -> None:
         if not self.blueprint_sent:

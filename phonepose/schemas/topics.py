@@ -49,6 +49,7 @@ TOPIC_TYPES: dict[str, type[Message]] = {
     Topic.CAMERA_FRUSTUM: PointCloud,
     Topic.PIPELINE_MARKERS: pb.MarkerDetections,
     Topic.PIPELINE_MARKER_ANNOTATIONS: ImageAnnotations,
+    Topic.TF_TRACKERS: FrameTransform,
 }
 
 

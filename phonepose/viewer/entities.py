@@ -21,9 +21,11 @@ trackers report in and the only one every session has (the motion-capture world 
     /errors/rotation_deg/<name>             playback: rotation error against GT, degrees (Scalars)
     /status/task                            playback: calibration / task / after (StateChange)
     /status/marker                          playback: marker in view / out of view (StateChange)
+    /metrics                                playback: the metrics table and the colour legend (TextDocument, static)
     /imu/gyro, /imu/accel                   record: controller IMU (Scalars, 3 series each)
 
-Timelines: ``time`` (timestamp on the display's clock) in both; ``tick`` (sequence) in playback.
+Timelines: ``time`` (timestamp on the display's clock) in both; in playback also ``session_time``
+(duration since the session's first message, the default) and ``tick`` (sequence).
 """
 
 from __future__ import annotations
@@ -48,11 +50,13 @@ ROTATION_ERRORS = "/errors/rotation_deg"
 STATUS = "/status"
 STATUS_TASK = "/status/task"
 STATUS_MARKER = "/status/marker"
+METRICS = "/metrics"
 IMU_GYRO = "/imu/gyro"
 IMU_ACCEL = "/imu/accel"
 
 TIME = "time"      # timestamp timeline, the display's clock
 TICK = "tick"      # sequence timeline, the playback tick index
+SESSION_TIME = "session_time"   # duration timeline: seconds since the session's first message (playback)
 
 
 def tracker_pose(name: str) -> str:

@@ -11,11 +11,13 @@ from phonepose.viewer import entities as E
 from phonepose.viewer.style import TASK_COLOR
 
 IMAGE_PLANE_DISTANCE_M = 0.1   # how far in front of the camera the frustum draws the image
+WORKING_DEPTH_M = 0.3          # where the phone is held in front of the display camera (26-37 cm)
 
 
 def log_camera(rec: rr.RecordingStream, T_display_camera: Pose | None = None, K=None, width: int | None = None,
-               height: int | None = None) -> None:
-    """The display camera on the display body (static extrinsics) and its pinhole (static)."""
+               height: int | None = None, image_plane_distance: float = IMAGE_PLANE_DISTANCE_M) -> None:
+    """The display camera on the display body (static extrinsics) and its pinhole (static), its
+    frustum drawn out to ``image_plane_distance``."""
     if T_display_camera is not None:
         rec.log(E.CAMERA, rr.Transform3D(translation=np.asarray(T_display_camera.translation, np.float32).reshape(3),
                                          quaternion=rr.Quaternion(xyzw=np.asarray(T_display_camera.quat_xyzw,
@@ -24,7 +26,7 @@ def log_camera(rec: rr.RecordingStream, T_display_camera: Pose | None = None, K=
     if K is not None and width is not None and height is not None:
         rec.log(E.IMAGE, rr.Pinhole(image_from_camera=np.asarray(K, np.float32).reshape(3, 3),
                                     resolution=[int(width), int(height)], camera_xyz=rr.ViewCoordinates.RDF,
-                                    image_plane_distance=IMAGE_PLANE_DISTANCE_M), static=True)
+                                    image_plane_distance=float(image_plane_distance)), static=True)
 
 
 def log_task(rec: rr.RecordingStream, targets: TaskTargets | None = None, path: TaskPath | None = None) -> None:

@@ -24,7 +24,7 @@ import numpy as np
 import rerun as rr
 
 from phonepose.errors import ConfigError, OutputError
-from phonepose.viewer.entities import TICK, TIME
+from phonepose.viewer.entities import SESSION_TIME, TICK, TIME
 
 VIEWER_PORT = 9876                      # rerun's own default: a viewer already listening there is reused
 VIEWER_BIND = "127.0.0.1"               # the spawned viewer's server address unless PHONEPOSE_VIEWER_BIND says another
@@ -162,12 +162,16 @@ def _file_size_limit() -> int | None:
     return None if limit == resource.RLIM_INFINITY else limit
 
 
-def time_columns(t_ns, ticks=None) -> list:
-    """The index columns of a batch of rows: ``time`` (and ``tick`` when given)."""
+def time_columns(t_ns, ticks=None, start_ns: int | None = None) -> list:
+    """The index columns of a batch of rows: ``time`` (and ``tick`` when given, and ``session_time``,
+    the duration since ``start_ns``, when that is given)."""
     out = []
+    t = np.asarray(t_ns, dtype=np.int64)
     if ticks is not None:
         out.append(rr.TimeColumn(TICK, sequence=np.asarray(ticks, dtype=np.int64)))
-    out.append(rr.TimeColumn(TIME, timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]")))
+    if start_ns is not None:
+        out.append(rr.TimeColumn(SESSION_TIME, duration=(t - np.int64(start_ns)).astype("timedelta64[ns]")))
+    out.append(rr.TimeColumn(TIME, timestamp=t.astype("datetime64[ns]")))
     return out
 
 
@@ -176,12 +180,14 @@ class Columns:
 
     ``make(fields)`` turns the buffered field lists (one list per keyword given to :meth:`add`)
     into Rerun component columns, e.g. ``lambda f: rr.Scalars.columns(scalars=f["value"])``.
-    Rows carry their own ``time`` (and ``tick``), so a flush at any moment is correct.
+    Rows carry their own ``time`` (and ``tick``, and ``session_time`` from ``start_ns``), so a
+    flush at any moment is correct.
     """
 
     def __init__(self, rec: rr.RecordingStream, path: str, make: Callable[[dict[str, list]], Any],
-                 with_ticks: bool = True):
+                 with_ticks: bool = True, start_ns: int | None = None):
         self.rec = rec
+        self.start_ns = start_ns
         self.path = path
         self.make = make
         self.with_ticks = with_ticks
@@ -204,7 +210,8 @@ class Columns:
         if not self.t:
             return
         columns = self.make(self.fields)
-        self.rec.send_columns(self.path, indexes=time_columns(self.t, self.ticks if self.with_ticks else None),
+        self.rec.send_columns(self.path, indexes=time_columns(self.t, self.ticks if self.with_ticks else None,
+                                                                      self.start_ns),
                               columns=columns)
         self.t, self.ticks, self.fields = [], [], {}
 

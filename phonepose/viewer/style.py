@@ -32,6 +32,10 @@ TRACKER_COLORS: dict[str, RGB] = {
     "T7L": (214, 39, 40),     # tab:red
     "T8": (44, 160, 44),      # tab:green
 }
+COLOR_NAMES: dict[RGB, str] = {(31, 119, 180): "blue", (255, 127, 14): "orange", (23, 190, 207): "cyan",
+                               (148, 103, 189): "purple", (188, 189, 34): "olive", (227, 119, 194): "pink",
+                               (140, 86, 75): "brown", (214, 39, 40): "red", (44, 160, 44): "green",
+                               GT_COLOR: "grey"}
 # trackers registered by users (phonepose.pipeline.trackers.register): a stable pick by name
 EXTRA_COLORS: list[RGB] = [(0, 95, 115), (174, 32, 18), (202, 103, 2), (106, 76, 147), (25, 130, 196),
                            (138, 201, 38), (255, 89, 94), (255, 202, 58)]
@@ -49,6 +53,12 @@ def tracker_color(name: str) -> RGB:
     if color is None:
         color = EXTRA_COLORS[zlib.crc32(name.encode()) % len(EXTRA_COLORS)]
     return color
+
+
+def color_name(name: str) -> str:
+    """The colour of tracker ``name`` in words (the legend): ``blue``, or ``#rrggbb`` for a user's tracker."""
+    rgb = tracker_color(name)
+    return COLOR_NAMES.get(rgb, hex_color(rgb))
 
 
 def line_width(name: str) -> float:
