@@ -90,7 +90,7 @@ def test_playback_moves_the_ground_truth_by_exactly_the_file(tmp_path):
     write_test_session(session)
     save_hand_eye(tmp_path / "he.yaml", HandEye(T_controller_mocap=X_TRUE, time_offset_s=0.05))
     plain = run_playback(session, trackers="T1", write_outputs=False)
-    moved = run_playback(session, trackers="T1", write_outputs=False, hand_eye=tmp_path / "he.yaml")
+    moved = run_playback(session, trackers="T1", write_outputs=False, gt_calibration=tmp_path / "he.yaml")
     by_tick = {int(s): k for k, s in enumerate(plain.gt_stamps_ns)}
     pairs = [(k, by_tick[int(s) + 50_000_000]) for k, s in enumerate(moved.gt_stamps_ns) if int(s) + 50_000_000 in by_tick]
     assert len(pairs) >= len(moved.gt_stamps_ns) - 2

@@ -370,7 +370,7 @@ def run_motion(out: Path) -> dict:
             if not exact:
                 hand_eye = out / f"{name}-hand-eye.yaml"
                 save_hand_eye(hand_eye, hand_eye_from_session(session))
-            r = run_playback(session, trackers=["all"], write_outputs=False, hand_eye=hand_eye)
+            r = run_playback(session, trackers=["all"], write_outputs=False, gt_calibration=hand_eye)
             results.setdefault(name, {})[gt] = _trim_motion(r.metrics)
     return results
 

@@ -75,21 +75,21 @@ def run_sequence(job: SequenceJob, record_progress: Callable[[int, int | None], 
     record_sim(session, scenario=job.scenario, path=job.path, trial=job.trial, seed=job.seed, config=config,
                config_file=job.config, progress=record_progress)
     rrd = out / "rerun" / f"{job.name}.rrd" if job.rerun else None
-    hand_eye = hand_eye_name = None
+    gt_calibration = gt_calibration_name = None
     if job.hand_eye:
         from phonepose.calibration.hand_eye import hand_eye_from_session, save_hand_eye
-        hand_eye = out / "hand_eye" / f"{job.name}.yaml"
-        hand_eye_name = str(Path(job.final_dir or job.out_dir) / "hand_eye" / hand_eye.name)
-        save_hand_eye(hand_eye, hand_eye_from_session(session))
+        gt_calibration = out / "hand_eye" / f"{job.name}.yaml"
+        gt_calibration_name = str(Path(job.final_dir or job.out_dir) / "hand_eye" / gt_calibration.name)
+        save_hand_eye(gt_calibration, hand_eye_from_session(session))
     if job.calibrate_gt:
         from phonepose.calibration.calibrate_gt import calibrate_gt_session
         from phonepose.calibration.gt_calibration import save_gt_calibration
-        hand_eye = out / "gt_calibration" / f"{job.name}.yaml"
-        hand_eye_name = str(Path(job.final_dir or job.out_dir) / "gt_calibration" / hand_eye.name)
-        save_gt_calibration(hand_eye, calibrate_gt_session(session))
+        gt_calibration = out / "gt_calibration" / f"{job.name}.yaml"
+        gt_calibration_name = str(Path(job.final_dir or job.out_dir) / "gt_calibration" / gt_calibration.name)
+        save_gt_calibration(gt_calibration, calibrate_gt_session(session))
     result = run_playback(session, trackers=["all", *job.trackers], out_dir=out / "playback" / job.name,
-                          correction_math=job.correction_math, rerun_path=rrd, hand_eye=hand_eye,
-                          hand_eye_name=hand_eye_name, progress=playback_progress)
+                          correction_math=job.correction_math, rerun_path=rrd, gt_calibration=gt_calibration,
+                          gt_calibration_name=gt_calibration_name, progress=playback_progress)
     return {"name": job.name, "path": job.path, "trial": job.trial, "seed": job.seed,
             **sequence_arrays(result, session), "rerun": None if rrd is None else str(rrd)}
 

@@ -237,7 +237,7 @@ class PlaybackOptions:
     default blueprint); ``spawn`` streams to a new viewer instead. ``write_outputs=False`` keeps
     everything in memory (no files, no trackers.mcap). ``stages_factory``/``tracker_factory``
     replace the pipeline's SharedStages / make_trackers (tests, experiments). ``gt_calibration`` is a
-    file from ``phonepose calibrate-gt`` or ``calibrate-hand-eye`` (``hand_eye`` is its old name): the
+    file from ``phonepose calibrate-gt`` or ``calibrate-hand-eye``: the
     ground truth is moved into the phone's frame, clock and display_vio before any metric
     (docs/calibration.md); metrics.json names it ``gt_calibration_name`` if given (an experiment's file,
     read from the folder before it is renamed into place). ``gt_file`` (TUM or EuRoC, ``gt_format``)
@@ -261,16 +261,13 @@ class PlaybackOptions:
     gt_calibration_name: str | None = None
     gt_file: str | os.PathLike | None = None
     gt_format: str | None = None
-    hand_eye: str | os.PathLike | None = None
-    hand_eye_name: str | None = None
     tick_timeout_s: float | None = None    # each tracker step at most this long (phonepose.playback.watchdog)
 
 
 def _ground_truth(options: PlaybackOptions) -> GroundTruthSetup:
-    """The GT calibration and sidecar ground truth to apply (``hand_eye`` is the calibration's old name)."""
+    """The GT calibration and sidecar ground truth to apply."""
     o = options
-    return ground_truth_setup(o.gt_calibration if o.gt_calibration is not None else o.hand_eye,
-                              o.gt_calibration_name or o.hand_eye_name, o.gt_file, o.gt_format)
+    return ground_truth_setup(o.gt_calibration, o.gt_calibration_name, o.gt_file, o.gt_format)
 
 
 def _make_trackers(options: PlaybackOptions) -> tuple[list[Tracker], str]:
