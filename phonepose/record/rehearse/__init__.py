@@ -89,7 +89,7 @@ def rehearse(out_dir: str | os.PathLike, *, scenario: str = "exp2", path: str | 
         if tracking is not None and run.tracking:
             from phonepose.playback.livecheck import check_live
 
-            echo("playback --check-live of the rehearsed session ...")
+            echo("the live estimates against a playback of the rehearsed session ...")
             for c in check_live(folder / "live.mcap"):
                 run.tracking.append(f"live {c.tracker} vs playback: {c.identical} of {c.compared} ticks identical"
                                     + (f", {c.different} different" if c.different else ""))
