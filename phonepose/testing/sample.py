@@ -21,6 +21,7 @@ from phonepose.geometry import Pose
 from phonepose.schemas import phonepose_pb2 as pb
 from phonepose.schemas.topics import Frame, Topic, tracker_pose_topic
 from phonepose.session.codec import encode_pose, frame_transform, pose_in_frame
+from phonepose.topics import tracker_frame
 from phonepose.viewer.frames import FrameTree
 
 T0_NS = 1_700_000_000_000_000_000
@@ -97,6 +98,7 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[str, Message, int]]:
         (Topic.LOG, log, t0_ns),
         (Topic.PIPELINE_MARKERS, det, t0_ns),
         (tracker_pose_topic("T7"), pose_in_frame(p, Frame.DISPLAY_VIO, t0_ns), t0_ns),
+        (Topic.TF_TRACKERS, frame_transform(p, Frame.DISPLAY_VIO, tracker_frame("T7"), t0_ns), t0_ns),
     ]
     # the frame tree the recorder writes beside these (/tf/..., the marker and camera point clouds)
     tree = FrameTree()
