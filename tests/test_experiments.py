@@ -161,7 +161,7 @@ def test_demo_runs_with_no_arguments_and_leaves_its_outputs(tmp_path):
     assert (out / "demo.rrd").stat().st_size > 100_000 and (out / "fig11_TRI2_01.png").exists()
     assert "rerun " in r.stdout and "demo.rrd" in r.stdout
     # the hint it prints about r_ATE holds: the session's rigid body is 11 deg off the phone
-    assert "calibrate-hand-eye" in r.stdout and "--hand-eye he.yaml" in r.stdout
+    assert "calibrate-hand-eye" in r.stdout and "--gt-calibration he.yaml" in r.stdout
     he = run("calibrate-hand-eye", str(out / "TRI2_01.mcap"), "-o", "he.yaml", cwd=tmp_path)
     assert he.returncode == 0 and "rigid body turned 11." in he.stdout, he.stderr
 

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from phonepose.pipeline.trackers import make_trackers
 from phonepose.playback.livecheck import check_live
-from phonepose.playback.livereport import live_report
+from phonepose.playback.livereport import live_report, summary_lines
 from phonepose.record.live.posestream import PoseStreamServer
 from phonepose.record.live.tracking import HOLD_BACK_NS, LiveTracker, StreamMerger
 from phonepose.record.source import Record
@@ -240,14 +240,23 @@ def test_rehearsed_recording_tracks_live_as_playback_does(tmp_path):
     report = live_report(live)
     assert report is not None and report["dropped"] == 0 and not report["stopped"]
     assert report["ticks"] > 20 * 30   # the lead-in and the motion at 20 Hz
-    for c in check_live(live):
-        assert c.compared == report["ticks"] and c.identical == c.compared, c
-    assert any(line.startswith("live T8: ") for line in result.tracking)
-    # the rehearsal's own summary: identity per tracker, and what an application reading the stream received
     n = report["ticks"]
-    assert f"live T8 vs playback: {n} of {n} ticks identical" in result.tracking
-    assert f"live T4 vs playback: {n} of {n} ticks identical" in result.tracking
-    assert f"pose stream: an application client received {2 * n} estimate(s)" in result.tracking
+    checks = check_live(live)
+    assert [c.tracker for c in checks] == ["T8", "T4"] and all(c.compared == n for c in checks)
+    assert any(line.startswith("live T8: ") for line in result.tracking)
+    # the rehearsal's own summary says per tracker what --check-live says
+    for c in checks:
+        want = f"live {c.tracker} vs playback: {c.identical} of {n} ticks identical"
+        assert (want + (f", {c.different} different" if c.different else "")) in result.tracking
+    if not report["late"]:
+        # no stream fell more than the hold-back behind (a machine starved of CPU can delay the browser's pages
+        # that long: then the late messages are counted and --check-live shows the ticks they changed)
+        assert all(c.identical == n for c in checks), checks
+    else:
+        assert any(line.startswith("live tracking took late messages") for line in summary_lines(report))
+    received = [line for line in result.tracking if line.startswith("pose stream: an application client received")]
+    dropped = any("dropped for slow clients" in line for line in result.tracking)
+    assert received == [f"pose stream: an application client received {2 * n} estimate(s)"] or dropped, received
 
 
 def _damaged_reports(good: dict) -> list[str]:
