@@ -535,6 +535,13 @@ def test_a_killed_run_leaves_the_earlier_output_as_it_was(w: Writer, moment, goo
         if child.returncode == 0 or (sig == signal.SIGKILL and new != old):
             assert new != old and _complete(d / name), (name, child.returncode, err)   # the run's own, whole
             assert "phonepose: error:" not in err, err
+        elif w.id == "batch" and sig == signal.SIGTERM and new != old:
+            # a stopped batch writes the rows it finished first (docs/reliability.md, "Stopping a batch"): the
+            # table is then a whole one, never a part
+            assert _complete(d / name) and child.returncode == 143, (name, child.returncode, err)
+            from phonepose.batch.table import read_rows
+            (tmp_path / "earlier.parquet").write_bytes(old[name][1])
+            assert set(read_rows(tmp_path / "earlier.parquet")) <= set(read_rows(d / name))   # the earlier rows kept
         else:
             assert new == old, (name, child.returncode, err)            # byte for byte the earlier one
     if sig == signal.SIGTERM and child.returncode not in (0, -signal.SIGTERM):   # (-15: before the command began)
