@@ -10,8 +10,10 @@ test slower, and a condition that never comes fails with a message naming it.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
-from collections.abc import Awaitable, Callable
+import signal
+from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
 from typing import NamedTuple, TypeVar
 
@@ -74,6 +76,21 @@ def require_browser() -> str | None:
         pytest.skip(reason)
     from phonepose.record.rehearse.browser import find_chromium
     return find_chromium()
+
+
+@contextlib.contextmanager
+def deadline(seconds: int) -> Iterator[None]:
+    """A call that blocks (a FIFO opened by mistake) fails the test with TimeoutError instead of hanging it
+    (SIGALRM: POSIX only, as the FIFO cases are)."""
+    def expired(signum, frame):
+        raise TimeoutError(f"no answer within {seconds} s")
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
 
 
 def pytest_collection_modifyitems(config, items) -> None:

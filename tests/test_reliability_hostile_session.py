@@ -5,15 +5,14 @@ every command answers in one line and its exit code, at once.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import re
-import signal
 import sys
 from pathlib import Path
 
 import pytest
+from conftest import deadline
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.writer import Writer
@@ -31,20 +30,6 @@ def good(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("hostile") / "good.mcap"
     write_test_session(path, duration_s=2.0)
     return path
-
-
-@contextlib.contextmanager
-def deadline(seconds: int):
-    """A command that blocks (a FIFO opened by mistake) fails the test instead of hanging it."""
-    def expired(signum, frame):
-        raise TimeoutError(f"no answer within {seconds} s")
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def one_error_line(err: str) -> str:

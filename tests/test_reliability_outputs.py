@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import DEADLINE_S, wait_until
+from conftest import DEADLINE_S, deadline, wait_until
 from test_reliability_data import mounted_tmpfs
 
 from phonepose.files import MANIFEST, TMP_SUFFIX
@@ -179,20 +179,6 @@ def snapshot(root: Path) -> dict[str, tuple]:
 
 def outside(snap: dict, named: list[str]) -> dict:
     return {k: v for k, v in snap.items() if not any(k == n or k.startswith(n + "/") for n in named)}
-
-
-@contextlib.contextmanager
-def deadline(seconds: int):
-    """A FIFO opened by mistake would block forever: fail the test instead."""
-    def expired(signum, frame):
-        raise TimeoutError(f"no answer within {seconds} s")
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 @pytest.fixture(scope="module")
